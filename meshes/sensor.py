@@ -1,0 +1,240 @@
+"""Sensor descriptions: an insulating cylinder with electrodes along its axis.
+
+Conventions (used everywhere in electrosense)
+-------------------------------------------
+* Sensor frame: the x axis is the sensor axis, origin at the middle of the
+  sensor, the head at +x and the tail at -x.
+* Electrodes are numbered 1..n in geometric order from the head: electrode 1
+  is the head end cap, electrode n the tail end cap.
+* The emitter is, by default, the last electrode (the tail), as in the paper
+  and in the bench-log spec; every other electrode is a receiver.
+* Lengths are in metres.
+
+An electrode is described by its axial extent ``[x_min_m, x_max_m]`` in the
+sensor frame. An end cap (``kind="cap"``) is the hemisphere closing the
+cylinder at that end plus, where its extent reaches further inwards than the
+hemisphere, the adjacent strip of the cylinder; a ring (``kind="ring"``) is a
+band of the cylinder. Everything not covered by an electrode is insulating.
+
+Example
+-------
+>>> from meshes.sensor import preset
+>>> s = preset("angels-4")
+>>> s.n_electrodes, s.emitter
+(4, 4)
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Electrode", "SensorDescription", "preset", "PRESETS", "load_sensor", "save_sensor"]
+
+
+@dataclass(frozen=True)
+class Electrode:
+    """One electrode of a sensor.
+
+    Parameters
+    ----------
+    kind : {"cap", "ring"}
+        ``"cap"``: hemispherical end electrode (optionally with a cylindrical
+        collar); ``"ring"``: a band of the cylinder.
+    x_min_m, x_max_m : float
+        Axial extent in the sensor frame (m). For the head cap ``x_max_m`` is
+        the tip (``length_m / 2``); for the tail cap ``x_min_m`` is the tip.
+    """
+
+    kind: str
+    x_min_m: float
+    x_max_m: float
+
+    @property
+    def x_centre_m(self) -> float:
+        return 0.5 * (self.x_min_m + self.x_max_m)
+
+
+@dataclass(frozen=True)
+class SensorDescription:
+    """An insulating cylinder with hemispherical ends and electrodes.
+
+    Parameters
+    ----------
+    name : str
+        Preset name or a user's label.
+    radius_m : float
+        Radius of the cylinder and of the hemispherical ends (m).
+    length_m : float
+        Tip-to-tip length, hemispheres included (m).
+    electrodes : tuple of Electrode
+        Ordered head (+x) to tail (-x): electrode 1 first.
+    emitter : int
+        1-based number of the emitting electrode (default: the last one).
+    """
+
+    name: str
+    radius_m: float
+    length_m: float
+    electrodes: tuple[Electrode, ...]
+    emitter: int = 0  # 0 means "the last electrode"
+    notes: str = ""
+
+    def __post_init__(self):
+        if self.emitter == 0:
+            object.__setattr__(self, "emitter", len(self.electrodes))
+        self.validate()
+
+    # ------------------------------------------------------------------ derived
+    @property
+    def n_electrodes(self) -> int:
+        return len(self.electrodes)
+
+    @property
+    def receivers(self) -> tuple[int, ...]:
+        """1-based numbers of the receiving electrodes, in electrode order."""
+        return tuple(k for k in range(1, self.n_electrodes + 1) if k != self.emitter)
+
+    @property
+    def electrode_centres_m(self) -> np.ndarray:
+        """(n, 3) centres of the electrodes' axial extents, sensor frame (m)."""
+        c = np.zeros((self.n_electrodes, 3))
+        c[:, 0] = [e.x_centre_m for e in self.electrodes]
+        return c
+
+    def with_emitter(self, emitter: int) -> "SensorDescription":
+        return replace(self, emitter=emitter)
+
+    # --------------------------------------------------------------- validation
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the part when the description is impossible."""
+        name = self.name or "sensor"
+        if not (self.radius_m > 0 and np.isfinite(self.radius_m)):
+            raise ValueError(f"{name}: radius_m must be positive, got {self.radius_m}")
+        if not self.length_m > 2 * self.radius_m:
+            raise ValueError(f"{name}: length_m ({self.length_m}) must exceed the diameter ({2 * self.radius_m})")
+        n = len(self.electrodes)
+        if n < 2:
+            raise ValueError(f"{name}: a sensor needs at least 2 electrodes, got {n}")
+        if not 1 <= self.emitter <= n:
+            raise ValueError(f"{name}: emitter {self.emitter} is not an electrode number (1..{n})")
+        half = 0.5 * self.length_m
+        for k, e in enumerate(self.electrodes, start=1):
+            if e.kind not in ("cap", "ring"):
+                raise ValueError(f"{name}: electrode {k} has unknown kind {e.kind!r} (cap or ring)")
+            if not e.x_min_m < e.x_max_m:
+                raise ValueError(f"{name}: electrode {k} has x_min_m >= x_max_m ({e.x_min_m} >= {e.x_max_m})")
+            if e.x_min_m < -half - 1e-12 or e.x_max_m > half + 1e-12:
+                raise ValueError(f"{name}: electrode {k} extends beyond the sensor tips (+-{half} m)")
+            if e.kind == "cap":
+                at_head = abs(e.x_max_m - half) < 1e-12
+                at_tail = abs(e.x_min_m + half) < 1e-12
+                if not (at_head or at_tail):
+                    raise ValueError(f"{name}: electrode {k} is a cap but does not reach a tip")
+            else:
+                if e.x_min_m < -half + self.radius_m - 1e-12 or e.x_max_m > half - self.radius_m + 1e-12:
+                    raise ValueError(f"{name}: ring electrode {k} reaches onto a hemispherical end")
+        # geometric order head -> tail, no overlap or touching
+        for k in range(1, n):
+            a, b = self.electrodes[k - 1], self.electrodes[k]
+            if not b.x_max_m < a.x_min_m:
+                raise ValueError(
+                    f"{name}: electrodes {k} and {k + 1} touch or overlap, or are not ordered head (+x) to tail (-x)"
+                )
+
+    # -------------------------------------------------------------------- files
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["electrodes"] = [asdict(e) for e in self.electrodes]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SensorDescription":
+        try:
+            electrodes = tuple(Electrode(**e) for e in d["electrodes"])
+            return cls(
+                name=d.get("name", ""),
+                radius_m=float(d["radius_m"]),
+                length_m=float(d["length_m"]),
+                electrodes=electrodes,
+                emitter=int(d.get("emitter", 0)),
+                notes=d.get("notes", ""),
+            )
+        except KeyError as exc:
+            raise ValueError(f"sensor description lacks the key {exc}") from None
+        except TypeError as exc:
+            raise ValueError(f"sensor description has a malformed electrode: {exc}") from None
+
+
+def _angels(n: int) -> SensorDescription:
+    """Preset geometry of the paper's sensors (see ``PRESETS`` for the choices)."""
+    length, radius = _ANGELS_DIMENSIONS["length_m"], _ANGELS_DIMENSIONS["radius_m"]
+    half = 0.5 * length
+    cap = _ANGELS_DIMENSIONS["cap_extent_m"]
+    electrodes = [Electrode("cap", half - cap, half)]
+    if n == 4:
+        w, xc = _ANGELS_DIMENSIONS["ring_width_m"], _ANGELS_DIMENSIONS["ring_centre_m"]
+        electrodes += [Electrode("ring", xc - w / 2, xc + w / 2), Electrode("ring", -xc - w / 2, -xc + w / 2)]
+    electrodes.append(Electrode("cap", -half, -half + cap))
+    return SensorDescription(
+        name=f"angels-{n}", radius_m=radius, length_m=length, electrodes=tuple(electrodes), notes=_ANGELS_NOTES
+    )
+
+
+# The paper gives the 20 cm length only. The other dimensions are chosen so that
+# the free-space BEM reproduces the paper's S_BEM table (angels-4) and the
+# equivalent radius a = 0.71 cm (angels-2); see studies/fit_angels_presets.py.
+_ANGELS_DIMENSIONS = {
+    "length_m": 0.20,
+    "radius_m": 0.010,
+    "cap_extent_m": 0.010,  # hemisphere only
+    "ring_width_m": 0.010,
+    "ring_centre_m": 0.035,
+}
+_ANGELS_NOTES = (
+    "Paper sensor (Jawad et al.): 20 cm long; diameter, cap and ring extents are not given in the paper "
+    "and were chosen so that the free-space BEM matches the paper's S_BEM table."
+)
+
+PRESETS = {"angels-2": lambda: _angels(2), "angels-4": lambda: _angels(4)}
+
+
+def preset(name: str) -> SensorDescription:
+    """Return a preset sensor by name (``angels-2``, ``angels-4``)."""
+    try:
+        return PRESETS[name]()
+    except KeyError:
+        raise ValueError(f"unknown sensor preset {name!r}; known: {', '.join(sorted(PRESETS))}") from None
+
+
+def load_sensor(spec: str | Path, relative_to: str | Path | None = None) -> SensorDescription:
+    """A preset name, or a path to a sensor file (``.json`` or ``.toml``)."""
+    spec_str = str(spec)
+    if spec_str in PRESETS:
+        return preset(spec_str)
+    path = Path(spec_str)
+    if relative_to is not None and not path.is_absolute():
+        path = Path(relative_to) / path
+    if not path.exists():
+        raise ValueError(f"sensor {spec_str!r} is neither a preset ({', '.join(sorted(PRESETS))}) nor an existing file")
+    if path.suffix == ".toml":
+        import tomllib
+
+        data = tomllib.loads(path.read_text())
+        data = data.get("sensor", data)
+    else:
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: not valid JSON: {exc}") from None
+    try:
+        return SensorDescription.from_dict(data)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def save_sensor(sensor: SensorDescription, path: str | Path) -> None:
+    """Write a sensor description as JSON."""
+    Path(path).write_text(json.dumps(sensor.to_dict(), indent=2) + "\n")
