@@ -22,6 +22,7 @@ _COMMANDS = {
     "validate_cmd": "validate",
     "diagnose_cmd": "diagnose",
     "demo_cmd": "demo",
+    "study_cmd": "study",
 }
 
 
