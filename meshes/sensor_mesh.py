@@ -1,0 +1,256 @@
+"""Graded surface mesh of an axisymmetric sensor (hemispherical ends + cylinder).
+
+The sensor's surface is a surface of revolution about the x axis (sensor
+frame, :mod:`meshes.sensor`). Its meridian is parametrised by the arc length
+``s`` from the head tip (``s = 0``, x = +L/2) to the tail tip. The mesh is
+built ring by ring:
+
+1. **Rings along the axis.** Every electrode/insulator edge and both
+   cap/cylinder junctions are *breakpoints*: they fall exactly on a ring of
+   vertices, so no triangle straddles an electrode edge. Between breakpoints
+   the rings are placed by equidistributing ``1/h(s)``, with the target
+   spacing
+
+       h(s) = min(edge_length_m, h_edge + (grading - 1) * d(s)),
+
+   ``d(s)`` the arc length to the nearest electrode edge and
+   ``h_edge = edge_length_m / edge_refinement``. A linear size function is a
+   geometric progression of element sizes with ratio ``grading`` away from
+   the edge, where the current density is singular (~ r^-1/2).
+2. **Vertices around each ring.** Ring ``i`` of radius ``r_i`` gets
+   ``M_i = ceil(2 pi r_i / h_phi)`` vertices with
+   ``h_phi = min(edge_length_m, max_aspect * h(s_i))``: triangles are close
+   to equilateral where the axial spacing allows, and near the edges they
+   are at most ``max_aspect`` times longer around than along the axis, which
+   caps the number of triangles (the solution is nearly axisymmetric there,
+   the azimuthal direction needs little resolution).
+3. **Zipping.** Neighbouring rings of different counts are joined by the
+   classic advancing-front zip (always advance the ring whose next vertex
+   comes first in angle); the tips are fans.
+4. **True perimeter.** A ring of ``M`` vertices on the circle of radius ``r``
+   is an inscribed polygon whose perimeter is short by a factor
+   ``sin(pi/M)/(pi/M)`` (an area error ~ (2 pi/M)^2 / 6). Vertices are placed
+   at ``r * (pi/M) / sin(pi/M)`` so that every faceted ring has the true
+   perimeter, which removes the leading geometric error of the mesh.
+
+Faces are wound so that the normals point out of the sensor body (into the
+water); ``electrode`` holds the electrode number of each face (0 on the
+insulator) and the only region is ``"sensor"``.
+
+Example
+-------
+>>> from meshes.sensor import preset
+>>> from meshes.sensor_mesh import mesh_sensor
+>>> m = mesh_sensor(preset("angels-4"))
+>>> m.to_trimesh().is_watertight, m.electrodes
+(True, (1, 2, 3, 4))
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .labelled_mesh import LabelledMesh
+from .sensor import SensorDescription
+
+__all__ = ["mesh_sensor", "SensorProfile", "default_edge_length_m"]
+
+
+def default_edge_length_m(sensor: SensorDescription) -> float:
+    """Default far-field edge length (m): 0.6 radius, at most length/30."""
+    return float(min(0.6 * sensor.radius_m, sensor.length_m / 30.0))
+
+
+class SensorProfile:
+    """The meridian of the sensor, parametrised by arc length from the head tip.
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> p = SensorProfile(preset("angels-2"))
+    >>> x, r = p.point(0.0)
+    >>> float(x), float(r)
+    (0.1, 0.0)
+    """
+
+    def __init__(self, sensor: SensorDescription):
+        self.R = float(sensor.radius_m)
+        self.c = 0.5 * float(sensor.length_m) - self.R  # centre of each hemisphere on the axis
+        self.s_junction = (0.5 * np.pi * self.R, 0.5 * np.pi * self.R + 2 * self.c)
+        self.total = np.pi * self.R + 2 * self.c
+
+    def point(self, s):
+        """Axial position x and radius r (m) at arc length ``s`` (m)."""
+        s = np.asarray(s, dtype=float)
+        R, c = self.R, self.c
+        s1, s2 = self.s_junction
+        theta_head = np.clip(s / R, 0, np.pi / 2)
+        theta_tail = np.clip((s - s2) / R, 0, np.pi / 2)
+        x = np.where(s <= s1, c + R * np.cos(theta_head), np.where(s <= s2, c - (s - s1), -c - R * np.sin(theta_tail)))
+        r = np.where(s <= s1, R * np.sin(theta_head), np.where(s <= s2, R, R * np.cos(theta_tail)))
+        return x, r
+
+    def arc_length(self, x: float) -> float:
+        """Arc length (m) of the point of the meridian at axial position ``x``."""
+        R, c = self.R, self.c
+        s1, s2 = self.s_junction
+        if x >= c:
+            return float(R * np.arccos(np.clip((x - c) / R, -1, 1)))
+        if x >= -c:
+            return float(s1 + (c - x))
+        return float(s2 + R * np.arcsin(np.clip((-c - x) / R, -1, 1)))
+
+
+def _ring_positions(breaks: np.ndarray, edges: np.ndarray, h_far: float, h_edge: float, grading: float) -> np.ndarray:
+    """Arc lengths of the rings: every breakpoint plus graded rings between them."""
+
+    def size(s):
+        if edges.size == 0:
+            return np.full_like(s, h_far)
+        d = np.min(np.abs(s[:, None] - edges[None, :]), axis=1)
+        return np.minimum(h_far, h_edge + (grading - 1.0) * d)
+
+    rings = [breaks[0]]
+    for a, b in zip(breaks[:-1], breaks[1:]):
+        t = np.linspace(a, b, 801)
+        inv_h = 1.0 / size(t)
+        F = np.concatenate([[0.0], np.cumsum(0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(t))])
+        n = max(1, int(np.round(F[-1])))
+        rings.extend(np.interp(np.arange(1, n + 1) * F[-1] / n, F, t))
+        rings[-1] = b
+    return np.asarray(rings), size
+
+
+def _zip(ring_a: np.ndarray, angles_a: np.ndarray, ring_b: np.ndarray, angles_b: np.ndarray) -> list:
+    """Triangles joining ring A (larger x) to ring B (smaller x), normals outwards.
+
+    ``ring_*`` are vertex indices, ``angles_*`` their increasing azimuths
+    (within one turn). A ring of one vertex is a tip.
+    """
+    ma, mb = len(ring_a), len(ring_b)
+    tris = []
+    if ma == 1:
+        for j in range(mb):
+            tris.append((ring_a[0], ring_b[j], ring_b[(j + 1) % mb]))
+        return tris
+    if mb == 1:
+        for i in range(ma):
+            tris.append((ring_a[i], ring_b[0], ring_a[(i + 1) % ma]))
+        return tris
+    # start B at the vertex closest in angle to A's first vertex
+    shift = int(np.argmin(np.abs(np.angle(np.exp(1j * (angles_b - angles_a[0]))))))
+    ring_b = np.roll(ring_b, -shift)
+    angles_b = np.roll(angles_b, -shift)
+    angles_b = angles_a[0] + np.mod(angles_b - angles_a[0] + np.pi, 2 * np.pi) - np.pi
+    angles_b = angles_b[0] + np.unwrap(angles_b - angles_b[0])
+    next_a = np.append(angles_a[1:], angles_a[0] + 2 * np.pi)
+    next_b = np.append(angles_b[1:], angles_b[0] + 2 * np.pi)
+    i = j = 0
+    while i < ma or j < mb:
+        if j >= mb or (i < ma and next_a[i] - angles_a[0] <= next_b[j] - angles_a[0]):
+            tris.append((ring_a[i], ring_b[j % mb], ring_a[(i + 1) % ma]))
+            i += 1
+        else:
+            tris.append((ring_a[i % ma], ring_b[j], ring_b[(j + 1) % mb]))
+            j += 1
+    return tris
+
+
+def mesh_sensor(
+    sensor: SensorDescription,
+    edge_length_m: float | None = None,
+    grading: float = 1.25,
+    edge_refinement: float = 20.0,
+    max_aspect: float = 3.0,
+    true_perimeter: bool = True,
+) -> LabelledMesh:
+    """Closed, graded, labelled triangle mesh of a sensor in its own frame.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+        The sensor (cylinder with hemispherical ends and electrodes).
+    edge_length_m : float, optional
+        Edge length far from electrode edges (m); default
+        :func:`default_edge_length_m`.
+    grading : float
+        Growth ratio of consecutive ring spacings away from an electrode edge (> 1).
+    edge_refinement : float
+        Far edge length divided by the ring spacing at an electrode edge.
+    max_aspect : float
+        Largest ratio of azimuthal to axial edge length near electrode edges.
+    true_perimeter : bool
+        Place ring vertices so that each faceted ring has the circle's perimeter.
+
+    Returns
+    -------
+    LabelledMesh
+        Normals into the water, ``electrode`` per face, region ``"sensor"``.
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> m = mesh_sensor(preset("angels-2"), edge_length_m=0.004)
+    >>> bool(abs(m.areas_m2.sum() / (2 * 3.14159265 * 0.01 * 0.2) - 1) < 0.01)
+    True
+    """
+    h_far = default_edge_length_m(sensor) if edge_length_m is None else float(edge_length_m)
+    if not (np.isfinite(h_far) and h_far > 0):
+        raise ValueError(f"mesh_sensor: edge_length_m must be positive, got {edge_length_m}")
+    if not grading > 1.0:
+        raise ValueError(f"mesh_sensor: grading must exceed 1, got {grading}")
+    if not edge_refinement >= 1.0:
+        raise ValueError(f"mesh_sensor: edge_refinement must be >= 1, got {edge_refinement}")
+    if not max_aspect >= 1.0:
+        raise ValueError(f"mesh_sensor: max_aspect must be >= 1, got {max_aspect}")
+    if h_far > sensor.radius_m * 2:
+        raise ValueError(
+            f"mesh_sensor: edge_length_m {h_far} m is coarser than the sensor's diameter {2 * sensor.radius_m} m"
+        )
+    profile = SensorProfile(sensor)
+    half = 0.5 * sensor.length_m
+    edge_x = sorted({x for e in sensor.electrodes for x in (e.x_min_m, e.x_max_m) if abs(abs(x) - half) > 1e-12})
+    edges = np.array(sorted(profile.arc_length(x) for x in edge_x))
+    breaks = np.unique(np.concatenate([[0.0, profile.total], edges, profile.s_junction]))
+    breaks = breaks[np.concatenate([[True], np.diff(breaks) > 1e-9 * profile.total])]
+    s_rings, size = _ring_positions(breaks, edges, h_far, h_far / edge_refinement, grading)
+    x_rings, r_rings = profile.point(s_rings)
+    r_rings[0] = r_rings[-1] = 0.0
+
+    h_axial = size(s_rings)
+    h_phi = np.minimum(h_far, max_aspect * h_axial)
+    counts = np.where(r_rings > 0, np.maximum(3, np.ceil(2 * np.pi * r_rings / h_phi)), 1).astype(int)
+    counts[0] = counts[-1] = 1
+
+    vertices, rings, angles = [], [], []
+    n_vertices = 0
+    offset = 0.0
+    for k, (x, r, m) in enumerate(zip(x_rings, r_rings, counts)):
+        if m == 1:
+            vertices.append([[x, 0.0, 0.0]])
+            phi = np.zeros(1)
+        else:
+            offset = offset + np.pi / m if k > 0 and counts[k - 1] == m else 0.0
+            phi = offset + 2 * np.pi * np.arange(m) / m
+            rv = r * (np.pi / m) / np.sin(np.pi / m) if true_perimeter else r
+            vertices.append(np.column_stack([np.full(m, x), rv * np.cos(phi), rv * np.sin(phi)]))
+        rings.append(np.arange(n_vertices, n_vertices + m))
+        angles.append(phi)
+        n_vertices += m
+
+    faces, labels = [], []
+    for k in range(len(rings) - 1):
+        tris = _zip(rings[k], angles[k], rings[k + 1], angles[k + 1])
+        faces.extend(tris)
+        x_mid = 0.5 * (x_rings[k] + x_rings[k + 1])
+        label = 0
+        for number, e in enumerate(sensor.electrodes, start=1):
+            if e.x_min_m <= x_mid <= e.x_max_m:
+                label = number
+        labels.extend([label] * len(tris))
+    return LabelledMesh(
+        vertices_m=np.concatenate(vertices),
+        faces=np.asarray(faces, dtype=np.int64),
+        electrode=np.asarray(labels, dtype=np.int64),
+        region=np.zeros(len(faces), dtype=np.int64),
+        region_names=("sensor",),
+    )
