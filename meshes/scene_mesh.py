@@ -1,0 +1,270 @@
+"""Meshing a whole scene, and refusing scenes a solver cannot use.
+
+:func:`check_scene` looks at the true geometry: the sensor is a capsule (a
+cylinder with hemispherical ends: the segment between the hemispheres'
+centres, thickened by the radius) at its pose, the objects are exact
+spheres, yawed boxes and vertical cylinders. It refuses, naming the parts,
+
+* a sensor or object not wholly in the water (crossing or touching a wall,
+  the floor or the free surface),
+* two parts that intersect or touch (sensor/object, object/object).
+
+:func:`mesh_scene` checks the scene, then meshes the sensor in the SENSOR
+frame (the BEM reuses it for every pose), the tank graded towards the sensor
+and the objects, in the tank frame. ``SceneMesh.combined()`` is everything
+in the tank frame, one region per part.
+
+Example
+-------
+>>> from meshes import Pose, Scene, Sphere, Tank, preset
+>>> from meshes.scene_mesh import check_scene
+>>> scene = Scene(preset("angels-2"), Pose(0.0, 0.0, 0.0, 0.0), Tank((1.0, 1.0, 1.0)),
+...               (Sphere(centre_m=(0.05, 0.0, 0.0), radius_m=0.02),))
+>>> try:
+...     check_scene(scene)
+... except ValueError as err:
+...     print(err)
+scene refused: object_1 (sphere) intersects the sensor
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from .labelled_mesh import LabelledMesh, concatenate
+from .object_mesh import mesh_object
+from .objects import Box, Cylinder, Sphere
+from .pose import Pose
+from .scene import Scene
+from .tank import TANK_REGIONS
+
+__all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
+           "distance_to_object_m"]
+
+
+class SceneError(ValueError):
+    """A scene that cannot be simulated; ``problems`` lists every reason."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(problems)
+        super().__init__("scene refused: " + "; ".join(self.problems))
+
+
+# ------------------------------------------------------------------ the geometry
+def sensor_axis_points_m(scene: Scene, n: int = 2) -> np.ndarray:
+    """(n, 3) tank-frame points on the sensor's capsule core, from the tail sphere centre to the head's.
+
+    The sensor is the set of points within ``radius_m`` of this segment.
+    """
+    s = scene.sensor
+    half_core = 0.5 * s.length_m - s.radius_m
+    x = np.linspace(-half_core, half_core, n)
+    return scene.pose.to_tank(np.c_[x, np.zeros(n), np.zeros(n)])
+
+
+def distance_to_object_m(obj, points_m: np.ndarray) -> np.ndarray:
+    """Distance (...,) from points (..., 3) to the solid object (0 inside), tank frame (m)."""
+    p = np.asarray(points_m, dtype=float) - np.asarray(obj.centre_m)
+    if isinstance(obj, Sphere):
+        return np.maximum(np.linalg.norm(p, axis=-1) - obj.radius_m, 0.0)
+    if isinstance(obj, Box):
+        c, s = np.cos(obj.yaw_rad), np.sin(obj.yaw_rad)
+        q = np.stack([c * p[..., 0] + s * p[..., 1], -s * p[..., 0] + c * p[..., 1], p[..., 2]], axis=-1)
+        return np.linalg.norm(np.maximum(np.abs(q) - 0.5 * np.asarray(obj.size_m), 0.0), axis=-1)
+    if isinstance(obj, Cylinder):
+        radial = np.maximum(np.hypot(p[..., 0], p[..., 1]) - obj.radius_m, 0.0)
+        axial = np.maximum(np.abs(p[..., 2]) - 0.5 * obj.height_m, 0.0)
+        return np.hypot(radial, axial)
+    raise TypeError(f"unknown object type {type(obj).__name__}")
+
+
+def _segment_distance_to_object_m(a: np.ndarray, b: np.ndarray, obj) -> float:
+    """Distance from the segment a-b to a convex object (convex in the segment parameter)."""
+    t = np.linspace(0.0, 1.0, 65)
+    d = distance_to_object_m(obj, a + t[:, None] * (b - a))
+    i = int(np.argmin(d))
+    lo, hi = t[max(i - 1, 0)], t[min(i + 1, len(t) - 1)]
+    res = minimize_scalar(lambda s: float(distance_to_object_m(obj, a + s * (b - a))), bounds=(lo, hi),
+                          method="bounded", options={"xatol": 1e-10})
+    return float(min(d[i], res.fun))
+
+
+def _object_extreme_points_m(obj) -> np.ndarray:
+    """Points of the object's surface that reach furthest along +-x, +-y, +-z (tank frame)."""
+    c = np.asarray(obj.centre_m)
+    if isinstance(obj, Sphere):
+        return c + obj.radius_m * np.vstack([np.eye(3), -np.eye(3)])
+    if isinstance(obj, Box):
+        corners = np.array([[i, j, k] for i in (-1, 1) for j in (-1, 1) for k in (-1, 1)]) * 0.5 * np.asarray(obj.size_m)
+        cy, sy = np.cos(obj.yaw_rad), np.sin(obj.yaw_rad)
+        R = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+        return c + corners @ R.T
+    if isinstance(obj, Cylinder):
+        r, h = obj.radius_m, 0.5 * obj.height_m
+        rim = np.array([[r, 0], [-r, 0], [0, r], [0, -r]])
+        return c + np.vstack([np.c_[rim, np.full(4, z)] for z in (-h, h)])
+    raise TypeError(f"unknown object type {type(obj).__name__}")
+
+
+def _surface_samples_m(obj, n: int = 24) -> np.ndarray:
+    """Points on an object's surface, about n across, for object/object contact tests."""
+    h = 2 * obj.bounding_radius_m / n
+    return mesh_object(obj, edge_length_m=h).vertices_m
+
+
+def _object_name(i: int, obj) -> str:
+    kind = type(obj).__name__.lower()
+    return f"object_{i} ({kind}{' ' + repr(obj.name) if obj.name else ''})"
+
+
+def scene_problems(scene: Scene) -> list[str]:
+    """Every reason why the scene cannot be simulated (empty list: the scene is fine)."""
+    problems = []
+    s = scene.sensor
+    core = sensor_axis_points_m(scene)
+    tank = scene.tank
+    if tank is not None:
+        # the capsule is inside the (convex) water box iff both core ends are >= radius from every plane
+        gap = tank.distance_to_boundary_m(core).min(axis=0) - s.radius_m
+        crossings = _boundary_crossings(gap)
+        if crossings:
+            problems.append(f"the sensor (pose {_pose_text(scene.pose)}) {crossings}")
+    for i, obj in enumerate(scene.objects, start=1):
+        name = _object_name(i, obj)
+        if tank is not None:
+            crossings = _boundary_crossings(tank.distance_to_boundary_m(_object_extreme_points_m(obj)).min(axis=0))
+            if crossings:
+                problems.append(f"{name} {crossings}")
+        d = _segment_distance_to_object_m(core[0], core[1], obj) - s.radius_m
+        if d <= _TOUCH_M:
+            problems.append(f"{name} {'intersects' if d < -_TOUCH_M else 'touches'} the sensor")
+    for i, a in enumerate(scene.objects, start=1):
+        for j, b in enumerate(scene.objects[i:], start=i + 1):
+            if np.linalg.norm(np.subtract(a.centre_m, b.centre_m)) > a.bounding_radius_m + b.bounding_radius_m:
+                continue
+            if isinstance(a, Sphere) or isinstance(b, Sphere):
+                sph, other = (a, b) if isinstance(a, Sphere) else (b, a)
+                d = float(distance_to_object_m(other, np.asarray(sph.centre_m))) - sph.radius_m
+            else:  # sampled: both surfaces against the other solid
+                d = min(distance_to_object_m(b, _surface_samples_m(a)).min(),
+                        distance_to_object_m(a, _surface_samples_m(b)).min())
+            if d <= _TOUCH_M:
+                problems.append(f"{_object_name(i, a)} and {_object_name(j, b)} intersect or touch")
+    return problems
+
+
+#: gaps (m) below this count as contact: a solver cannot separate touching surfaces
+_TOUCH_M = 1e-9
+
+
+def _boundary_crossings(gap_m: np.ndarray) -> str:
+    """'is out of the water across the wall_x+ (by 0.01 m) and touches the floor', or ''."""
+    out = [f"the {name} (by {-g:.3g} m)" for name, g in zip(TANK_REGIONS, gap_m) if g < -_TOUCH_M]
+    touch = [f"the {name}" for name, g in zip(TANK_REGIONS, gap_m) if abs(g) <= _TOUCH_M]
+    text = []
+    if out:
+        text.append("is out of the water across " + ", ".join(out))
+    if touch:
+        text.append("touches " + ", ".join(touch))
+    return " and ".join(text)
+
+
+def _pose_text(pose: Pose) -> str:
+    return f"x={pose.x_m:g} m, y={pose.y_m:g} m, z={pose.z_m:g} m, yaw={pose.yaw_rad:g} rad"
+
+
+def check_scene(scene: Scene) -> Scene:
+    """Return the scene unchanged, or raise :class:`SceneError` (a ``ValueError``) naming every problem."""
+    problems = scene_problems(scene)
+    if problems:
+        raise SceneError(problems)
+    return scene
+
+
+# ---------------------------------------------------------------------- meshing
+@dataclass
+class SceneMesh:
+    """The meshes of a scene's parts.
+
+    Attributes
+    ----------
+    sensor : LabelledMesh
+        The sensor in the SENSOR frame (region ``"sensor"``).
+    pose : Pose
+        Where the sensor is in the tank frame.
+    tank : LabelledMesh or None
+        The water box in the tank frame (regions ``TANK_REGIONS``), or
+        ``None`` for unbounded water.
+    objects : tuple of LabelledMesh
+        One mesh per object, tank frame, regions ``"object_1"``, ...
+    """
+
+    sensor: LabelledMesh
+    pose: Pose
+    tank: LabelledMesh | None = None
+    objects: tuple[LabelledMesh, ...] = ()
+
+    @property
+    def sensor_in_tank(self) -> LabelledMesh:
+        """The sensor mesh moved to its pose (tank frame)."""
+        return self.sensor.transformed(self.pose)
+
+    @property
+    def n_triangles(self) -> int:
+        return self.sensor.n_triangles + (self.tank.n_triangles if self.tank else 0) + sum(o.n_triangles for o in self.objects)
+
+    def combined(self) -> LabelledMesh:
+        """All parts in the tank frame: the sensor first, then the tank, then the objects."""
+        parts = [self.sensor_in_tank] + ([self.tank] if self.tank is not None else []) + list(self.objects)
+        return concatenate(parts)
+
+
+def mesh_scene(scene: Scene, edge_length_m: float | None = None, *, tank_edge_length_m: float | None = None,
+               tank_grading: float = 0.5, tank_focus_m=None, object_edge_length_m: float | None = None,
+               check: bool = True, **sensor_options) -> SceneMesh:
+    """Check and mesh a scene.
+
+    Parameters
+    ----------
+    scene : Scene
+    edge_length_m : float, optional
+        Sensor edge length, passed to :func:`meshes.sensor_mesh.mesh_sensor`.
+    tank_edge_length_m : float, optional
+        Tank edge length nearest the sensor (default: a tenth of the sensor
+        length); it grows by ``tank_grading`` per metre away from it.
+    tank_focus_m : (P, 3) array, optional
+        Tank-frame points to grade the tank towards (default: the sensor's
+        axis at its pose; give a whole trajectory to reuse one tank mesh).
+    object_edge_length_m : float, optional
+        Edge length of the objects (default: from each object's size).
+    check : bool
+        Refuse bad scenes first (:func:`check_scene`); default True.
+    **sensor_options
+        Further options of ``mesh_sensor`` (grading...).
+
+    Example
+    -------
+    >>> from meshes import Pose, Scene, Tank, preset
+    >>> sm = mesh_scene(Scene(preset("angels-2"), Pose(0.1, 0.0, 0.0, 0.0), Tank((0.6, 0.4, 0.3))))
+    >>> sm.combined().region_names[:2]
+    ('sensor', 'wall_x-')
+    """
+    from .sensor_mesh import mesh_sensor
+    from .tank_mesh import mesh_tank
+
+    if check:
+        check_scene(scene)
+    sensor = mesh_sensor(scene.sensor, edge_length_m=edge_length_m, **sensor_options)
+    if sensor.region_names != ("sensor",) and len(sensor.region_names) == 1:
+        sensor = sensor.with_region_names(("sensor",))
+    tank = None
+    if scene.tank is not None:
+        focus = sensor_axis_points_m(scene, 9) if tank_focus_m is None else tank_focus_m
+        h_tank = scene.sensor.length_m / 10 if tank_edge_length_m is None else tank_edge_length_m
+        tank = mesh_tank(scene.tank, h_tank, focus, grading=tank_grading)
+    objects = tuple(
+        mesh_object(obj, object_edge_length_m, region_name=f"object_{i}") for i, obj in enumerate(scene.objects, start=1)
+    )
+    return SceneMesh(sensor=sensor, pose=scene.pose, tank=tank, objects=objects)
