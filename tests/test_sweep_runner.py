@@ -1,0 +1,151 @@
+"""Sweeps: local and dask runs agree, resume computes nothing twice, bad schedulers fail fast.
+
+The model here is a cheap analytic stand-in with real physics: point-like
+spherical electrodes (radius a_i) on the sensor axis next to one insulating
+wall (the plane x = WALL_X), whose effect is the same-sign image of every
+electrode. Potential coefficients P_ij = (1/|r_i - r_j| + 1/|r_i - r_j'|) /
+(4 pi sigma) (1/a_i on the diagonal), grounded conductance C = P^-1, and the
+isolated K by :func:`bem.conductance.isolate`.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from bem.conductance import ConductanceMatrix, isolate
+from meshes.pose import sensor_to_tank
+from validation.sweep import SchedulerError, SweepStore, dask_client, line_poses, parse_grid, run_sweep
+
+WALL_X = 0.5
+
+
+@dataclass
+class WallImageEvaluator:
+    """Stand-in for a BEM PoseSweep / PSM: ``.conductance(poses)`` of spheres beside an insulating wall."""
+
+    radii_m: tuple = (0.007, 0.006, 0.006, 0.007)
+    xs_m: tuple = (0.08, 0.03, -0.03, -0.08)
+    sigma_S_per_m: float = 0.05
+    emitter: int = 4
+    calls: list = field(default_factory=list, repr=False)
+    fail_after_calls: int | None = None
+
+    def conductance(self, poses, progress=False) -> ConductanceMatrix:
+        poses = np.asarray(poses, dtype=float)
+        if self.fail_after_calls is not None and len(self.calls) >= self.fail_after_calls:
+            raise KeyboardInterrupt("simulated kill")
+        self.calls.append(poses.copy())
+        centres = np.zeros((len(self.radii_m), 3))
+        centres[:, 0] = self.xs_m
+        r = sensor_to_tank(centres, poses)  # (P, n, 3)
+        mirrored = r.copy()
+        mirrored[..., 0] = 2 * WALL_X - r[..., 0]
+        d = np.linalg.norm(r[:, :, None, :] - r[:, None, :, :], axis=-1)
+        d_img = np.linalg.norm(r[:, :, None, :] - mirrored[:, None, :, :], axis=-1)
+        n = len(self.radii_m)
+        eye = np.eye(n, dtype=bool)
+        P = np.where(eye, 1.0 / np.asarray(self.radii_m), 1.0 / np.where(eye, 1.0, d)) + 1.0 / d_img
+        P /= 4 * np.pi * self.sigma_S_per_m
+        K = isolate(np.linalg.inv(P))
+        return ConductanceMatrix(K, self.emitter, self.sigma_S_per_m, {"model": "wall-image stand-in", "triangles": 0})
+
+
+@pytest.fixture(scope="module")
+def grid_poses():
+    return parse_grid("-0.3:0.3:6,-0.2:0.2:4,0:1.5:2").poses  # 48 poses
+
+
+def _serial(evaluator, poses):
+    return evaluator.conductance(poses).K_S
+
+
+def test_in_process_sweep_equals_the_direct_call(grid_poses):
+    ev = WallImageEvaluator()
+    result = run_sweep(ev, grid_poses, workers=1, chunk_poses=7, progress=False)
+    np.testing.assert_array_equal(result.conductance.K_S, _serial(WallImageEvaluator(), grid_poses))
+    assert result.n_computed == len(grid_poses) and result.n_resumed == 0 and result.workers == 1
+    assert [len(c) for c in ev.calls] == [7] * 6 + [6]
+
+
+def test_local_cluster_of_two_processes_equals_serial(grid_poses, tmp_path):
+    """A LocalCluster of two worker processes on loopback, started and stopped here: same numbers, same store."""
+    from dask.distributed import Client, LocalCluster
+
+    serial = _serial(WallImageEvaluator(), grid_poses)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
+        store = SweepStore.open_or_create(tmp_path / "map.zarr", grid_poses, 4, 4, {"model": "stand-in"}, 5)
+        result = run_sweep(WallImageEvaluator(), grid_poses, store, client=client, progress=False)
+        assert result.workers == 2
+        # the same run through --scheduler ADDRESS
+        by_address = run_sweep(WallImageEvaluator(), grid_poses, scheduler=cluster.scheduler_address, progress=False)
+    np.testing.assert_array_equal(result.conductance.K_S, serial)
+    np.testing.assert_array_equal(by_address.conductance.K_S, serial)
+    ds = store.dataset()
+    np.testing.assert_array_equal(ds.K_S.values, serial)
+    assert ds.attrs["model"] == "stand-in" and bool(ds.computed.all())
+    assert '"triangles": 0' in ds.attrs["mesh"]  # the model's info lands in the attributes
+
+
+def test_killed_sweep_resumes_and_computes_nothing_twice(grid_poses, tmp_path):
+    path = tmp_path / "sweep.zarr"
+    identity = {"model": "stand-in", "sigma_S_per_m": 0.05}
+    store = SweepStore.open_or_create(path, grid_poses, 4, 4, identity, chunk_poses=5)
+    first = WallImageEvaluator(fail_after_calls=4)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(first, grid_poses, store, workers=1, progress=False)
+    assert store.computed.sum() == 20 and len(store.pending_chunks()) == 6
+
+    # the re-run opens the same store and computes only what is missing
+    store = SweepStore.open_or_create(path, grid_poses, 4, 4, identity, chunk_poses=999)
+    second = WallImageEvaluator()
+    result = run_sweep(second, grid_poses, store, workers=1, progress=False)
+    assert (result.n_resumed, result.n_computed) == (20, 28)
+    seen = np.concatenate(first.calls + second.calls)
+    assert len(seen) == len(grid_poses)  # every pose evaluated exactly once over both runs
+    np.testing.assert_array_equal(np.unique(seen, axis=0), np.unique(grid_poses, axis=0))
+    np.testing.assert_array_equal(result.conductance.K_S, _serial(WallImageEvaluator(), grid_poses))
+
+    # a third run finds nothing to do
+    third = WallImageEvaluator()
+    again = run_sweep(third, grid_poses, SweepStore.open_or_create(path, grid_poses, 4, 4, identity, 5),
+                      workers=1, progress=False)
+    assert again.n_computed == 0 and third.calls == []
+
+
+def test_a_store_of_another_sweep_is_not_resumed(grid_poses, tmp_path):
+    path = tmp_path / "sweep.zarr"
+    SweepStore.open_or_create(path, grid_poses, 4, 4, {"model": "stand-in", "sigma_S_per_m": 0.05}, 8)
+    with pytest.raises(ValueError, match="differs in: sigma_S_per_m"):
+        SweepStore.open_or_create(path, grid_poses, 4, 4, {"model": "stand-in", "sigma_S_per_m": 0.06}, 8)
+    with pytest.raises(ValueError, match="differs in: poses"):
+        SweepStore.open_or_create(path, grid_poses[:-1], 4, 4, {"model": "stand-in", "sigma_S_per_m": 0.05}, 8)
+
+
+def test_bad_scheduler_address_fails_clearly_within_seconds():
+    t0 = time.perf_counter()
+    with pytest.raises(SchedulerError, match=r"cannot reach the dask scheduler at 'tcp://127.0.0.1:9'.*--scheduler"):
+        run_sweep(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 3), scheduler="tcp://127.0.0.1:9",
+                  timeout_s=2, progress=False)
+    assert time.perf_counter() - t0 < 10
+
+
+def test_dask_config_names_the_scheduler(monkeypatch):
+    import dask
+
+    with dask.config.set({"scheduler-address": "tcp://127.0.0.1:9"}):
+        with pytest.raises(SchedulerError, match="127.0.0.1:9"):
+            with dask_client(timeout_s=1):
+                pass
+
+
+def test_one_local_worker_starts_nothing():
+    before = threading.active_count()
+    with dask_client(workers=1) as client:
+        assert client is None
+    assert threading.active_count() == before

@@ -1,0 +1,321 @@
+"""From a model name to conductance matrices: the one door to the BEM and the PSM.
+
+Every command that needs model currents for many poses (sweeps, comparisons
+with bench logs, the virtual bench, the gap diagnosis) comes through here, so
+that ``"bem"`` and ``"psm"`` mean the same thing everywhere:
+
+* ``"bem"``: the boundary-element reference, :class:`bem.PoseSweep`, which
+  builds the pose-invariant blocks once and then solves pose after pose;
+* ``"psm"``: the poly-spherical model, :func:`psm.conductance`, vectorised
+  over poses. Without an explicit model the PSM is calibrated against the
+  free-space BEM conductance of the same sensor (:func:`calibrated_psm`), once:
+  the calibration is cached on disk, keyed by the sensor description, the BEM
+  edge length and the code version.
+
+The split into :func:`pose_evaluator` (the pose-invariant part, a picklable
+object with ``.conductance(poses)``) and :func:`simulate` (evaluate it) is what
+lets :mod:`validation.sweep` ship the expensive part to dask workers once.
+
+Example
+-------
+>>> import numpy as np
+>>> from meshes.sensor import preset
+>>> from meshes.tank import Tank
+>>> from validation.models import simulate
+>>> poses = np.array([[x, 0.0, 0.0, 0.0] for x in np.linspace(-0.3, 0.3, 5)])
+>>> C = simulate("psm", preset("angels-4"), poses, Tank((1.0, 1.0, 1.0)), 0.0354)  # doctest: +SKIP
+>>> C.resistance_ohm.shape  # doctest: +SKIP
+(5, 3)
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bem.conductance import ConductanceMatrix
+from meshes.pose import poses_array
+from meshes.sensor import SensorDescription
+from meshes.tank import Tank
+
+__all__ = [
+    "MODELS",
+    "ModelError",
+    "PSMEvaluator",
+    "pose_evaluator",
+    "simulate",
+    "calibrated_psm",
+    "psm_cache_dir",
+    "code_version",
+]
+
+#: The model names understood by :func:`simulate`.
+MODELS = ("bem", "psm")
+
+#: Keyword arguments of the calibration BEM that a PSM run accepts.
+_PSM_CALIBRATION_OPTIONS = ("edge_length_m",)
+
+
+class ModelError(ValueError):
+    """A model name, model file or model option that cannot be used as given."""
+
+
+# --------------------------------------------------------------------------- version
+@functools.lru_cache(maxsize=1)
+def code_version() -> str:
+    """``"electrosense <version> src <hash>"``: the package version and a hash of the model sources.
+
+    The hash covers every ``.py`` file of :mod:`meshes`, :mod:`bem` and
+    :mod:`psm`, so that an edited solver (an editable install keeps its version
+    number) is told apart from the one that filled a cache or a sweep store.
+    """
+    try:
+        from importlib.metadata import version
+
+        package_version = version("electrosense")
+    except Exception:  # not installed: running from a checkout
+        package_version = "unknown"
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parent.parent
+    for package in ("meshes", "bem", "psm"):
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return f"electrosense {package_version} src {digest.hexdigest()[:12]}"
+
+
+# ------------------------------------------------------------------------------- PSM
+@dataclass(frozen=True)
+class PSMEvaluator:
+    """The PSM at fixed scene and water: ``.conductance(poses)`` for any batch of poses.
+
+    A small picklable object (the model's radii and centres plus the scene),
+    the PSM counterpart of :class:`bem.PoseSweep`.
+    """
+
+    model: object  # psm.PolySphericalModel
+    sigma_S_per_m: float
+    tank: Tank | None = None
+    objects: tuple = ()
+    images: str = "complete"
+    contact_impedance_ohm_m2: object = None
+    info: dict = field(default_factory=dict, compare=False)
+
+    def conductance(self, poses, progress: bool = False) -> ConductanceMatrix:
+        """Conductance matrices of batch shape (P,) at the poses (P, 4) (``progress`` is ignored: one vectorised call)."""
+        from psm import conductance
+
+        return conductance(
+            self.model,
+            poses_array(poses),
+            self.sigma_S_per_m,
+            tank=self.tank,
+            images=self.images,
+            objects=tuple(self.objects),
+            contact_impedance_ohm_m2=self.contact_impedance_ohm_m2,
+        )
+
+
+def psm_cache_dir() -> Path:
+    """Folder of the cached PSM calibrations: ``$ESENSE_CACHE_DIR/psm`` or the user's cache folder."""
+    base = os.environ.get("ESENSE_CACHE_DIR")
+    if not base:
+        from platformdirs import user_cache_dir
+
+        base = user_cache_dir("electrosense")
+    return Path(base) / "psm"
+
+
+def _psm_cache_key(sensor: SensorDescription, edge_length_m, symmetric: bool) -> str:
+    description = {
+        "sensor": sensor.to_dict(),
+        "bem_edge_length_m": edge_length_m,
+        "symmetric": bool(symmetric),
+        "code_version": code_version(),
+    }
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def calibrated_psm(
+    sensor: SensorDescription,
+    edge_length_m: float | None = None,
+    symmetric: bool = False,
+    cache: bool = True,
+):
+    """A PSM calibrated against the free-space BEM conductance of ``sensor``, computed once.
+
+    The reference is ``bem.conductance_matrix(Scene(sensor), 1 S/m)`` in
+    unbounded water (the PSM's geometry does not depend on the conductivity);
+    :func:`psm.calibrate` fits the spheres to it. The result is cached as a
+    PSM JSON file in :func:`psm_cache_dir`, keyed by the sensor description,
+    the BEM edge length, ``symmetric`` and :func:`code_version`.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+    edge_length_m : float, optional
+        Edge length of the calibration BEM mesh (``None``: the mesher's default).
+    symmetric : bool
+        Fit with the paper's symmetry constraints.
+    cache : bool
+        Read and write the on-disk cache (``False``: always recompute).
+
+    Returns
+    -------
+    psm.PolySphericalModel
+    """
+    from psm import PolySphericalModel
+
+    path = psm_cache_dir() / f"{sensor.name or 'sensor'}-{_psm_cache_key(sensor, edge_length_m, symmetric)}.json"
+    if cache and path.exists():
+        try:
+            return PolySphericalModel.load(path)
+        except Exception:  # a damaged cache entry is recomputed, never trusted
+            path.unlink(missing_ok=True)
+
+    from bem import conductance_matrix
+    from meshes.scene import Scene
+    from psm import calibrate
+
+    reference = conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m)
+    model = calibrate(reference, symmetric=symmetric).model
+    if cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_suffix(f".{os.getpid()}.partial")
+        model.save(partial)
+        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
+    return model
+
+
+def _load_psm(psm_model):
+    """A PSM from a model object or a path to its JSON file."""
+    if isinstance(psm_model, (str, os.PathLike)):
+        from psm import PolySphericalModel
+
+        path = Path(psm_model)
+        if not path.exists():
+            raise ModelError(f"PSM file {path} does not exist")
+        try:
+            return PolySphericalModel.load(path)
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ModelError(f"{path}: not a PSM model file ({exc})") from None
+    return psm_model
+
+
+def _check_psm_matches(model, sensor: SensorDescription) -> None:
+    n = len(np.asarray(model.radii_m))
+    if n != sensor.n_electrodes:
+        raise ModelError(
+            f"the PSM has {n} spheres but the sensor {sensor.name!r} has {sensor.n_electrodes} electrodes"
+        )
+    if int(model.emitter) != sensor.emitter:
+        raise ModelError(f"the PSM's emitter is electrode {model.emitter}, the sensor's is {sensor.emitter}")
+
+
+# ------------------------------------------------------------------------- the door
+def pose_evaluator(
+    model: str,
+    sensor: SensorDescription,
+    tank: Tank | None,
+    sigma_S_per_m: float,
+    objects=(),
+    psm_model=None,
+    contact_impedance_ohm_m2=None,
+    images: str = "complete",
+    **bem_options,
+):
+    """The pose-invariant part of a model run: an object with ``.conductance(poses) -> ConductanceMatrix``.
+
+    For ``"bem"`` a :class:`bem.PoseSweep` (sensor and tank blocks assembled
+    once); for ``"psm"`` a :class:`PSMEvaluator`. Both are picklable, so a
+    sweep can scatter them to dask workers once and send only poses after.
+
+    Parameters are those of :func:`simulate`.
+    """
+    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
+        raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    objects = tuple(objects)
+    if model == "bem":
+        if psm_model is not None:
+            raise ModelError("psm_model is given but the model is 'bem'")
+        from bem import PoseSweep
+
+        options = dict(bem_options)
+        if contact_impedance_ohm_m2 is not None:
+            options["contact_impedance_ohm_m2"] = contact_impedance_ohm_m2
+        return PoseSweep(sensor, tank=tank, objects=objects, sigma_S_per_m=sigma_S_per_m, **options)
+    if model == "psm":
+        unknown = sorted(set(bem_options) - set(_PSM_CALIBRATION_OPTIONS))
+        if unknown:
+            raise ModelError(
+                f"option(s) {', '.join(unknown)} are BEM options; with the PSM only "
+                f"{', '.join(_PSM_CALIBRATION_OPTIONS)} (of the calibration BEM) is used"
+            )
+        calibrated = psm_model is None
+        if calibrated:
+            psm_model = calibrated_psm(sensor, edge_length_m=bem_options.get("edge_length_m"))
+        psm_model = _load_psm(psm_model)
+        _check_psm_matches(psm_model, sensor)
+        info = {"model": "psm", "images": images, "calibrated_on_free_space_bem": calibrated}
+        return PSMEvaluator(psm_model, float(sigma_S_per_m), tank, objects, images, contact_impedance_ohm_m2, info)
+    raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
+
+
+def simulate(
+    model: str,
+    sensor: SensorDescription,
+    poses,
+    tank: Tank | None,
+    sigma_S_per_m: float,
+    objects=(),
+    psm_model=None,
+    contact_impedance_ohm_m2=None,
+    images: str = "complete",
+    progress: bool = False,
+    **bem_options,
+) -> ConductanceMatrix:
+    """Conductance matrices of ``sensor`` at many poses, by the BEM or the PSM.
+
+    Parameters
+    ----------
+    model : {"bem", "psm"}
+    sensor : SensorDescription
+    poses : array (P, 4) or sequence of Pose
+        Sensor centre (x_m, y_m, z_m) and yaw_rad in the tank frame.
+    tank : Tank or None
+        ``None`` for unbounded water.
+    sigma_S_per_m : float
+        Conductivity of the water.
+    objects : sequence of Sphere/Box/Cylinder
+    psm_model : PolySphericalModel or path to its JSON, optional
+        The PSM to use; ``None`` calibrates one on the sensor's free-space BEM
+        (:func:`calibrated_psm`, cached). Only for ``"psm"``.
+    contact_impedance_ohm_m2 : float or array (n,), optional
+    images : {"complete", "paper8", "none"}
+        The PSM's tank images (ignored by the BEM, which meshes the tank).
+    progress : bool
+        Progress bar (BEM pose sweeps).
+    **bem_options
+        Passed to :class:`bem.PoseSweep` (e.g. ``edge_length_m``); with the
+        PSM only ``edge_length_m`` of the calibration BEM.
+
+    Returns
+    -------
+    ConductanceMatrix of batch shape (P,)
+
+    Example
+    -------
+    >>> C = simulate("psm", preset("angels-2"), [[0, 0, 0, 0]], None, 0.0354)  # doctest: +SKIP
+    >>> C.batch_shape  # doctest: +SKIP
+    (1,)
+    """
+    poses = poses_array(poses)
+    evaluator = pose_evaluator(
+        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images, **bem_options
+    )
+    return evaluator.conductance(poses, progress=progress)
