@@ -1,0 +1,97 @@
+"""Figures and the HTML page: the files exist, the PNGs are not blank, the page links them."""
+import numpy as np
+import pytest
+
+from meshes.pose import Pose
+from meshes.sensor import preset
+from meshes.tank import Tank
+from validation.report import Figure, Section, Table, write_html
+from validation.report.figures import (
+    Panel, Series, bar_figure, curves_figure, path_coordinate, png_is_blank, relative_error_figure,
+    resistance_figure, scene_figure,
+)
+
+
+def _curves():
+    x = np.linspace(-0.38, 0.38, 30)
+    R = np.column_stack([600 + 2000 * x**4, 900 + 3000 * x**4])
+    return x, R
+
+
+def test_resistance_and_error_figures(tmp_path):
+    x, R = _curves()
+    bench = 1.02 * R
+    p1 = resistance_figure(x, bench, {"bem": R, "psm": 1.01 * R}, (1, 2), tmp_path / "r.png",
+                           corrected_bench_ohm=bench / 1.02)
+    p2 = relative_error_figure(x, {"BEM vs bench": R / bench - 1, "PSM vs BEM": np.full_like(R, 0.01)},
+                               (1, 2), tmp_path / "e.png")
+    p3 = bar_figure(["mid-tank", "near wall_x+"], {"BEM": [1.0, 2.0], "PSM": [1.5, 2.5]}, tmp_path / "b.png",
+                    "mean abs. error by region", "mean abs. error (%)")
+    for p in (p1, p2, p3):
+        assert p.exists() and p.stat().st_size > 1000
+        assert not png_is_blank(p)
+
+
+def test_blank_detector(tmp_path):
+    import pyvista as pv
+
+    pl = pv.Plotter(off_screen=True, window_size=(50, 40))
+    pl.set_background("white")
+    pl.screenshot(str(tmp_path / "blank.png"))
+    pl.close()
+    assert png_is_blank(tmp_path / "blank.png")
+
+
+def test_series_and_panel_errors(tmp_path):
+    with pytest.raises(ValueError, match="values but y has"):
+        Series([0, 1], [0, 1, 2], "bad")
+    with pytest.raises(ValueError, match="at least one panel"):
+        curves_figure([], tmp_path / "x.png")
+    with pytest.raises(ValueError, match="legend_loc"):
+        curves_figure([Panel("t", "x (m)", "y", [Series([0, 1], [0, 1], "a")], legend_loc="sideways")],
+                      tmp_path / "x.png")
+
+
+def test_path_coordinate():
+    x = np.linspace(-0.3, 0.3, 7)
+    poses = np.column_stack([x, np.zeros(7), np.zeros(7), np.zeros(7)])
+    s, label = path_coordinate(poses)
+    np.testing.assert_allclose(s, x)
+    assert label.startswith("sensor position x")
+    diag = np.column_stack([x, x, np.zeros(7), np.zeros(7)])
+    s, label = path_coordinate(diag)
+    np.testing.assert_allclose(s, np.sqrt(2) * (x - x[0]))
+    assert "distance" in label
+
+
+def test_scene_figure(tmp_path):
+    from meshes.sensor_mesh import mesh_sensor
+
+    mesh = mesh_sensor(preset("angels-4"))
+    x = np.linspace(-0.3, 0.3, 10)
+    traj = np.column_stack([x, 0 * x, 0 * x])
+    p = scene_figure(tmp_path / "scene.png", mesh, Pose(0.1, 0, 0, 0), Tank((1.0, 1.0, 1.0)), traj, np.abs(x))
+    assert p.exists() and not png_is_blank(p)
+
+
+def test_html_page(tmp_path):
+    x, R = _curves()
+    fig = resistance_figure(x, R, {"bem": R}, (1, 2), tmp_path / "figs" / "r.png")
+    page = write_html(
+        tmp_path / "index.html",
+        "Validation <test>",
+        [Section("Errors", ["one", "two"], tables=[Table(["model", "mean (%)"], [["BEM", 2.0612345]], "cap")],
+                 figures=[Figure(fig, "resistance")], notes=["a note"])],
+        footer="made by a test",
+    )
+    text = page.read_text()
+    assert '<img src="figs/r.png"' in text
+    assert "Validation &lt;test&gt;" in text
+    assert "2.061" in text and "a note" in text
+    assert "http" not in text  # offline: no external assets
+    embedded = write_html(tmp_path / "embedded.html", "t", [Section("s", figures=[Figure(fig)])], embed=True)
+    assert "data:image/png;base64," in embedded.read_text()
+    with pytest.raises(ValueError, match="row 0 has 1 cells"):
+        Table(["a", "b"], [[1]])
+    with pytest.raises(ValueError, match="does not exist"):
+        write_html(tmp_path / "bad.html", "t", [Section("s", figures=[Figure(tmp_path / "missing.png")])])

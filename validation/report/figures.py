@@ -1,0 +1,594 @@
+"""Figures of the validation and diagnosis reports, drawn with pyvista offscreen.
+
+Two kinds of figures:
+
+* 2D curves (:func:`curves_figure`, :func:`bar_figure`) on pyvista's
+  ``Chart2D``: a grid of panels, each a list of :class:`Series`; the
+  report-specific figures (:func:`resistance_figure`,
+  :func:`relative_error_figure`) are thin layers over it, and the gap
+  diagnosis reuses the same pieces.
+* 3D scenes (:func:`scene_figure`, :func:`potential_figure`): the tank, the
+  sensor mesh with its electrodes coloured, the trajectory coloured by a value,
+  and the potential on a plane with current lines.
+
+Every function takes plain arrays (and meshes), writes one PNG and returns its
+path. Fonts are sized for a printed page; axes carry their units.
+
+Example
+-------
+>>> import numpy as np, tempfile, os
+>>> x = np.linspace(-0.4, 0.4, 20)
+>>> panel = Panel("receiver 1", "x (m)", "U/I (ohm)", [Series(x, 600 + 500 * x**2, "bench")])
+>>> path = curves_figure([panel], os.path.join(tempfile.mkdtemp(), "r.png"))
+>>> path.exists()
+True
+"""
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pyvista as pv
+
+__all__ = [
+    "Series",
+    "Panel",
+    "curves_figure",
+    "bar_figure",
+    "resistance_figure",
+    "relative_error_figure",
+    "scene_figure",
+    "potential_figure",
+    "path_coordinate",
+    "png_is_blank",
+    "COLOURS",
+]
+
+#: Colours of the usual series, the same in every figure.
+COLOURS = {
+    "bench": "black",
+    "bench (corrected)": "#8c8c8c",
+    "bem": "#1f5fbf",
+    "psm": "#d9541a",
+    "bem-psm": "#6a3d9a",
+}
+_CYCLE = ["#1f5fbf", "#d9541a", "#2ca02c", "#6a3d9a", "#b8860b", "#17becf", "#e377c2", "#7f7f7f"]
+
+FONT = {"title": 26, "label": 22, "ticks": 18, "legend": 18}
+PANEL_SIZE = (760, 560)
+
+
+@dataclass
+class Series:
+    """One curve of a panel.
+
+    ``kind`` is ``"line"`` or ``"scatter"``; ``label`` ``""`` keeps it out of
+    the legend (e.g. the second pass of the same model).
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    label: str = ""
+    kind: str = "line"
+    colour: str | None = None
+    width: float = 3.0
+    marker_size: float = 9.0
+    marker: str = "o"
+    style: str = "-"
+
+    def __post_init__(self):
+        self.x = np.asarray(self.x, dtype=float).ravel()
+        self.y = np.asarray(self.y, dtype=float).ravel()
+        if self.x.shape != self.y.shape:
+            raise ValueError(f"series {self.label!r}: x has {self.x.size} values but y has {self.y.size}")
+        if self.kind not in ("line", "scatter"):
+            raise ValueError(f"series {self.label!r}: kind must be 'line' or 'scatter', got {self.kind!r}")
+
+
+@dataclass
+class Panel:
+    """One chart: a title, axis labels with units, and its series."""
+
+    title: str
+    x_label: str
+    y_label: str
+    series: list[Series] = field(default_factory=list)
+    y_range: tuple[float, float] | None = None
+    x_range: tuple[float, float] | None = None
+    legend_loc: str = "upper right"
+    headroom: float = 0.3
+    """Fraction of the data's height left free above it for the legend (when ``y_range`` is not set)."""
+
+
+def _colour(name: str, k: int) -> str:
+    """The usual colour of a series named ``name`` (or of its first word), else the k-th of a cycle."""
+    key = name.lower()
+    if key in COLOURS:
+        return COLOURS[key]
+    first = key.split()[0] if key.split() else key
+    return COLOURS.get(first, _CYCLE[k % len(_CYCLE)])
+
+
+def _padded_range(values: Sequence[np.ndarray], pad: float = 0.05) -> tuple[float, float] | None:
+    finite = [v[np.isfinite(v)] for v in values if v.size]
+    finite = [v for v in finite if v.size]
+    if not finite:
+        return None
+    lo = min(float(v.min()) for v in finite)
+    hi = max(float(v.max()) for v in finite)
+    span = hi - lo
+    if span <= 0:
+        span = abs(hi) if hi != 0 else 1.0
+    return lo - pad * span, hi + pad * span
+
+
+_LEGEND_ALIGN = {"left": 0, "centre": 1, "center": 1, "right": 2, "upper": 3, "top": 3, "lower": 4, "bottom": 4}
+
+
+def _chart(panel: Panel) -> "pv.Chart2D":
+    chart = pv.Chart2D(x_label=panel.x_label, y_label=panel.y_label)
+    chart.background_color = "white"
+    chart.title = panel.title
+    chart.GetTitleProperties().SetFontSize(FONT["title"])
+    for axis in (chart.x_axis, chart.y_axis):
+        axis.label_size = FONT["label"]
+        axis.tick_label_size = FONT["ticks"]
+    chart.GetLegend().SetLabelSize(FONT["legend"])
+    # leave room for the tick labels and the axis titles
+    chart.loc = (0.04, 0.05)
+    chart.size = (0.94, 0.92)
+    for s in panel.series:
+        if s.kind == "line":
+            chart.line(s.x, s.y, color=s.colour or "black", width=s.width, label=s.label, style=s.style)
+        else:
+            chart.scatter(s.x, s.y, color=s.colour or "black", size=s.marker_size, style=s.marker, label=s.label)
+    chart.legend_visible = any(s.label for s in panel.series)
+    try:
+        vertical, horizontal = panel.legend_loc.split()
+        legend = chart.GetLegend()
+        legend.SetVerticalAlignment(_LEGEND_ALIGN[vertical])
+        legend.SetHorizontalAlignment(_LEGEND_ALIGN[horizontal])
+    except (ValueError, KeyError):
+        raise ValueError(f"panel {panel.title!r}: legend_loc {panel.legend_loc!r} is not like 'upper right'") from None
+    y_range = panel.y_range or _padded_range([s.y for s in panel.series])
+    if panel.y_range is None and y_range is not None and chart.legend_visible:
+        y_range = (y_range[0], y_range[1] + panel.headroom * (y_range[1] - y_range[0]))
+    x_range = panel.x_range or _padded_range([s.x for s in panel.series], pad=0.0)
+    if y_range is not None:
+        chart.y_range = list(y_range)
+    if x_range is not None and x_range[1] > x_range[0]:
+        chart.x_range = list(x_range)
+    return chart
+
+
+def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, panel_size=PANEL_SIZE) -> Path:
+    """Draw panels of 2D curves on a grid (``ncols`` per row) and save a PNG.
+
+    Parameters
+    ----------
+    panels : sequence of Panel
+    png_path : path-like
+    ncols : int, optional
+        Panels per row (default: all in one row up to 3).
+    panel_size : (int, int)
+        Pixels per panel.
+    """
+    panels = list(panels)
+    if not panels:
+        raise ValueError("curves_figure needs at least one panel")
+    ncols = ncols or min(len(panels), 3)
+    nrows = math.ceil(len(panels) / ncols)
+    plotter = pv.Plotter(
+        off_screen=True,
+        shape=(nrows, ncols),
+        border=False,
+        window_size=(panel_size[0] * ncols, panel_size[1] * nrows),
+    )
+    plotter.set_background("white")
+    for i, panel in enumerate(panels):
+        plotter.subplot(i // ncols, i % ncols)
+        plotter.add_chart(_chart(panel))
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
+
+
+def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=(900, 560)) -> Path:
+    """Grouped bars: one group per category, one bar colour per key of ``values``.
+
+    The categories are written on the x axis as tick labels.
+
+    Parameters
+    ----------
+    categories : sequence of str
+        Names on the x axis (e.g. regions of the path).
+    values : dict
+        Label -> (len(categories),) array (e.g. model -> mean |error| in %).
+    """
+    categories = [str(c) for c in categories]
+    if not categories or not values:
+        raise ValueError("bar_figure needs categories and at least one series of values")
+    x = np.arange(len(categories), dtype=float)
+    arrays, labels, colours = [], [], []
+    for k, (label, v) in enumerate(values.items()):
+        v = np.asarray(v, dtype=float).ravel()
+        if v.size != len(categories):
+            raise ValueError(f"bar series {label!r} has {v.size} values for {len(categories)} categories")
+        arrays.append(v)
+        labels.append(str(label))
+        colours.append(_colour(str(label), k))
+    chart = _chart(Panel(title, "", y_label, []))
+    for v, label, colour in zip(arrays, labels, colours):
+        chart.bar(x, v, color=colour, label=label)  # VTK places the bar plots of one chart side by side
+    chart.legend_visible = True
+    top = max(float(np.nanmax(a)) for a in arrays)
+    bottom = min(0.0, min(float(np.nanmin(a)) for a in arrays))
+    chart.y_range = [bottom, top * 1.3 if top > 0 else 1.0]
+    chart.x_range = [-0.6, len(categories) - 0.4]
+    chart.x_axis.tick_locations = x
+    chart.x_axis.tick_labels = categories
+    plotter = pv.Plotter(off_screen=True, window_size=panel_size)
+    plotter.set_background("white")
+    plotter.add_chart(chart)
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
+
+
+# ---------------------------------------------------------------- path helpers
+def path_coordinate(poses) -> tuple[np.ndarray, str]:
+    """The abscissa for plots along a path: x, y, or the arc length (m), with its label.
+
+    x (or y) when the path runs mainly along it (its range is at least 5 times
+    the others'), otherwise the distance travelled.
+    """
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    span = np.ptp(poses[:, :3], axis=0) if len(poses) else np.zeros(3)
+    for axis, name in ((0, "x"), (1, "y")):
+        others = np.delete(span, axis)
+        if span[axis] > 0 and span[axis] >= 5 * others.max():
+            return poses[:, axis].copy(), f"sensor position {name} (m)"
+    steps = np.linalg.norm(np.diff(poses[:, :3], axis=0), axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)]), "distance along the path (m)"
+
+
+def _segments(passes, n: int) -> list[np.ndarray]:
+    """Index arrays of the passes (one segment when ``passes`` is None)."""
+    if passes is None:
+        return [np.arange(n)]
+    passes = np.asarray(passes).ravel()
+    return [np.flatnonzero(passes == p) for p in dict.fromkeys(passes.tolist())]
+
+
+def _model_series(x, values, name, k, passes, kind="line") -> list[Series]:
+    out = []
+    for i, idx in enumerate(_segments(passes, len(x))):
+        order = idx[np.argsort(x[idx], kind="stable")]
+        out.append(Series(x[order], values[order], name if i == 0 else "", kind=kind, colour=_colour(name, k)))
+    return out
+
+
+def resistance_figure(
+    x_m,
+    bench_ohm,
+    models_ohm: dict,
+    receivers: Sequence[int],
+    png_path,
+    corrected_bench_ohm=None,
+    x_label: str = "sensor position x (m)",
+    passes=None,
+    title_prefix: str = "",
+) -> Path:
+    """Resistance U/I of each receiver against position: bench, models, corrected bench.
+
+    The paper's figures 6 to 8 (x in m, resistance in ohm), one panel per receiver.
+
+    Parameters
+    ----------
+    x_m : (P,) array
+        Abscissa of each pose (see :func:`path_coordinate`).
+    bench_ohm : (P, m) array or None
+        Measured U/I per receiver.
+    models_ohm : dict
+        Model name -> (P, m) array of simulated U/I.
+    receivers : sequence of int
+        The receivers' electrode numbers (panel titles).
+    corrected_bench_ohm : (P, m) array, optional
+        The bench after the conductivity correction.
+    passes : (P,) array, optional
+        Pass labels: model curves are drawn pass by pass.
+    """
+    x = np.asarray(x_m, dtype=float).ravel()
+    panels = []
+    for j, k in enumerate(receivers):
+        series = []
+        for m, (name, R) in enumerate(models_ohm.items()):
+            series += _model_series(x, np.asarray(R, dtype=float)[:, j], name.upper(), m, passes)
+        if corrected_bench_ohm is not None:
+            series.append(Series(x, np.asarray(corrected_bench_ohm)[:, j], "bench (corrected)", "scatter",
+                                 COLOURS["bench (corrected)"], marker_size=7, marker="d"))
+        if bench_ohm is not None:
+            series.append(Series(x, np.asarray(bench_ohm)[:, j], "bench", "scatter", COLOURS["bench"], marker_size=7))
+        panels.append(Panel(f"{title_prefix}receiver {k}", x_label, "resistance U/I (ohm)", series, legend_loc="upper centre"))
+    return curves_figure(panels, png_path)
+
+
+def relative_error_figure(
+    x_m,
+    errors: dict,
+    receivers: Sequence[int],
+    png_path,
+    x_label: str = "sensor position x (m)",
+    passes=None,
+    title_prefix: str = "",
+    percent: bool = True,
+) -> Path:
+    """Relative error against position, one panel per receiver, one curve per comparison.
+
+    Parameters
+    ----------
+    errors : dict
+        Label (e.g. ``"BEM vs bench"``) -> (P, m) relative errors (fractions).
+    percent : bool
+        Plot in percent (default).
+    """
+    x = np.asarray(x_m, dtype=float).ravel()
+    scale = 100.0 if percent else 1.0
+    panels = []
+    for j, k in enumerate(receivers):
+        series = []
+        for m, (name, e) in enumerate(errors.items()):
+            style = "--" if name.lower().endswith("vs bem") else "-"
+            for s in _model_series(x, scale * np.asarray(e, dtype=float)[:, j], name, m, passes):
+                s.style = style
+                series.append(s)
+        series.append(Series([x.min(), x.max()], [0.0, 0.0], "", "line", "#444444", width=1.0))
+        unit = "relative error (%)" if percent else "relative error"
+        panels.append(Panel(f"{title_prefix}receiver {k}", x_label, unit, series))
+    return curves_figure(panels, png_path)
+
+
+# ------------------------------------------------------------------ 3D figures
+def _electrode_colours(n: int) -> list[str]:
+    return [_CYCLE[k % len(_CYCLE)] for k in range(n)]
+
+
+def _polydata(mesh) -> "pv.PolyData":
+    faces = np.hstack([np.full((mesh.faces.shape[0], 1), 3), mesh.faces]).ravel()
+    poly = pv.PolyData(np.asarray(mesh.vertices_m, dtype=float), faces)
+    poly.cell_data["electrode"] = np.asarray(mesh.electrode)
+    return poly
+
+
+def _add_sensor(plotter, sensor_mesh, pose=None):
+    """Sensor faces: grey insulator, one colour per electrode; returns the legend entries."""
+    mesh = sensor_mesh.transformed(pose) if pose is not None else sensor_mesh
+    poly = _polydata(mesh)
+    labels = np.asarray(mesh.electrode)
+    n = int(labels.max()) if labels.size else 0
+    colours = _electrode_colours(n)
+    legend = []
+    insulator = poly.extract_cells(np.flatnonzero(labels == 0))
+    if insulator.n_cells:
+        plotter.add_mesh(insulator, color="#c8c8c8", show_edges=True, edge_color="#a0a0a0", line_width=0.5)
+        legend.append(["insulator", "#a8a8a8"])
+    for k in range(1, n + 1):
+        part = poly.extract_cells(np.flatnonzero(labels == k))
+        if part.n_cells:
+            plotter.add_mesh(part, color=colours[k - 1], show_edges=True, edge_color="#404040", line_width=0.5)
+            legend.append([f"electrode {k}", colours[k - 1]])
+    return legend
+
+
+def _scalar_bar(title: str, fmt: str = "%.2f") -> dict:
+    return {"title": title, "title_font_size": 22, "label_font_size": 20, "color": "black", "vertical": False,
+            "position_x": 0.2, "position_y": 0.03, "height": 0.06, "width": 0.6, "fmt": fmt, "n_labels": 5}
+
+
+def scene_figure(
+    png_path,
+    sensor_mesh=None,
+    pose=None,
+    tank=None,
+    trajectory_m=None,
+    values=None,
+    value_label: str = "mean abs. relative error (%)",
+    object_meshes=(),
+    title: str = "",
+    window_size=(1800, 900),
+) -> Path:
+    """The 3D scene: tank, sensor mesh (electrodes coloured), path coloured by ``values``.
+
+    Left: the whole tank with the path (a tube coloured by ``values``) and the
+    sensor drawn at ``pose``, true size. Right: a close-up of the sensor mesh
+    with its electrodes coloured and named.
+
+    Parameters
+    ----------
+    sensor_mesh : meshes.labelled_mesh.LabelledMesh, optional
+        Sensor mesh in the SENSOR frame; drawn at ``pose`` (a meshes.pose.Pose).
+    tank : meshes.tank.Tank, optional
+        Drawn as the edges of the water box with a translucent floor.
+    trajectory_m : (P, 3) array, optional
+        Sensor centres along the path (tank frame).
+    values : (P,) array, optional
+        Scalar per pose for the path's colour map (e.g. error in %).
+    object_meshes : sequence of LabelledMesh
+        Objects in the tank frame.
+    """
+    has_closeup = sensor_mesh is not None
+    plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
+    plotter.set_background("white")
+    legend = []
+    if tank is not None:
+        lo, hi = tank.water_bounds_m
+        box = pv.Box(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
+        plotter.add_mesh(box.extract_feature_edges(), color="#305080", line_width=3)
+        floor = pv.Plane(center=(0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), lo[2]),
+                         i_size=hi[0] - lo[0], j_size=hi[1] - lo[1])
+        plotter.add_mesh(floor, color="#9fb8d8", opacity=0.35)
+        legend.append(["tank (water box)", "#305080"])
+    for mesh in object_meshes:
+        plotter.add_mesh(_polydata(mesh), color="#6b8e23")
+    if object_meshes:
+        legend.append(["objects", "#6b8e23"])
+    if sensor_mesh is not None:
+        mesh = sensor_mesh.transformed(pose) if pose is not None else sensor_mesh
+        plotter.add_mesh(_polydata(mesh), color="#444444")
+        legend.append(["sensor", "#444444"])
+    if trajectory_m is not None:
+        pts = np.atleast_2d(np.asarray(trajectory_m, dtype=float))
+        path = pv.lines_from_points(pts) if len(pts) > 1 else pv.PolyData(pts)
+        if values is not None:
+            path.point_data[value_label] = np.asarray(values, dtype=float).ravel()
+            tube = path.tube(radius=0.006) if len(pts) > 1 else path
+            plotter.add_mesh(tube, scalars=value_label, cmap="viridis", scalar_bar_args=_scalar_bar(value_label))
+        else:
+            plotter.add_mesh(path, color="black", line_width=4)
+            legend.append(["sensor path", "black"])
+    if legend:
+        plotter.add_legend(legend, bcolor="white", border=True, size=(0.3, 0.05 * len(legend) + 0.02),
+                           loc="upper left", face="rectangle")
+    if title:
+        plotter.add_text(title, position="upper_right", font_size=14, color="black")
+    plotter.show_axes()
+    plotter.camera_position = [(1.6, -2.2, 1.3), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    plotter.reset_camera()
+    plotter.camera.zoom(0.9)
+    plotter.camera.elevation = 4.0
+    if has_closeup:
+        plotter.subplot(0, 1)
+        legend = _add_sensor(plotter, sensor_mesh)
+        plotter.add_legend(legend, bcolor="white", border=True, size=(0.25, 0.05 * len(legend) + 0.02),
+                           loc="upper left", face="rectangle")
+        length = float(np.ptp(sensor_mesh.vertices_m[:, 0]))
+        plotter.add_text(f"sensor mesh: {sensor_mesh.n_triangles} triangles, {length * 100:.1f} cm, head (1) at +x",
+                         position="lower_edge", font_size=14, color="black")
+        plotter.camera_position = [(0.0, -1.0, 0.45), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+        plotter.reset_camera()
+        plotter.camera.zoom(0.92)
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
+
+
+def potential_figure(
+    png_path,
+    x_m,
+    y_m,
+    potential_V,
+    sensor_outline_m=None,
+    electrode_segments=(),
+    field_V_per_m=None,
+    title: str = "",
+    window_size=(1400, 900),
+    n_streamlines: int = 40,
+) -> Path:
+    """Potential on a horizontal plane (colour map, isolines) with current lines.
+
+    Parameters
+    ----------
+    x_m, y_m : (nx,), (ny,) arrays
+        Grid lines of the plane (tank or sensor frame), metres.
+    potential_V : (ny, nx) array
+        Potential at the grid points; NaN inside the sensor (left blank).
+    sensor_outline_m : (k, 2) array, optional
+        Closed polygon of the sensor's outline in the plane.
+    electrode_segments : sequence of ((k, 2) array, label)
+        Outline pieces of the electrodes, coloured and named in the legend.
+    field_V_per_m : (ny, nx, 2) array, optional
+        In-plane electric field; by default minus the gradient of the potential.
+        Current lines follow the current density sigma E, i.e. E.
+    """
+    x = np.asarray(x_m, dtype=float)
+    y = np.asarray(y_m, dtype=float)
+    phi = np.asarray(potential_V, dtype=float)
+    if phi.shape != (y.size, x.size):
+        raise ValueError(f"potential has shape {phi.shape}, expected (ny, nx) = {(y.size, x.size)}")
+    if field_V_per_m is None:
+        filled = np.where(np.isfinite(phi), phi, np.nanmean(phi))
+        gy, gx = np.gradient(filled, y, x)
+        field_V_per_m = np.stack([-gx, -gy], axis=-1)
+    inside = ~np.isfinite(phi)
+    grid = pv.RectilinearGrid(x, y, np.array([0.0]))
+    grid.point_data["potential (V)"] = np.where(inside, np.nan, phi).ravel()
+    E = np.zeros((y.size, x.size, 3))
+    E[..., :2] = np.where(inside[..., None], 0.0, field_V_per_m)
+    grid.point_data["E"] = E.reshape(-1, 3)
+    plotter = pv.Plotter(off_screen=True, window_size=window_size)
+    plotter.set_background("white")
+    finite = phi[np.isfinite(phi)]
+    lo, hi = np.percentile(finite, [2, 98]) if finite.size else (0.0, 1.0)
+    plotter.add_mesh(
+        grid,
+        scalars="potential (V)",
+        cmap="coolwarm",
+        clim=(lo, hi),
+        nan_opacity=0.0,
+        scalar_bar_args={"title": "potential (V)", "title_font_size": 24, "label_font_size": 20,
+                         "color": "black", "vertical": True, "position_x": 0.88, "position_y": 0.15,
+                         "height": 0.7, "width": 0.05, "fmt": "%.3f"},
+    )
+    contours = grid.contour(isosurfaces=np.linspace(lo, hi, 15), scalars="potential (V)")
+    if contours.n_points:
+        plotter.add_mesh(contours, color="#404040", line_width=1.5)
+    # current lines: streamlines of E seeded on a circle around the sensor
+    cx, cy = 0.5 * (x[0] + x[-1]), 0.5 * (y[0] + y[-1])
+    radius = 0.35 * min(x[-1] - x[0], y[-1] - y[0])
+    t = np.linspace(0, 2 * np.pi, n_streamlines, endpoint=False)
+    seeds = pv.PolyData(np.column_stack([cx + radius * np.cos(t), cy + radius * np.sin(t), np.zeros_like(t)]))
+    legend = []
+    try:
+        lines = grid.streamlines_from_source(seeds, vectors="E", integration_direction="both",
+                                             max_steps=4000, initial_step_length=0.5, surface_streamlines=True)
+        if lines.n_points:
+            plotter.add_mesh(lines, color="black", line_width=2.5)
+            legend.append(["current lines", "black"])
+    except Exception:  # streamlines are decoration; the potential map stands alone
+        pass
+    legend.append(["equipotentials", "#404040"])
+    if sensor_outline_m is not None:
+        o = np.asarray(sensor_outline_m, dtype=float)
+        pts = np.column_stack([o, np.full(len(o), 1e-4)])
+        plotter.add_mesh(pv.lines_from_points(np.vstack([pts, pts[:1]])), color="#808080", line_width=4)
+        legend.append(["sensor (insulating)", "#808080"])
+    colours = _electrode_colours(max(len(electrode_segments), 1))
+    for (seg, label), colour in zip(electrode_segments, colours):
+        s = np.asarray(seg, dtype=float)
+        pts = np.column_stack([s, np.full(len(s), 2e-4)])
+        plotter.add_mesh(pv.lines_from_points(pts), color=colour, line_width=8)
+        legend.append([label, colour])
+    plotter.add_legend(legend, bcolor="white", border=True, size=(0.2, 0.04 * len(legend) + 0.02),
+                       loc="upper left", face="rectangle")
+    if title:
+        plotter.add_text(title, position="upper_edge", font_size=16, color="black")
+    plotter.view_xy()
+    plotter.show_bounds(xtitle="x (m)", ytitle="y (m)", font_size=18, color="black", location="outer",
+                        grid=False, ticks="outside", n_xlabels=5, n_ylabels=5, fmt="%.2f")
+    plotter.camera.zoom(0.95)
+    png_path = Path(png_path)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
+
+
+def png_is_blank(png_path, tolerance: int = 0) -> bool:
+    """True when every pixel of the image is (nearly) the same colour."""
+    img = np.asarray(pv.read(str(png_path)).point_data.active_scalars)
+    if img.ndim == 1:
+        img = img[:, None]
+    return bool(np.all(np.ptp(img.astype(int), axis=0) <= tolerance))
