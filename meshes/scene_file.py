@@ -1,0 +1,264 @@
+"""Scene files: a user's bench set-up in a small TOML file.
+
+::
+
+    # my_bench.toml -- lengths in metres, angles in radians, tank frame
+    [tank]                      # leave the table out for unbounded water
+    size_m = [1.0, 0.6, 0.5]    # inner Lx, Ly, Lz
+    water_depth_m = 0.4         # default: Lz
+
+    [sensor]
+    preset = "angels-4"         # or: file = "my_sensor.json" (relative to this file)
+    pose = [0.0, 0.0, 0.0, 0.0] # x_m, y_m, z_m, yaw_rad of the sensor centre
+    emitter = 4                 # optional, default: the last electrode
+
+    [[objects]]
+    shape = "sphere"            # sphere | box | cylinder
+    centre_m = [0.15, 0.08, 0.0]
+    radius_m = 0.02
+    material = "conducting"     # insulating | conducting | conductivity in S/m
+    name = "steel ball"         # optional
+
+    [[objects]]
+    shape = "box"
+    centre_m = [-0.2, 0.1, -0.05]
+    size_m = [0.05, 0.05, 0.1]
+    yaw_rad = 0.3               # optional
+    material = "insulating"
+
+    [[objects]]
+    shape = "cylinder"          # vertical pole
+    centre_m = [0.25, -0.15, 0.0]
+    radius_m = 0.01
+    height_m = 0.2
+    material = 0.5
+
+    [water]                     # optional physics, read by the simulating commands
+    sigma_S_per_m = 0.05
+
+Unknown tables or keys are refused (a misspelt key must not be silently
+ignored). Tables other than ``tank``, ``sensor`` and ``objects`` that the
+geometry does not use (``[water]``...) are returned by
+:func:`load_scene_settings`.
+
+Example
+-------
+>>> import tempfile, pathlib
+>>> from meshes.scene_file import load_scene
+>>> path = pathlib.Path(tempfile.mkdtemp()) / "bench.toml"
+>>> _ = path.write_text('[tank]\\nsize_m = [1, 1, 0.5]\\n[sensor]\\npreset = "angels-2"\\npose = [0.1, 0, 0, 0]\\n')
+>>> scene = load_scene(path)
+>>> scene.sensor.name, scene.pose.x_m, scene.tank.water_depth_m
+('angels-2', 0.1, 0.5)
+"""
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .objects import Box, Cylinder, Sphere, parse_material
+from .pose import Pose
+from .scene import Scene
+from .sensor import load_sensor
+from .tank import Tank
+
+__all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
+
+#: tables that carry physics or run settings rather than geometry; passed through
+SETTINGS_TABLES = ("water", "bem", "psm", "contact")
+
+_SHAPES = {
+    "sphere": (Sphere, {"radius_m"}),
+    "box": (Box, {"size_m", "yaw_rad"}),
+    "cylinder": (Cylinder, {"radius_m", "height_m"}),
+}
+
+
+class SceneFileError(ValueError):
+    """A scene file that cannot be read; the message names the file and the entry."""
+
+
+def _read_toml(path: Path) -> dict:
+    if not path.exists():
+        raise SceneFileError(f"{path}: no such scene file")
+    try:
+        return tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneFileError(f"{path}: not valid TOML: {exc}") from None
+
+
+def _unknown(path, where: str, table: dict, allowed: set[str]):
+    extra = sorted(set(table) - allowed)
+    if extra:
+        raise SceneFileError(f"{path}: {where} has unknown key(s) {', '.join(extra)}; allowed: {', '.join(sorted(allowed))}")
+
+
+def _floats(path, where: str, value, n: int) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else [value]))
+    except (TypeError, ValueError):
+        raise SceneFileError(f"{path}: {where} must be {n} number(s), got {value!r}") from None
+    if len(values) != n or not all(math.isfinite(v) for v in values):
+        raise SceneFileError(f"{path}: {where} must be {n} finite number(s), got {value!r}")
+    return values
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read a scene file (see the module docstring for the format).
+
+    Raises :class:`SceneFileError` naming the file and the faulty entry.
+    The scene is not checked for collisions here; see
+    :func:`meshes.scene_mesh.check_scene`.
+    """
+    path = Path(path)
+    data = _read_toml(path)
+    _unknown(path, "the file", data, {"tank", "sensor", "objects", *SETTINGS_TABLES})
+    try:
+        tank = None
+        if "tank" in data:
+            t = data["tank"]
+            _unknown(path, "[tank]", t, {"size_m", "water_depth_m"})
+            if "size_m" not in t:
+                raise SceneFileError(f"{path}: [tank] needs size_m = [Lx, Ly, Lz] (inner size, m)")
+            depth = t.get("water_depth_m")
+            tank = Tank(_floats(path, "[tank] size_m", t["size_m"], 3),
+                        None if depth is None else _floats(path, "[tank] water_depth_m", depth, 1)[0])
+
+        if "sensor" not in data:
+            raise SceneFileError(f"{path}: a [sensor] table is needed (preset = \"angels-4\" or file = \"...\")")
+        s = data["sensor"]
+        _unknown(path, "[sensor]", s, {"preset", "file", "pose", "emitter"})
+        if ("preset" in s) == ("file" in s):
+            raise SceneFileError(f"{path}: [sensor] needs exactly one of preset = \"...\" or file = \"...\"")
+        sensor = load_sensor(s["preset"]) if "preset" in s else load_sensor(s["file"], relative_to=path.parent)
+        if "emitter" in s:
+            sensor = sensor.with_emitter(int(s["emitter"]))
+        pose = Pose(*_floats(path, "[sensor] pose", s.get("pose", [0, 0, 0, 0]), 4))
+
+        objects = []
+        entries = data.get("objects", [])
+        if not isinstance(entries, list):
+            raise SceneFileError(f"{path}: objects must be an array of tables ([[objects]])")
+        for i, o in enumerate(entries, start=1):
+            where = f"[[objects]] number {i}"
+            shape = str(o.get("shape", "")).lower()
+            if shape not in _SHAPES:
+                raise SceneFileError(f"{path}: {where} has shape {o.get('shape')!r}; expected sphere, box or cylinder")
+            cls, keys = _SHAPES[shape]
+            _unknown(path, where, o, {"shape", "centre_m", "material", "name"} | keys)
+            if "centre_m" not in o:
+                raise SceneFileError(f"{path}: {where} needs centre_m = [x, y, z] (m, tank frame)")
+            kwargs = {"centre_m": _floats(path, f"{where} centre_m", o["centre_m"], 3),
+                      "conductivity_S_per_m": parse_material(o.get("material", "insulating")),
+                      "name": str(o.get("name", ""))}
+            for key in keys & set(o):
+                n = 3 if key == "size_m" else 1
+                value = _floats(path, f"{where} {key}", o[key], n)
+                kwargs[key] = value if n == 3 else value[0]
+            objects.append(cls(**kwargs))
+        return Scene(sensor=sensor, pose=pose, tank=tank, objects=tuple(objects))
+    except SceneFileError:
+        raise
+    except ValueError as exc:  # from the geometry types: prefix the file
+        raise SceneFileError(f"{path}: {exc}") from None
+
+
+def load_scene_settings(path: str | Path) -> dict:
+    """The non-geometry tables of a scene file (``{"water": {"sigma_S_per_m": 0.05}}``...)."""
+    path = Path(path)
+    data = _read_toml(path)
+    return {k: v for k, v in data.items() if k in SETTINGS_TABLES}
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    v = float(v)
+    return "inf" if math.isinf(v) else repr(v)
+
+
+def scene_to_toml(scene: Scene, sensor_file: str | None = None, settings: dict | None = None) -> str:
+    """The scene as scene-file text (a preset sensor by name, else ``sensor_file``)."""
+    from .sensor import PRESETS, preset
+
+    lines = []
+    if scene.tank is not None:
+        lines += ["[tank]", f"size_m = {_toml_value(scene.tank.size_m)}",
+                  f"water_depth_m = {_toml_value(scene.tank.water_depth_m)}", ""]
+    lines.append("[sensor]")
+    s = scene.sensor
+    if sensor_file is not None:
+        lines.append(f"file = {_toml_value(sensor_file)}")
+    elif s.name in PRESETS and replace(preset(s.name), emitter=s.emitter) == s:
+        lines.append(f"preset = {_toml_value(s.name)}")
+    else:
+        raise ValueError(f"sensor {s.name!r} is not a preset: give sensor_file (and save it with save_sensor)")
+    lines += [f"pose = {_toml_value(scene.pose.as_array())}", f"emitter = {s.emitter}", ""]
+    for obj in scene.objects:
+        shape = type(obj).__name__.lower()
+        lines += ["[[objects]]", f"shape = {_toml_value(shape)}", f"centre_m = {_toml_value(obj.centre_m)}"]
+        for key in sorted(_SHAPES[shape][1]):
+            lines.append(f"{key} = {_toml_value(getattr(obj, key))}")
+        c = obj.conductivity_S_per_m
+        material = "conducting" if math.isinf(c) else "insulating" if c == 0 else c
+        lines.append(f"material = {_toml_value(material)}")
+        if obj.name:
+            lines.append(f"name = {_toml_value(obj.name)}")
+        lines.append("")
+    for table, values in (settings or {}).items():
+        lines.append(f"[{table}]")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in values.items()]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def save_scene(scene: Scene, path: str | Path, sensor_file: str | None = None, settings: dict | None = None) -> Path:
+    """Write a scene file that :func:`load_scene` reads back to the same scene."""
+    path = Path(path)
+    path.write_text(scene_to_toml(scene, sensor_file, settings))
+    return path
+
+
+def apply_overrides(scene: Scene | None = None, *, sensor=None, pose=None, tank=None, objects=None,
+                    unbounded: bool = False) -> Scene:
+    """A scene from a scene file with command-line values put over it.
+
+    Parameters
+    ----------
+    scene : Scene or None
+        From ``--scene FILE`` (``None``: build from the flags alone).
+    sensor : SensorDescription or str, optional
+        A sensor or a preset name / sensor file path.
+    pose : Pose or str "X,Y,Z,YAW", optional
+    tank : Tank, optional
+    objects : sequence of objects, optional
+        Replace the file's objects.
+    unbounded : bool
+        Drop the tank (unbounded water).
+    """
+    if isinstance(sensor, str):
+        sensor = load_sensor(sensor)
+    if isinstance(pose, str):
+        pose = Pose.parse(pose)
+    if scene is None:
+        if sensor is None:
+            raise ValueError("no sensor: give a scene file or a sensor (preset name or sensor file)")
+        scene = Scene(sensor=sensor)
+    changes = {}
+    if sensor is not None:
+        changes["sensor"] = sensor
+    if pose is not None:
+        changes["pose"] = pose
+    if tank is not None:
+        changes["tank"] = tank
+    if unbounded:
+        changes["tank"] = None
+    if objects is not None:
+        changes["objects"] = tuple(objects)
+    return replace(scene, **changes)
