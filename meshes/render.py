@@ -1,0 +1,191 @@
+"""Offscreen pictures of labelled meshes, fit for a report.
+
+Electrodes are drawn in distinct colours with a legend ("electrode 4
+(emitter)"), the insulator in grey, the tank's water box translucent, the
+objects in bronze; the axes are labelled in metres. For a scene the sensor
+is small next to the tank, so the picture gets a second panel, a close-up
+of the sensor.
+
+Example
+-------
+>>> import tempfile, pathlib
+>>> from meshes import preset
+>>> from meshes.sensor_mesh import mesh_sensor
+>>> from meshes.render import render_mesh
+>>> png = pathlib.Path(tempfile.mkdtemp()) / "sensor.png"
+>>> render_mesh(mesh_sensor(preset("angels-4")), png, title="angels-4").exists()
+True
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .labelled_mesh import LabelledMesh
+
+__all__ = ["render_mesh", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
+
+#: colour-blind-friendly, distinct from the insulator's grey and the water's blue
+ELECTRODE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#e377c2", "#17becf", "#8c564b",
+                     "#bcbd22", "#7f7f00")
+INSULATOR_COLOUR = "#9a9a9a"
+TANK_COLOUR = "#6fa8dc"
+FREE_SURFACE_COLOUR = "#3d85c6"
+OBJECT_COLOUR = "#c08a45"
+BACKGROUND = "white"
+
+_TANK_REGIONS = {"wall_x-", "wall_x+", "wall_y-", "wall_y+", "floor", "free_surface"}
+
+
+def _pyvista():
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    import pyvista
+
+    return pyvista
+
+
+def electrode_colour(k: int) -> str:
+    """Colour of electrode k (1-based); the insulator (0) is grey."""
+    return INSULATOR_COLOUR if k == 0 else ELECTRODE_COLOURS[(k - 1) % len(ELECTRODE_COLOURS)]
+
+
+def electrode_legend(electrodes, emitter: int | None) -> list[tuple[str, str]]:
+    """Legend entries ``("electrode k (emitter)", colour)`` for the electrodes, then the insulator."""
+    entries = []
+    for k in electrodes:
+        role = "emitter" if k == emitter else "receiver"
+        entries.append((f"electrode {k} ({role})", electrode_colour(k)))
+    entries.append(("insulator", INSULATOR_COLOUR))
+    return entries
+
+
+def _polydata(mesh: LabelledMesh, mask: np.ndarray):
+    pv = _pyvista()
+    sub = mesh.select(mask)
+    return pv.PolyData(sub.vertices_m, np.c_[np.full(sub.n_triangles, 3), sub.faces].ravel())
+
+
+def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: float, detail: bool):
+    """Add the sensor (by electrode), tank and objects of ``mesh`` to a plotter (sub)plot.
+
+    In an overview (``detail`` False) of a scene the small parts are drawn
+    without their edges, which would otherwise paint them black.
+    """
+    names = np.asarray(mesh.region_names)[mesh.region]
+    is_tank = np.isin(names, list(_TANK_REGIONS))
+    is_object = np.char.startswith(names.astype(str), "object")
+    is_body = ~is_tank & ~is_object
+    small_edges = show_edges and (detail or not is_tank.any())
+    edge_kw = dict(show_edges=small_edges, edge_color="#404040", line_width=0.5)
+    shading = dict(specular=0.2, ambient=0.3, diffuse=0.8)
+    for k in np.unique(mesh.electrode[is_body]):
+        plotter.add_mesh(_polydata(mesh, is_body & (mesh.electrode == k)), color=electrode_colour(int(k)),
+                         **edge_kw, **shading)
+    if is_object.any():
+        plotter.add_mesh(_polydata(mesh, is_object), color=OBJECT_COLOUR, **edge_kw, **shading)
+    if is_tank.any() and not detail:
+        free = names == "free_surface"
+        walls = is_tank & ~free
+        for sel, colour in ((walls, TANK_COLOUR), (free, FREE_SURFACE_COLOUR)):
+            if sel.any():
+                plotter.add_mesh(_polydata(mesh, sel), color=colour, opacity=tank_opacity, show_edges=show_edges,
+                                 edge_color="#7a9cc6", line_width=0.4, ambient=0.4)
+
+
+def _padded_bounds(lo: np.ndarray, hi: np.ndarray, min_fraction: float = 0.3, margin: float = 0.05):
+    """Bounds around [lo, hi] with every side at least ``min_fraction`` of the longest (legible axes)."""
+    centre, extent = 0.5 * (lo + hi), hi - lo
+    extent = np.maximum(extent, min_fraction * extent.max()) * (1 + 2 * margin)
+    lo, hi = centre - extent / 2, centre + extent / 2
+    return (lo[0], hi[0], lo[1], hi[1], lo[2], hi[2])
+
+
+def _axes(plotter, font_size: int, bounds):
+    plotter.show_bounds(bounds=bounds, xtitle="x (m)", ytitle="y (m)", ztitle="z (m)", font_size=font_size,
+                        fmt="%.2f", grid="back", location="outer", ticks="outside", color="#202020",
+                        n_xlabels=3, n_ylabels=3, n_zlabels=3, minor_ticks=False, bold=False)
+
+
+def _add_legend(plotter, entries, scale: float = 1.0):
+    """A legend in the upper right corner of the current panel: a coloured square and text per entry."""
+    width, height = 0.34 * scale, 0.055 * scale * len(entries)
+    legend = plotter.add_legend([[label, colour] for label, colour in entries], bcolor="white", border=False,
+                                size=(width, height), face="rectangle")
+    legend.SetPosition(1.0 - width - 0.01, 1.0 - height - 0.06)  # pyvista's loc ignores the size
+
+
+def render_mesh(mesh: LabelledMesh, png_path: str | Path, *, title: str | None = None, emitter: int | None = None,
+                window_size: tuple[int, int] = (1600, 1000), show_edges: bool = True, tank_opacity: float = 0.12,
+                close_up: bool | None = None, view_vector=(0.45, -1.0, 0.55)) -> Path:
+    """Write an offscreen picture (PNG) of a labelled mesh (sensor, object, tank or whole scene).
+
+    Parameters
+    ----------
+    mesh : LabelledMesh
+        Faces of regions ``TANK_REGIONS`` are drawn translucent, regions
+        ``object_*`` in bronze, everything else by electrode label.
+    png_path : path
+    title : str, optional
+        Heading of the picture.
+    emitter : int, optional
+        Electrode named "(emitter)" in the legend (default: the last one).
+    window_size : (int, int)
+        Picture size in pixels.
+    show_edges : bool
+        Draw the triangle edges (shows the mesh grading).
+    tank_opacity : float
+        Opacity of the tank walls and free surface.
+    close_up : bool, optional
+        Add a panel with a close-up of the sensor; default: when the mesh
+        holds a tank or objects as well as electrodes.
+    view_vector : 3 floats
+        Direction from the focal point to the camera.
+
+    Returns
+    -------
+    Path of the PNG written.
+    """
+    pv = _pyvista()
+    png_path = Path(png_path)
+    if mesh.n_triangles == 0:
+        raise ValueError("render_mesh: the mesh has no triangles")
+    electrodes = mesh.electrodes
+    if emitter is None and electrodes:
+        emitter = max(electrodes)
+    names = np.asarray(mesh.region_names)[mesh.region]
+    has_body = np.any(~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object"))
+    has_surroundings = bool(np.any(np.isin(names, list(_TANK_REGIONS))) or np.any(np.char.startswith(names.astype(str), "object")))
+    if close_up is None:
+        close_up = bool(electrodes) and has_body and has_surroundings
+    font = max(12, int(window_size[1] / 55))
+    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), shape=(1, 2) if close_up else (1, 1),
+                         border=False)
+    plotter.set_background(BACKGROUND)
+    is_body = ~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object")
+    panels = [(0, False)] + ([(1, True)] if close_up else [])
+    for column, detail in panels:
+        plotter.subplot(0, column)
+        _add_parts(plotter, mesh, show_edges, tank_opacity, detail)
+        part = mesh.select(is_body) if detail else mesh
+        lo, hi = part.vertices_m.min(axis=0), part.vertices_m.max(axis=0)
+        if detail:  # the sensor and what is near it
+            pad = 0.5 * np.max(hi - lo)
+            near = mesh.select(~np.isin(names, list(_TANK_REGIONS))).vertices_m
+            near = near[np.all((near > lo - pad) & (near < hi + pad), axis=1)]
+            lo, hi = near.min(axis=0), near.max(axis=0)
+        bounds = _padded_bounds(lo, hi, margin=0.05 if detail or not close_up else 0.0)
+        _axes(plotter, font, bounds)
+        plotter.view_vector(view_vector)
+        plotter.reset_camera(bounds=bounds)
+        plotter.camera.zoom(0.9 if close_up else 1.05)
+        heading = "close-up of the sensor" if detail else title
+        if heading:
+            plotter.add_text(heading, position="upper_left", font_size=font, color="black")
+    if electrodes:
+        _add_legend(plotter, electrode_legend(electrodes, emitter), 1.0 if close_up else 0.7)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
