@@ -77,7 +77,7 @@ def test_local_cluster_of_two_processes_equals_serial(grid_poses, tmp_path):
 
     serial = _serial(WallImageEvaluator(), grid_poses)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
         assert cluster.scheduler_address.startswith("tcp://127.0.0.1:")
         store = SweepStore.open_or_create(tmp_path / "map.zarr", grid_poses, 4, 4, {"model": "stand-in"}, 5)
         result = run_sweep(WallImageEvaluator(), grid_poses, store, client=client, progress=False)

@@ -33,7 +33,7 @@ import functools
 import hashlib
 import json
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +95,9 @@ class PSMEvaluator:
     """The PSM at fixed scene and water: ``.conductance(poses)`` for any batch of poses.
 
     A small picklable object (the model's radii and centres plus the scene),
-    the PSM counterpart of :class:`bem.PoseSweep`.
+    the PSM counterpart of :class:`bem.PoseSweep`. ``image_shells`` fixes the
+    number of shells of the complete image series (see :meth:`for_poses`),
+    so that a sweep cut into chunks gives exactly what one call would.
     """
 
     model: object  # psm.PolySphericalModel
@@ -104,6 +106,8 @@ class PSMEvaluator:
     objects: tuple = ()
     images: str = "complete"
     contact_impedance_ohm_m2: object = None
+    sensor: SensorDescription | None = None
+    image_shells: int | None = None
     info: dict = field(default_factory=dict, compare=False)
 
     def conductance(self, poses, progress: bool = False) -> ConductanceMatrix:
@@ -118,7 +122,30 @@ class PSMEvaluator:
             images=self.images,
             objects=tuple(self.objects),
             contact_impedance_ohm_m2=self.contact_impedance_ohm_m2,
+            sensor=self.sensor,
+            image_shells=self.image_shells,
         )
+
+    def for_poses(self, poses, max_probes: int = 24) -> "PSMEvaluator":
+        """The same evaluator with the image shell count settled once for this whole set of poses.
+
+        The complete series adds shells until K stops changing on probe poses;
+        the probes are taken here from the whole set (the poses nearest each
+        boundary plus an even spread), not chunk by chunk.
+        """
+        if self.tank is None or self.images != "complete" or self.image_shells is not None:
+            return self
+        from psm.conductance import sphere_centres_m
+
+        poses = poses_array(poses)
+        if len(poses) > max_probes:
+            X = sphere_centres_m(self.model, poses)  # (P, n, 3)
+            gap = self.tank.distance_to_boundary_m(X).min(axis=1)  # (P, 6)
+            nearest = set(np.argmin(gap, axis=0).tolist())
+            spread = np.linspace(0, len(poses) - 1, max(1, max_probes - len(nearest))).astype(int)
+            poses = poses[sorted(nearest | set(spread.tolist()))]
+        shells = self.conductance(poses).info.get("image_shells")
+        return replace(self, image_shells=None if shells is None else int(shells))
 
 
 def psm_cache_dir() -> Path:
@@ -227,6 +254,7 @@ def pose_evaluator(
     psm_model=None,
     contact_impedance_ohm_m2=None,
     images: str = "complete",
+    poses=None,
     **bem_options,
 ):
     """The pose-invariant part of a model run: an object with ``.conductance(poses) -> ConductanceMatrix``.
@@ -235,7 +263,9 @@ def pose_evaluator(
     once); for ``"psm"`` a :class:`PSMEvaluator`. Both are picklable, so a
     sweep can scatter them to dask workers once and send only poses after.
 
-    Parameters are those of :func:`simulate`.
+    Parameters are those of :func:`simulate`; ``poses`` (optional) are the
+    poses it will be used for: the PSM settles its image series over all of
+    them at once, so that chunked runs give exactly what one call gives.
     """
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
@@ -262,7 +292,9 @@ def pose_evaluator(
         psm_model = _load_psm(psm_model)
         _check_psm_matches(psm_model, sensor)
         info = {"model": "psm", "images": images, "calibrated_on_free_space_bem": calibrated}
-        return PSMEvaluator(psm_model, float(sigma_S_per_m), tank, objects, images, contact_impedance_ohm_m2, info)
+        evaluator = PSMEvaluator(psm_model, float(sigma_S_per_m), tank, objects, images,
+                                 contact_impedance_ohm_m2, sensor, info=info)
+        return evaluator if poses is None else evaluator.for_poses(poses)
     raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
 
 
@@ -316,6 +348,6 @@ def simulate(
     """
     poses = poses_array(poses)
     evaluator = pose_evaluator(
-        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images, **bem_options
+        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images, None, **bem_options
     )
     return evaluator.conductance(poses, progress=progress)

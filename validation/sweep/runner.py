@@ -303,7 +303,7 @@ def _run_on_dask(client, evaluator, poses, pending, n_workers, target_task_s, la
         in_flight[future] = chunks
         ac.add(future)
 
-    ac = as_completed()
+    ac = as_completed(loop=client.loop)
     try:
         while queue and len(in_flight) < max_in_flight:
             submit_next(ac)

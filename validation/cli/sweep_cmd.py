@@ -1,0 +1,260 @@
+"""``esense sweep``: a model (BEM or PSM) over a line or a grid of poses, locally or on a dask cluster.
+
+Examples::
+
+    esense sweep --model bem --sensor angels-4 --tank 1,1,1 --from -0.4,0 --to 0.4,0 --steps 161 -o wall2wall.csv
+    esense sweep --model psm --sensor angels-4 --grid -0.4:0.4:81,-0.4:0.4:81 -o tank_map.zarr --plot tank_map.png
+    esense sweep --model bem --sensor angels-2 --grid -0.4:0.4:41,-0.4:0.4:41,0:3.1416:4 \\
+        --scheduler tcp://10.0.0.5:8786 -o map.zarr
+
+Output by suffix: ``.csv`` a bench log (one row per pose, U_V = 1, the
+receiver currents I<k>_A and resistances R<k>_ohm, ``source`` naming the
+model); ``.zarr`` the chunked sweep store (resumable, xarray-readable);
+``.nc`` the same as one netCDF file. Every run is resumable: ``.csv`` and
+``.nc`` are computed through ``<output>.partial.zarr`` and written at the end.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import click
+
+_OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
+DEFAULT_SIGMA_S_PER_M = 0.0354  # the paper's tank water
+
+
+def _parse_tank(text):
+    from meshes.tank import Tank
+
+    try:
+        size = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected LX,LY,LZ in metres", param_hint="--tank") from None
+    if len(size) != 3:
+        raise click.BadParameter(f"{text!r}: expected three lengths LX,LY,LZ (m)", param_hint="--tank")
+    try:
+        return Tank(tuple(size))
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--tank") from None
+
+
+def _sensor_spec_for_log(sensor, out: Path) -> str:
+    """What the bench log's meta calls the sensor: a preset name, or a sensor file beside the log."""
+    from meshes.sensor import PRESETS, preset, save_sensor
+
+    if sensor.name in PRESETS and preset(sensor.name).with_emitter(sensor.emitter) == sensor:
+        return sensor.name
+    side = out.with_name(out.stem + ".sensor.json")
+    save_sensor(sensor, side)
+    return side.name
+
+
+def _objects_description(objects) -> list:
+    from dataclasses import asdict
+
+    return [{"shape": type(o).__name__.lower(), **asdict(o)} for o in objects]
+
+
+def _bench_log_frame(C, poses):
+    """The bench-log table of a sweep: t_s (pose index), pose, U_V = 1, I<k>_A, R<k>_ohm."""
+    import numpy as np
+    import pandas as pd
+
+    I = C.receiver_currents_A(1.0)
+    data = {
+        "t_s": np.arange(len(poses), dtype=float),
+        "x_m": poses[:, 0], "y_m": poses[:, 1], "z_m": poses[:, 2], "yaw_rad": poses[:, 3],
+        "U_V": np.ones(len(poses)),
+    }
+    for j, k in enumerate(C.receivers):
+        data[f"I{k}_A"] = I[:, j]
+    for j, k in enumerate(C.receivers):
+        data[f"R{k}_ohm"] = 1.0 / I[:, j]
+    return pd.DataFrame(data)
+
+
+@click.command("sweep")
+@click.option("--model", "model", type=click.Choice(["bem", "psm"]), required=True,
+              help="bem: the boundary-element reference; psm: the poly-spherical model.")
+@click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False),
+              help="PSM model file (from `esense calibrate`); default: calibrate on the sensor's free-space BEM (cached).")
+@click.option("--sensor", "sensor_spec", help="Sensor preset (angels-2, angels-4) or sensor file; default: the scene's.")
+@click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False),
+              help="Scene file (TOML): sensor, tank, objects, and [water] sigma_S_per_m; flags override it.")
+@click.option("--tank", "tank_text", help="Tank inner size LX,LY,LZ in m (default: the scene's, else 1,1,1).")
+@click.option("--unbounded", is_flag=True, help="Unbounded water (no tank).")
+@click.option("--sigma", "sigma", type=float,
+              help=f"Water conductivity in S/m (default: the scene's [water], else {DEFAULT_SIGMA_S_PER_M}).")
+@click.option("--from", "from_xy", help="Line start X0,Y0 (m, tank frame).")
+@click.option("--to", "to_xy", help="Line end X1,Y1 (m).")
+@click.option("--steps", type=int, help="Number of poses on the line, both ends included.")
+@click.option("--grid", "grid_text", help="Grid X0:X1:NX,Y0:Y1:NY[,YAW0:YAW1:NYAW] (m, m, rad; ends included).")
+@click.option("--yaw", type=float, default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
+@click.option("--z", "z_m", type=float, default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
+@click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
+              help="PSM tank images.")
+@click.option("--edge-length", "edge_length_m", type=float, help="BEM mesh edge length in m (default: the mesher's).")
+@click.option("--contact-impedance", "contact_impedance", type=float, help="Electrode contact impedance in ohm m^2.")
+@click.option("--scheduler", help="dask scheduler address (tcp://host:port); default: Dask config, else this machine.")
+@click.option("--workers", type=int, help="Local workers (default: this machine's cores; 1: in this process).")
+@click.option("--chunk", "chunk_poses", type=int, help="Poses per stored chunk (default: about 16 chunks per worker).")
+@click.option("--plot", "plot_png", type=click.Path(dir_okay=False), help="Also write the tank map (grid sweeps) as PNG.")
+@click.option("--plot-quantity", type=click.Choice(["resistance", "current_change"]), default="resistance",
+              show_default=True, help="What the tank map shows.")
+@click.option("--overwrite", is_flag=True, help="Replace an existing .csv/.nc output (a .zarr store is resumed instead).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("-o", "--output", required=True, type=click.Path(),
+              help="out.csv (bench log with R<k>_ohm columns), out.zarr (resumable store) or out.nc (netCDF).")
+def sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps, grid_text,
+          yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses, plot_png,
+          plot_quantity, overwrite, quiet, output):
+    """Run a model over a line or a grid of poses and write the receiver currents and resistances.
+
+    The sweep runs on this machine's cores, or on a dask cluster with
+    --scheduler; results land chunk by chunk, and a killed sweep run again
+    with the same arguments resumes where it stopped.
+
+    Example: esense sweep --model psm --sensor angels-4 --from -0.4,0 --to 0.4,0 --steps 161 -o sweep.csv
+    """
+    from validation.sweep.grid import GridError
+
+    try:
+        _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps,
+               grid_text, yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses,
+               plot_png, plot_quantity, overwrite, quiet, Path(output))
+    except click.ClickException:
+        raise
+    except (ValueError, GridError, FileExistsError) as exc:
+        raise click.ClickException(str(exc)) from None
+    except RuntimeError as exc:  # SchedulerError and the solvers' refusals
+        raise click.ClickException(str(exc)) from None
+
+
+def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps, grid_text,
+           yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses, plot_png,
+           plot_quantity, overwrite, quiet, out: Path):
+    from meshes.scene_file import apply_overrides, load_scene, load_scene_settings
+    from meshes.tank import Tank
+    from validation.models import code_version, pose_evaluator
+    from validation.sweep.grid import line_poses, parse_grid, parse_xy
+    from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
+    from validation.sweep.store import SweepStore, export_netcdf, open_sweep, remove_store
+
+    # ------------------------------------------------------------ what to run
+    if out.suffix not in _OUTPUT_SUFFIXES:
+        raise click.BadParameter(f"{out}: the output must end in {', '.join(_OUTPUT_SUFFIXES)}", param_hint="-o")
+    if psm_file and model != "psm":
+        raise click.BadParameter("--psm goes with --model psm", param_hint="--psm")
+    if unbounded and tank_text:
+        raise click.BadParameter("give either --tank or --unbounded", param_hint="--tank")
+    scene = load_scene(scene_file) if scene_file else None
+    settings = load_scene_settings(scene_file) if scene_file else {}
+    if scene is None and sensor_spec is None:
+        raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
+    tank = _parse_tank(tank_text) if tank_text else None
+    if scene is None and tank is None and not unbounded:
+        tank = Tank((1.0, 1.0, 1.0))
+    scene = apply_overrides(scene, sensor=sensor_spec, tank=tank, unbounded=unbounded)
+    sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+    if sigma is None:
+        sigma = float(settings.get("water", {}).get("sigma_S_per_m", DEFAULT_SIGMA_S_PER_M))
+
+    grid = None
+    if grid_text:
+        if from_xy or to_xy or steps:
+            raise click.BadParameter("give either --grid or --from/--to/--steps", param_hint="--grid")
+        grid = parse_grid(grid_text, yaw_rad=yaw, z_m=z_m)
+        poses = grid.poses
+    else:
+        if not (from_xy and to_xy and steps):
+            raise click.BadParameter("give --from X0,Y0 --to X1,Y1 --steps N, or --grid", param_hint="--from")
+        poses = line_poses(parse_xy(from_xy, "--from"), parse_xy(to_xy, "--to"), steps, yaw, z_m)
+    if plot_png and grid is None:
+        raise click.BadParameter("--plot draws a tank map: it needs --grid", param_hint="--plot")
+    final = None if out.suffix == ".zarr" else out
+    if final is not None and final.exists() and not overwrite:
+        raise click.ClickException(f"{final} exists; pass --overwrite to replace it")
+    store_path = out if final is None else out.with_name(out.name + ".partial.zarr")
+
+    bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
+    model_options = {"images": images} if model == "psm" else {}
+    model_options.update(bem_options)
+    if contact_impedance is not None:
+        model_options["contact_impedance_ohm_m2"] = contact_impedance
+    psm_description = None
+    if psm_file:
+        from psm import PolySphericalModel
+
+        psm_description = PolySphericalModel.load(psm_file).to_json_dict()
+    identity = {
+        "model": model,
+        "sensor_name": sensor.name,
+        "sensor": sensor.to_dict(),
+        "tank_m": None if tank is None else list(tank.size_m),
+        "water_depth_m": None if tank is None else tank.water_depth_m,
+        "objects": _objects_description(objects),
+        "sigma_S_per_m": float(sigma),
+        "model_options": model_options,
+        "psm_model": psm_description,
+        "code_version": code_version(),
+    }
+    attrs = {"command": "esense sweep", "grid": grid.to_dict() if grid is not None else "none (a line of poses)"}
+    if grid is None:
+        attrs.pop("grid")
+
+    # -------------------------------------------------------------- the run
+    n_workers = workers or local_cores()
+    store = SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
+                                      chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
+    pending = store.pending_chunks()
+    if pending:
+        n_left = sum(b - a for a, b in pending)
+        if n_left < len(poses):
+            click.echo(f"resuming {store_path}: {len(poses) - n_left} of {len(poses)} poses already computed")
+        click.echo(f"{model.upper()}: {sensor.name}, {'unbounded water' if tank is None else f'tank {tank.size_m} m'}, "
+                   f"sigma {sigma:g} S/m, {n_left} poses to compute")
+        evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
+                                   poses=poses, **bem_options)
+        result = run_sweep(evaluator, poses, store, scheduler=scheduler, workers=workers, progress=not quiet)
+        C = result.conductance
+        click.echo(f"computed {result.n_computed} poses in {result.seconds:.1f} s "
+                   f"({result.poses_per_s:.3g} poses/s, {result.workers} worker{'s' if result.workers > 1 else ''})")
+    else:
+        click.echo(f"{store_path}: all {len(poses)} poses already computed")
+        C = store.conductance(sigma)
+
+    # ------------------------------------------------------------ the output
+    if out.suffix == ".csv":
+        from validation.benchlog import write_bench_log
+
+        source = f"esense sweep --model {model} ({'BEM' if model == 'bem' else 'PSM'}; {code_version()})"
+        meta = {
+            "sensor": _sensor_spec_for_log(sensor, out),
+            "emitter": sensor.emitter,
+            "tank_m": None if tank is None else list(tank.size_m),
+            "sigma_S_per_m": float(sigma),
+            "voltage_V": 1.0,
+            "source": source,
+            "notes": "simulated sweep: t_s is the pose index (one nominal second per pose); U_V = 1 V; "
+                     "R<k>_ohm = U/I of receiver k",
+            "model_options": model_options,
+        }
+        if tank is not None:
+            meta["water_depth_m"] = tank.water_depth_m
+        if objects:
+            meta["objects"] = _objects_description(objects)
+            for o in meta["objects"]:  # JSON has no infinity: write a conducting object by name
+                if math.isinf(o.get("conductivity_S_per_m", 0.0)):
+                    o["conductivity_S_per_m"] = "conducting"
+        write_bench_log(out, meta, _bench_log_frame(C, poses), overwrite=overwrite)
+    elif out.suffix == ".nc":
+        export_netcdf(store_path, out)
+    if plot_png:
+        from validation.sweep.plot import plot_tank_map
+
+        plot_tank_map(open_sweep(store_path), plot_png, quantity=plot_quantity)
+        click.echo(f"wrote {plot_png}")
+    if final is not None:
+        remove_store(store_path)
+    click.echo(f"wrote {out}")
