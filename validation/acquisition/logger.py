@@ -1,0 +1,478 @@
+"""The acquisition loop: serial line in, bench log out, nothing lost.
+
+Every line the device sends ends up either in the bench log (a checked,
+in-sequence record) or in the side file ``<log>.rejected`` (with the reason
+and the bytes as received, escaped). Gaps in the sequence, device restarts and
+port losses are counted, shown live and written to the side file as events.
+The log is written append-only through
+:class:`~validation.benchlog.BenchLogWriter`: flushed at every record, synced
+to the disk within half a second.
+
+Any pyserial URL serves as the port: a device path, a pseudo-terminal,
+``socket://host:port``, ``loop://``.
+
+Times: ``t_s`` in the log is the device's time. When a device restarts (its
+clock starts again from 0) or a log is appended to, the device's time would go
+backwards; the logger then adds an offset so that ``t_s`` continues from the
+last logged time plus the time the host saw pass, and writes the offset as an
+event in the side file. The device's ``boot`` and ``seq`` numbers are logged
+as two extra columns.
+
+Example
+-------
+>>> from validation.acquisition.logger import Logger
+>>> meta = {"sensor": "angels-4", "emitter": 4, "tank_m": [1, 1, 1], "sigma_S_per_m": 0.0354}
+>>> summary = Logger("socket://127.0.0.1:7000", "run.csv", meta, samples=100).run()   # doctest: +SKIP
+>>> print(summary.text())                                                              # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import codecs
+import datetime as _dt
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass, field, fields as dc_fields
+from pathlib import Path
+
+from validation.benchlog import BenchLogWriter, standard_columns
+from validation.benchlog.header import check_columns, interpret_meta
+
+from .protocol import Ack, DataRecord, FrameError, Hello, SequenceTracker, encode_command, parse_line
+
+__all__ = ["Logger", "AcquisitionCounters", "AcquisitionSummary", "rejected_path", "MAX_LINE_BYTES"]
+
+#: A "line" longer than this without a line end is noise: it is cut and rejected.
+MAX_LINE_BYTES = 4096
+EXTRA_COLUMNS = ("boot", "seq")
+
+
+def rejected_path(log_path) -> Path:
+    """The side file of a log: ``<log>.rejected``."""
+    p = Path(log_path)
+    return p.with_name(p.name + ".rejected")
+
+
+def _now_iso() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _escaped(raw: bytes) -> str:
+    """Bytes as printable ASCII, losslessly (\\r, \\n, \\t, \\xNN escapes)."""
+    return codecs.escape_encode(raw)[0].decode("ascii")
+
+
+@dataclass
+class AcquisitionCounters:
+    """What happened on the line since the logger started."""
+
+    records: int = 0      #: records written to the log
+    corrupt: int = 0      #: lines whose checksum did not match
+    framing: int = 0      #: lines without start marker or checksum, or with a malformed content
+    garbage: int = 0      #: bursts of noise found before a start marker
+    refused: int = 0      #: checked records the log could not take (field count, values, time)
+    duplicates: int = 0   #: records received twice (same boot and seq)
+    gaps: int = 0         #: jumps in the sequence
+    missing: int = 0      #: records never received intact (sum of the gaps)
+    restarts: int = 0     #: device restarts (new boot number)
+    reconnects: int = 0   #: times the port was lost and opened again
+
+    @property
+    def rejected(self) -> int:
+        """Lines (or fragments) kept in the side file instead of the log."""
+        return self.corrupt + self.framing + self.garbage + self.refused + self.duplicates
+
+    def as_dict(self) -> dict:
+        d = {f.name: getattr(self, f.name) for f in dc_fields(self)}
+        d["rejected"] = self.rejected
+        return d
+
+
+@dataclass
+class AcquisitionSummary:
+    log_path: Path
+    rejected_path: Path
+    counters: AcquisitionCounters
+    seconds: float
+    device: str
+    stopped_by: str
+
+    def text(self) -> str:
+        c = self.counters
+        lines = [
+            f"{c.records} records written to {self.log_path} in {self.seconds:.1f} s (stopped by {self.stopped_by})",
+            f"device: {self.device}",
+            f"rejected {c.rejected}: checksum {c.corrupt}, framing {c.framing}, noise {c.garbage}, "
+            f"refused {c.refused}, duplicates {c.duplicates}",
+            f"sequence: {c.gaps} gaps ({c.missing} records missing), {c.restarts} device restarts, "
+            f"{c.reconnects} reconnects",
+        ]
+        if c.rejected or c.gaps or c.restarts or c.reconnects:
+            lines.append(f"details: {self.rejected_path}")
+        return "\n".join(lines)
+
+
+class _PortLost(Exception):
+    pass
+
+
+class Logger:
+    """Acquire records from a serial line into a bench log.
+
+    Parameters
+    ----------
+    port : str
+        Any pyserial URL or device path.
+    log_path : str or Path
+        The bench log to write; refused if it exists, unless ``append``.
+    meta : dict
+        Meta object of the log (sensor, emitter, tank_m, sigma_S_per_m, ...).
+        ``device`` (from the device's hello) and ``started`` are added, and
+        ``source`` if not given.
+    baudrate : int
+    samples : int, optional
+        Stop after this many records written.
+    seconds : float, optional
+        Stop after this many seconds.
+    append : bool
+        Go on with an existing log of the same run.
+    quiet : bool
+        No live status line.
+    status : file
+        Where the status line goes (default stderr).
+    fields : sequence of str, optional
+        Field names of a record, for a device that does not answer ``ID``;
+        default: the hello's fields, or the spec's columns for the sensor.
+    identify_timeout_s : float
+        How long to wait for the hello before using the default fields.
+    reconnect_interval_s : float
+        Pause between attempts to open a lost port.
+    stop : threading.Event, optional
+        Set it to stop the loop (from another thread).
+    start_device : bool
+        Send ``START`` after the identification (and after a restart).
+    """
+
+    def __init__(self, port: str, log_path, meta: dict, baudrate: int = 115200, samples: int | None = None,
+                 seconds: float | None = None, append: bool = False, quiet: bool = False, status=None,
+                 fields=None, identify_timeout_s: float = 2.0, reconnect_interval_s: float = 0.5,
+                 read_timeout_s: float = 0.05, sync_interval_s: float = 0.5, stop: threading.Event | None = None,
+                 start_device: bool = True):
+        self.port_url = str(port)
+        self.log_path = Path(log_path)
+        self.rejected_path = rejected_path(self.log_path)
+        self.meta = dict(meta)
+        self.header = interpret_meta(self.meta, self.log_path, folder=self.log_path.parent)
+        if self.log_path.exists() and not append:
+            raise FileExistsError(f"{self.log_path} exists; refusing to overwrite a bench log (use append)")
+        self.baudrate = int(baudrate)
+        self.samples, self.seconds = samples, seconds
+        self.append, self.quiet = append, quiet
+        self.status = sys.stderr if status is None else status
+        self.fields = tuple(fields) if fields is not None else None
+        self.identify_timeout_s = identify_timeout_s
+        self.reconnect_interval_s = reconnect_interval_s
+        self.read_timeout_s = read_timeout_s
+        self.sync_interval_s = sync_interval_s
+        self.stop = stop or threading.Event()
+        self.start_device = start_device
+        self.counters = AcquisitionCounters()
+        self.device = "unknown (no hello received)"
+        self.last_currents: tuple[str, ...] = ()
+        self._writer: BenchLogWriter | None = None
+        self._side = None
+        self._tracker = SequenceTracker()
+        self._pending: list[DataRecord] = []
+        self._offset_s = 0.0
+        self._offset_boot: int | None = None
+        self._last_write_host = None
+        self._port = None
+        self._status_shown = 0.0
+        self._status_len = 0
+
+    # ------------------------------------------------------------- side file
+    def _side_write(self, reason: str, raw: bytes = b"") -> None:
+        if self._side is None:
+            new = not self.rejected_path.exists()
+            self._side = open(self.rejected_path, "ab", buffering=0)
+            if new:
+                self._side.write((f"# esense acquire: what was received on {self.port_url} but not written to "
+                                  f"{self.log_path.name}, and events; host time (UTC) TAB reason TAB line as "
+                                  f"received (escaped)\n").encode())
+        self._side.write(f"{_now_iso()}\t{reason}\t{_escaped(raw)}\n".encode("ascii", "backslashreplace"))
+
+    def _reject(self, counter: str, reason: str, raw: bytes) -> None:
+        setattr(self.counters, counter, getattr(self.counters, counter) + 1)
+        self._side_write(reason, raw)
+
+    def _event(self, text: str) -> None:
+        self._side_write("event: " + text)
+
+    # ------------------------------------------------------------------ port
+    def _open(self):
+        import serial
+
+        port = serial.serial_for_url(self.port_url, baudrate=self.baudrate, timeout=self.read_timeout_s,
+                                     write_timeout=1.0)
+        self._port = port
+        self._send("ID")
+        if self.start_device and self._writer is not None:
+            self._send("START")
+        return port
+
+    def _send(self, name: str, *args) -> None:
+        try:
+            self._port.write(encode_command(name, *args))
+        except Exception:  # a lost port shows up on the next read
+            pass
+
+    def _close_port(self) -> None:
+        if self._port is not None:
+            try:
+                self._port.close()
+            except Exception:
+                pass
+            self._port = None
+
+    def _reconnect(self, t0: float) -> bool:
+        """Wait for the port to come back; False if told to stop meanwhile."""
+        import serial
+
+        self._close_port()
+        lost_at = time.monotonic()
+        self._event(f"port {self.port_url} lost; waiting for it")
+        while not self._should_stop(t0):
+            self._show_status(t0, waiting=True)
+            time.sleep(self.reconnect_interval_s)
+            try:
+                self._open()
+            except (serial.SerialException, OSError, ValueError):
+                continue
+            self.counters.reconnects += 1
+            self._event(f"port {self.port_url} back after {time.monotonic() - lost_at:.1f} s")
+            return True
+        return False
+
+    # ---------------------------------------------------------------- writing
+    def _create_writer(self, fields: tuple[str, ...]) -> None:
+        columns = tuple(fields) + tuple(c for c in EXTRA_COLUMNS if c not in fields)
+        check_columns(list(columns), self.header, self.log_path, 3)
+        meta = dict(self.meta)
+        meta.setdefault("source", f"esense acquire from {self.port_url}; device: {self.device}")
+        meta["device"] = self.device
+        meta.setdefault("started", _now_iso())
+        self._writer = BenchLogWriter(self.log_path, meta, columns=columns, append=self.append,
+                                      sync_interval_s=self.sync_interval_s)
+        self._columns = self._writer.columns
+        self._n_fields = len(fields)
+        if self._writer.recovered_tail is not None:
+            self._side_write("cut-short last line removed from the log before appending",
+                             self._writer.recovered_tail.encode("utf-8", "backslashreplace"))
+        if self.start_device:
+            self._send("START")
+        pending, self._pending = self._pending, []
+        for record in pending:
+            self._take_record(record, raw=None)
+
+    def _device_time(self, value: str) -> float:
+        return float(value)
+
+    def _shifted(self, text: str, offset: float) -> str:
+        """``text`` (a time in s) plus ``offset``, with as many decimals as the device wrote."""
+        value = float(text) + offset
+        if "." in text and "e" not in text.lower():
+            return f"{value:.{len(text.split('.')[1])}f}"
+        return repr(value)
+
+    def _take_record(self, record: DataRecord, raw: bytes | None) -> None:
+        raw = raw if raw is not None else f"(record boot {record.boot} seq {record.seq})".encode()
+        if self._writer is None:
+            self._pending.append(record)
+            return
+        if len(record.values) != self._n_fields:
+            self._reject("refused", f"refused: {len(record.values)} values, the device's fields are {self._n_fields}",
+                         raw)
+            return
+        event, n = self._tracker.feed(record.boot, record.seq)
+        if event == "duplicate":
+            self._reject("duplicates", f"duplicate: record boot {record.boot} seq {record.seq} already received", raw)
+            return
+        if event == "restart":
+            self.counters.restarts += 1
+            self._event(f"device restarted: boot {record.boot} (records start again at seq {record.seq})")
+        elif event == "gap":
+            self.counters.gaps += 1
+            self.counters.missing += n
+            self._event(f"gap: {n} record{'s' if n > 1 else ''} missing before boot {record.boot} seq {record.seq}")
+        values = list(record.values)
+        t_index = self._columns.index("t_s")
+        if record.boot != self._offset_boot:
+            self._offset_boot = record.boot
+            last = self._writer.last_t_s
+            try:
+                t_dev = float(values[t_index])
+            except ValueError:
+                t_dev = None
+            if last is not None and t_dev is not None and t_dev + self._offset_s < last:
+                host_gap = 0.0 if self._last_write_host is None else time.monotonic() - self._last_write_host
+                self._offset_s = last + host_gap - t_dev
+                self._event(f"device time restarted: t_s of boot {record.boot} offset by {self._offset_s:+.6f} s "
+                            f"(device time + offset = logged t_s)")
+        if self._offset_s:
+            try:
+                values[t_index] = self._shifted(values[t_index], self._offset_s)
+            except ValueError:
+                pass  # the writer refuses it below, with the reason
+        try:
+            self._writer.write(values + [str(record.boot), str(record.seq)])
+        except ValueError as exc:
+            self._reject("refused", f"refused: {exc}", raw)
+            return
+        self._last_write_host = time.monotonic()
+        self.counters.records += 1
+        currents = [values[i] for i, c in enumerate(self._columns[:self._n_fields]) if c.startswith("I")]
+        self.last_currents = tuple(currents)
+
+    def _handle_line(self, raw: bytes) -> None:
+        if raw.strip() == b"":
+            return
+        try:
+            noise, message = parse_line(raw)
+        except FrameError as exc:
+            self._reject("corrupt" if exc.kind == "checksum" else "framing", f"{exc.kind}: {exc.reason}", raw)
+            return
+        if noise:
+            self._reject("garbage", "noise before the start marker (the record after it was kept)", noise)
+        if isinstance(message, Hello):
+            first = self.device.startswith("unknown")
+            self.device = message.device
+            if self._tracker.note_hello(message.boot):
+                self.counters.restarts += 1
+                self._event(f"device restarted: hello with boot {message.boot}")
+                if self.start_device and self._writer is not None:
+                    self._send("START")
+            if self._writer is None:
+                self._create_writer(self.fields or message.fields)
+            elif tuple(message.fields) != tuple(self._columns[:self._n_fields]) and self.fields is None:
+                self._event(f"device announces other fields ({';'.join(message.fields)}) than the log's columns")
+            elif first:
+                pass
+        elif isinstance(message, Ack):
+            if not message.ok:
+                self._event(f"device refused {message.command}: {message.text}")
+        elif isinstance(message, DataRecord):
+            self._take_record(message, raw)
+
+    # ----------------------------------------------------------------- status
+    def _should_stop(self, t0: float) -> bool:
+        if self.stop.is_set():
+            return True
+        if self.samples is not None and self.counters.records >= self.samples:
+            return True
+        return self.seconds is not None and time.monotonic() - t0 >= self.seconds
+
+    def status_text(self, t0: float, waiting: bool = False) -> str:
+        c = self.counters
+        dt = max(time.monotonic() - t0, 1e-9)
+        text = (f"{c.records} records  {c.records / dt:.1f}/s  rejected {c.rejected} "
+                f"(crc {c.corrupt}, framing {c.framing}, noise {c.garbage})  gaps {c.gaps} ({c.missing} missing)  "
+                f"restarts {c.restarts}  reconnects {c.reconnects}")
+        if waiting:
+            text += f"  WAITING FOR {self.port_url}"
+        elif self.last_currents:
+            text += "  I/A " + " ".join(self.last_currents)
+        return text
+
+    def _show_status(self, t0: float, waiting: bool = False, force: bool = False) -> None:
+        if self.quiet:
+            return
+        now = time.monotonic()
+        if not force and now - self._status_shown < 0.25:
+            return
+        self._status_shown = now
+        text = self.status_text(t0, waiting)
+        pad = max(0, self._status_len - len(text))
+        self._status_len = len(text)
+        self.status.write("\r" + text + " " * pad)
+        self.status.flush()
+
+    # ------------------------------------------------------------------- loop
+    def run(self) -> AcquisitionSummary:
+        """Acquire until ``samples``, ``seconds``, ``stop`` or Ctrl-C; return the summary."""
+        import serial
+
+        t0 = time.monotonic()
+        stopped_by = "stop"
+        try:
+            self._open()
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise OSError(f"cannot open the port {self.port_url}: {exc}") from None
+        if self.fields is not None:
+            self.device = "unknown (fields given by the user)"
+            self._create_writer(self.fields)
+        buffer = b""
+        try:
+            while not self._should_stop(t0):
+                try:
+                    if self._port is None:
+                        raise _PortLost()
+                    chunk = self._port.read(max(1, self._port.in_waiting))
+                except (serial.SerialException, OSError, _PortLost):
+                    if buffer:
+                        self._reject("framing", "incomplete line when the port was lost", buffer)
+                        buffer = b""
+                    if not self._reconnect(t0):
+                        break
+                    continue
+                if chunk:
+                    buffer += chunk
+                    *lines, buffer = buffer.split(b"\n")
+                    for line in lines:
+                        self._handle_line(line + b"\n")
+                        if self._should_stop(t0):
+                            break
+                    if len(buffer) > MAX_LINE_BYTES:
+                        self._reject("framing", f"no line end within {MAX_LINE_BYTES} bytes", buffer)
+                        buffer = b""
+                if self._writer is None and time.monotonic() - t0 > self.identify_timeout_s:
+                    self._event(f"no hello within {self.identify_timeout_s} s: using the spec's columns for "
+                                f"{self.meta['sensor']}")
+                    self._create_writer(standard_columns(self.header.sensor))
+                if self._writer is not None:
+                    self._writer.sync_if_due()
+                self._show_status(t0)
+            else:
+                stopped_by = self._stop_reason(t0)
+            if stopped_by == "stop":
+                stopped_by = self._stop_reason(t0)
+        except KeyboardInterrupt:
+            stopped_by = "interrupt (Ctrl-C)"
+        finally:
+            if buffer:
+                self._reject("framing", "incomplete line at the end of the acquisition", buffer)
+            if self._port is not None:
+                self._send("STOP")
+            self._close_port()
+            if self._writer is None:  # nothing arrived: still leave a valid, empty log
+                try:
+                    self._create_writer(self.fields or standard_columns(self.header.sensor))
+                except (OSError, ValueError):
+                    pass
+            if self._writer is not None:
+                self._writer.close()
+            if not self.quiet:
+                self._show_status(t0, force=True)
+                self.status.write("\n")
+                self.status.flush()
+            if self._side is not None:
+                self._side.close()
+        return AcquisitionSummary(self.log_path, self.rejected_path, self.counters, time.monotonic() - t0,
+                                  self.device, stopped_by)
+
+    def _stop_reason(self, t0: float) -> str:
+        if self.samples is not None and self.counters.records >= self.samples:
+            return f"{self.samples} samples"
+        if self.seconds is not None and time.monotonic() - t0 >= self.seconds:
+            return f"{self.seconds} s"
+        return "stop request"
