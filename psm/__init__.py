@@ -14,12 +14,15 @@ Example
 >>> bool(C.S_S[0, 0, 0] > 0)
 True
 """
+from .calibration import Calibration, CalibrationError, calibrate, gamma_criterion
 from .conductance import PlacementError, conductance
+from .jacobian import receiver_current_jacobian
 from .images import IMAGE_KINDS, image_sources
 from .model import ModelError, PolySphericalModel
 from .potential_coefficients import current_projector, isolated_conductance, potential_coefficients
 
 __all__ = [
     "PolySphericalModel", "ModelError", "conductance", "PlacementError", "image_sources", "IMAGE_KINDS",
+    "receiver_current_jacobian", "calibrate", "Calibration", "CalibrationError", "gamma_criterion",
     "potential_coefficients", "current_projector", "isolated_conductance",
 ]

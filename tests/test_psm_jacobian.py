@@ -1,0 +1,35 @@
+"""Jacobian of the receiver currents with respect to the pose, against finite differences."""
+import numpy as np
+import pytest
+
+from meshes.objects import Sphere
+from meshes.tank import Tank
+from psm import PolySphericalModel, conductance, receiver_current_jacobian
+
+SIGMA = 0.0354
+MODEL4 = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785])
+TANK = Tank((1.0, 1.0, 1.0), water_depth_m=0.8)
+
+
+@pytest.mark.parametrize("images, objects", [
+    ("paper8", ()),
+    ("complete", ()),
+    ("complete", (Sphere((0.1, 0.12, -0.1), "conducting", radius_m=0.02),)),
+])
+def test_jacobian_matches_central_differences(images, objects):
+    poses = np.array([[0.2, -0.1, -0.1, 0.4], [-0.3, 0.25, -0.1, 2.0]])
+    J = receiver_current_jacobian(MODEL4, poses, SIGMA, TANK, images, objects, image_shells=8)
+    h = 1e-5
+    for j, col in enumerate((0, 1, 3)):
+        dp = np.zeros(4)
+        dp[col] = h
+        Ip = conductance(MODEL4, poses + dp, SIGMA, TANK, images, objects, image_shells=8).receiver_currents_A()
+        Im = conductance(MODEL4, poses - dp, SIGMA, TANK, images, objects, image_shells=8).receiver_currents_A()
+        fd = (Ip - Im) / (2 * h)
+        np.testing.assert_allclose(J[:, :, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+
+def test_jacobian_vanishes_in_unbounded_water_and_has_the_contract_shape():
+    J = receiver_current_jacobian(MODEL4, np.array([[0.1, 0.2, 0.0, 1.0]] * 3), SIGMA)
+    assert J.shape == (3, 3, 3)
+    assert np.abs(J).max() < 1e-15
