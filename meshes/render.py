@@ -25,7 +25,7 @@ import numpy as np
 
 from .labelled_mesh import LabelledMesh
 
-__all__ = ["render_mesh", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
+__all__ = ["render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
 
 #: colour-blind-friendly, distinct from the insulator's grey and the water's blue
 ELECTRODE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#e377c2", "#17becf", "#8c564b",
@@ -116,6 +116,50 @@ def _add_legend(plotter, entries, scale: float = 1.0):
     legend.SetPosition(1.0 - width - 0.01, 1.0 - height - 0.06)  # pyvista's loc ignores the size
 
 
+def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int | None = None,
+                 window_size: tuple[int, int] = (1600, 1000), show_edges: bool = True, tank_opacity: float = 0.12,
+                 close_up: bool | None = None, view_vector=(0.45, -1.0, 0.55), off_screen: bool = True):
+    """A :class:`pyvista.Plotter` showing a labelled mesh (see :func:`render_mesh` for the parameters)."""
+    pv = _pyvista()
+    if mesh.n_triangles == 0:
+        raise ValueError("render_mesh: the mesh has no triangles")
+    electrodes = mesh.electrodes
+    if emitter is None and electrodes:
+        emitter = max(electrodes)
+    names = np.asarray(mesh.region_names)[mesh.region]
+    has_body = np.any(~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object"))
+    has_surroundings = bool(np.any(np.isin(names, list(_TANK_REGIONS))) or np.any(np.char.startswith(names.astype(str), "object")))
+    if close_up is None:
+        close_up = bool(electrodes) and has_body and has_surroundings
+    font = max(12, int(window_size[1] / 55))
+    plotter = pv.Plotter(off_screen=off_screen, window_size=list(window_size), shape=(1, 2) if close_up else (1, 1),
+                         border=False)
+    plotter.set_background(BACKGROUND)
+    is_body = ~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object")
+    panels = [(0, False)] + ([(1, True)] if close_up else [])
+    for column, detail in panels:
+        plotter.subplot(0, column)
+        _add_parts(plotter, mesh, show_edges, tank_opacity, detail)
+        part = mesh.select(is_body) if detail else mesh
+        lo, hi = part.vertices_m.min(axis=0), part.vertices_m.max(axis=0)
+        if detail:  # the sensor and what is near it
+            pad = 0.5 * np.max(hi - lo)
+            near = mesh.select(~np.isin(names, list(_TANK_REGIONS))).vertices_m
+            near = near[np.all((near > lo - pad) & (near < hi + pad), axis=1)]
+            lo, hi = near.min(axis=0), near.max(axis=0)
+        bounds = _padded_bounds(lo, hi, margin=0.05 if detail or not close_up else 0.0)
+        _axes(plotter, font, bounds)
+        plotter.view_vector(view_vector)
+        plotter.reset_camera(bounds=bounds)
+        plotter.camera.zoom(0.9 if close_up else 1.05)
+        heading = "close-up of the sensor" if detail else title
+        if heading:
+            plotter.add_text(heading, position="upper_left", font_size=font, color="black")
+    if electrodes:
+        _add_legend(plotter, electrode_legend(electrodes, emitter), 1.0 if close_up else 0.7)
+    return plotter
+
+
 def render_mesh(mesh: LabelledMesh, png_path: str | Path, *, title: str | None = None, emitter: int | None = None,
                 window_size: tuple[int, int] = (1600, 1000), show_edges: bool = True, tank_opacity: float = 0.12,
                 close_up: bool | None = None, view_vector=(0.45, -1.0, 0.55)) -> Path:
@@ -147,44 +191,51 @@ def render_mesh(mesh: LabelledMesh, png_path: str | Path, *, title: str | None =
     -------
     Path of the PNG written.
     """
-    pv = _pyvista()
     png_path = Path(png_path)
-    if mesh.n_triangles == 0:
-        raise ValueError("render_mesh: the mesh has no triangles")
-    electrodes = mesh.electrodes
-    if emitter is None and electrodes:
-        emitter = max(electrodes)
-    names = np.asarray(mesh.region_names)[mesh.region]
-    has_body = np.any(~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object"))
-    has_surroundings = bool(np.any(np.isin(names, list(_TANK_REGIONS))) or np.any(np.char.startswith(names.astype(str), "object")))
-    if close_up is None:
-        close_up = bool(electrodes) and has_body and has_surroundings
+    plotter = mesh_plotter(mesh, title=title, emitter=emitter, window_size=window_size, show_edges=show_edges,
+                           tank_opacity=tank_opacity, close_up=close_up, view_vector=view_vector)
+    png_path.parent.mkdir(parents=True, exist_ok=True)
+    plotter.screenshot(str(png_path))
+    plotter.close()
+    return png_path
+
+
+def data_plotter(poly, scalars: str | None = None, *, title: str | None = None,
+                 window_size: tuple[int, int] = (1600, 1000), off_screen: bool = True, cmap: str = "coolwarm"):
+    """A plotter colouring a surface by one of its data arrays (a surface solution, say).
+
+    ``scalars`` names a cell or point array; by default the first one that is
+    not a label (``electrode``, ``region``).
+    """
+    pv = _pyvista()
+    arrays = [n for n in list(poly.cell_data.keys()) + list(poly.point_data.keys()) if n not in ("electrode", "region")]
+    if scalars is None:
+        if not arrays:
+            raise ValueError("the surface has no data array to colour by (only labels)")
+        scalars = arrays[0]
+    elif scalars not in poly.cell_data and scalars not in poly.point_data:
+        raise ValueError(f"no data array {scalars!r}; arrays: {', '.join(arrays) or 'none'}")
     font = max(12, int(window_size[1] / 55))
-    plotter = pv.Plotter(off_screen=True, window_size=list(window_size), shape=(1, 2) if close_up else (1, 1),
-                         border=False)
+    plotter = pv.Plotter(off_screen=off_screen, window_size=list(window_size))
     plotter.set_background(BACKGROUND)
-    is_body = ~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object")
-    panels = [(0, False)] + ([(1, True)] if close_up else [])
-    for column, detail in panels:
-        plotter.subplot(0, column)
-        _add_parts(plotter, mesh, show_edges, tank_opacity, detail)
-        part = mesh.select(is_body) if detail else mesh
-        lo, hi = part.vertices_m.min(axis=0), part.vertices_m.max(axis=0)
-        if detail:  # the sensor and what is near it
-            pad = 0.5 * np.max(hi - lo)
-            near = mesh.select(~np.isin(names, list(_TANK_REGIONS))).vertices_m
-            near = near[np.all((near > lo - pad) & (near < hi + pad), axis=1)]
-            lo, hi = near.min(axis=0), near.max(axis=0)
-        bounds = _padded_bounds(lo, hi, margin=0.05 if detail or not close_up else 0.0)
-        _axes(plotter, font, bounds)
-        plotter.view_vector(view_vector)
-        plotter.reset_camera(bounds=bounds)
-        plotter.camera.zoom(0.9 if close_up else 1.05)
-        heading = "close-up of the sensor" if detail else title
-        if heading:
-            plotter.add_text(heading, position="upper_left", font_size=font, color="black")
-    if electrodes:
-        _add_legend(plotter, electrode_legend(electrodes, emitter), 1.0 if close_up else 0.7)
+    plotter.add_mesh(poly, scalars=scalars, cmap=cmap, show_edges=False,
+                     scalar_bar_args=dict(title=scalars, color="black", title_font_size=font, label_font_size=font,
+                                          vertical=True, position_x=0.86, position_y=0.2, height=0.6, fmt="%.3g"))
+    lo, hi = np.asarray(poly.bounds[::2]), np.asarray(poly.bounds[1::2])
+    bounds = _padded_bounds(lo, hi)
+    _axes(plotter, font, bounds)
+    plotter.view_vector((0.45, -1.0, 0.55))
+    plotter.reset_camera(bounds=bounds)
+    if title:
+        plotter.add_text(title, position="upper_left", font_size=font, color="black")
+    return plotter
+
+
+def render_data(poly, png_path: str | Path, scalars: str | None = None, *, title: str | None = None,
+                window_size: tuple[int, int] = (1600, 1000)) -> Path:
+    """Write a PNG of a surface coloured by a data array (see :func:`data_plotter`)."""
+    png_path = Path(png_path)
+    plotter = data_plotter(poly, scalars, title=title, window_size=window_size)
     png_path.parent.mkdir(parents=True, exist_ok=True)
     plotter.screenshot(str(png_path))
     plotter.close()

@@ -1,0 +1,164 @@
+"""``esense mesh``: labelled meshes of a sensor or a whole scene, with a picture.
+
+Examples::
+
+    esense mesh sensor angels-4 -o sensor.vtp --png sensor.png
+    esense mesh sensor my_sensor.json -o sensor.ply --edge-length 0.003
+    esense mesh scene --scene validation/data/example_scene.toml -o scene.vtp --png scene.png
+    esense mesh scene --sensor angels-2 --tank 1,1,1 --depth 0.8 --pose 0.1,0,-0.1,0.5 -o scene.vtp
+
+The mesh file's format follows its suffix: ``.vtp`` (ParaView; cell arrays
+``electrode`` and ``region``, region names in the field data), ``.ply``
+(labels as face properties) or ``.stl`` (geometry only). The mesh quality
+(edge lengths, minimum angle, aspect ratio, watertightness, orientation) is
+printed, and a mesh a BEM could not use is refused.
+"""
+from __future__ import annotations
+
+import click
+
+_MESH_SUFFIXES = (".vtp", ".vtk", ".ply", ".stl")
+
+
+def _check_output(path: str) -> str:
+    from pathlib import Path
+
+    if Path(path).suffix.lower() not in _MESH_SUFFIXES:
+        raise click.BadParameter(f"{path!r}: the mesh file must end in {', '.join(_MESH_SUFFIXES)}", param_hint="-o")
+    return path
+
+
+def _positive(value, name):
+    if value is not None and not value > 0:
+        raise click.BadParameter(f"must be positive, got {value}", param_hint=name)
+    return value
+
+
+def _numbers(text: str, n: int, name: str, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected {what}", param_hint=name) from None
+    if len(values) != n:
+        raise click.BadParameter(f"{text!r}: expected {n} numbers {what}", param_hint=name)
+    return values
+
+
+def _finish(mesh, output, png, title, emitter):
+    """Check, write and picture a mesh; print its quality."""
+    from meshes.io import write_mesh
+    from meshes.quality import check_mesh
+
+    try:
+        quality = check_mesh(mesh)
+    except ValueError as exc:
+        raise click.ClickException(str(exc)) from None
+    click.echo(str(quality))
+    if output:
+        write_mesh(mesh, output)
+        click.echo(f"wrote {output}")
+    if png:
+        from meshes.render import render_mesh
+
+        render_mesh(mesh, png, title=title, emitter=emitter)
+        click.echo(f"wrote {png}")
+    if not output and not png:
+        click.echo("(nothing written: give -o FILE and/or --png FILE)")
+
+
+@click.group("mesh")
+def mesh():
+    """Labelled triangle meshes (0 insulator, k electrode k) of a sensor or a scene."""
+
+
+@mesh.command("sensor")
+@click.argument("sensor")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Mesh file to write: .vtp (labels and region names), .ply (labels) or .stl (geometry only).")
+@click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the mesh (PNG).")
+@click.option("--edge-length", "edge_length_m", type=float, default=None,
+              help="Far-field edge length in metres (default: from the sensor's size); the mesh is graded finer "
+                   "towards every electrode edge.")
+@click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the sensor's, the last one).")
+def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
+    """Mesh SENSOR (a preset such as angels-2, angels-4, or a sensor .json/.toml file) in the sensor frame."""
+    from meshes.sensor import load_sensor
+    from meshes.sensor_mesh import mesh_sensor
+
+    if output:
+        _check_output(output)
+    _positive(edge_length_m, "--edge-length")
+    try:
+        description = load_sensor(sensor)
+        if emitter is not None:
+            description = description.with_emitter(emitter)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="SENSOR") from None
+    m = mesh_sensor(description, edge_length_m=edge_length_m)
+    _finish(m, output, png, f"{description.name}: {m.n_triangles} triangles", description.emitter)
+
+
+@mesh.command("scene")
+@click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Scene file (TOML: tank, sensor, pose, objects); the flags below override it.")
+@click.option("--sensor", default=None, help="Sensor preset (angels-2, angels-4) or sensor file.")
+@click.option("--tank", default=None, help="Tank inner size LX,LY,LZ in metres.")
+@click.option("--depth", "depth_m", type=float, default=None, help="Water depth in metres (default: LZ).")
+@click.option("--unbounded", is_flag=True, help="No tank: unbounded water (drops the scene file's tank).")
+@click.option("--pose", default=None, help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame.")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
+              help="Mesh file of the whole scene in the tank frame: .vtp, .ply or .stl.")
+@click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the scene (PNG).")
+@click.option("--edge-length", "edge_length_m", type=float, default=None, help="Sensor edge length in metres.")
+@click.option("--tank-edge-length", "tank_edge_length_m", type=float, default=None,
+              help="Tank edge length nearest the sensor in metres (default: a tenth of the sensor length); "
+                   "it grows away from the sensor.")
+@click.option("--tank-grading", type=float, default=0.5, show_default=True,
+              help="Growth of the tank's edge length per metre of distance from the sensor.")
+def mesh_scene_cmd(scene_file, sensor, tank, depth_m, unbounded, pose, output, png, edge_length_m,
+                   tank_edge_length_m, tank_grading):
+    """Mesh a scene: the sensor at its pose, the tank (graded towards the sensor) and the objects."""
+    from meshes.pose import Pose
+    from meshes.scene_file import apply_overrides, load_scene
+    from meshes.scene_mesh import mesh_scene
+    from meshes.tank import Tank
+
+    if output:
+        _check_output(output)
+    for value, name in ((edge_length_m, "--edge-length"), (tank_edge_length_m, "--tank-edge-length")):
+        _positive(value, name)
+    if unbounded and (tank or depth_m is not None):
+        raise click.UsageError("--unbounded cannot go with --tank or --depth")
+    try:
+        scene = load_scene(scene_file) if scene_file else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scene") from None
+    tank_obj = None
+    if tank or depth_m is not None:
+        if tank:
+            size = _numbers(tank, 3, "--tank", "LX,LY,LZ (m)")
+        elif scene is not None and scene.tank is not None:
+            size = scene.tank.size_m
+        else:
+            raise click.UsageError("--depth needs a tank (--tank LX,LY,LZ or a scene file with a [tank])")
+        try:
+            tank_obj = Tank(size, depth_m)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--tank/--depth") from None
+    try:
+        pose_obj = Pose.parse(pose) if pose else None
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--pose") from None
+    try:
+        scene = apply_overrides(scene, sensor=sensor, pose=pose_obj, tank=tank_obj, unbounded=unbounded)
+    except ValueError as exc:
+        raise click.UsageError(f"{exc} (--scene FILE or --sensor NAME)") from None
+    try:
+        sm = mesh_scene(scene, edge_length_m, tank_edge_length_m=tank_edge_length_m, tank_grading=tank_grading)
+    except ValueError as exc:  # a refused scene names its parts
+        raise click.ClickException(str(exc)) from None
+    combined = sm.combined()
+    p = scene.pose
+    title = (f"{scene.sensor.name} at ({p.x_m:g}, {p.y_m:g}, {p.z_m:g}) m, yaw {p.yaw_rad:g} rad"
+             + ("" if scene.tank is None else f" in a {'x'.join(f'{v:g}' for v in scene.tank.size_m)} m tank"))
+    _finish(combined, output, png, title, scene.sensor.emitter)
