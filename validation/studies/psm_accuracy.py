@@ -1,0 +1,110 @@
+"""PSM accuracy against the BEM: wall-to-wall trajectory at y = 0 in the 1 m tank, complete vs paper8 images.
+
+The PSM is calibrated on our own free-space BEM of the sensor (angels-2:
+equal radii, length fixed to 20 cm; angels-4: the paper's symmetric
+layout), then every receiver current along the trajectory is compared with
+the BEM in the closed tank (walls, floor and free surface insulating).
+The paper's figures are 0.22 % (angels-2) and 0.97 % (angels-4) mean
+relative error. Besides the mean we print where along the path each image
+variant departs from the BEM (first |x| from the middle at which the
+error exceeds the paper's figure) and the error of the tank's effect alone
+(currents relative to the mid-tank pose, which removes the calibration's
+constant offset).
+
+Run: ``python -m validation.studies.psm_accuracy [--steps 39] [--edge-length M]``.
+Needs ``bem.conductance_matrix`` and ``bem.PoseSweep`` (docs/architecture.md).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+PAPER_TARGET = {"angels-2": 0.0022, "angels-4": 0.0097}
+
+
+def _trajectory(sensor, model, tank, steps, margin_m=0.01):
+    """x from wall to wall at y = z = 0, yaw 0, as far as both the real sensor and the PSM's spheres fit."""
+    half_x = 0.5 * tank.size_m[0]
+    reach_real = 0.5 * sensor.length_m + margin_m
+    reach_psm = float(np.max(np.abs(model.centres_m[:, 0]) + model.radii_m)) + 1e-3
+    x_max = half_x - max(reach_real, reach_psm)
+    poses = np.zeros((steps, 4))
+    poses[:, 0] = np.linspace(-x_max, x_max, steps)
+    return poses
+
+
+def _departure(x, err, threshold):
+    """Smallest |x| (from the middle outwards) at which the error exceeds ``threshold`` on each side."""
+    out = []
+    for side in (x < 0, x > 0):
+        xs, es = np.abs(x[side]), err[side]
+        over = xs[es > threshold]
+        out.append(float(over.min()) if over.size else None)
+    return out
+
+
+def _fmt(v):
+    return "never" if v is None else f"|x| >= {v:.3f} m"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sensors", default="angels-2,angels-4", help="comma-separated presets")
+    ap.add_argument("--steps", type=int, default=39, help="poses along the trajectory")
+    ap.add_argument("--edge-length", type=float, default=None, help="BEM edge length (m); default: the mesher's")
+    ap.add_argument("--sigma", type=float, default=0.0354, help="water conductivity (S/m)")
+    args = ap.parse_args(argv)
+
+    try:
+        from bem import PoseSweep, conductance_matrix
+    except ImportError as exc:
+        print(f"psm_accuracy: the BEM is not available yet ({exc}); nothing to compare against.")
+        return None
+
+    from meshes.scene import Scene
+    from meshes.sensor import preset
+    from meshes.tank import Tank
+    from psm import calibrate, conductance
+
+    tank = Tank((1.0, 1.0, 1.0))
+    results = {}
+    for name in args.sensors.split(","):
+        sensor = preset(name)
+        t0 = time.perf_counter()
+        ref = conductance_matrix(Scene(sensor), args.sigma, edge_length_m=args.edge_length)
+        t_ref = time.perf_counter() - t0
+        fix = 0.2 if sensor.n_electrodes == 2 else None
+        cal = calibrate(ref, symmetric=True, fix_length_m=fix, sensor=sensor)
+        poses = _trajectory(sensor, cal.model, tank, args.steps)
+        t0 = time.perf_counter()
+        I_bem = PoseSweep(sensor, tank=tank, sigma_S_per_m=args.sigma, edge_length_m=args.edge_length).conductance(poses).receiver_currents_A()
+        t_bem = time.perf_counter() - t0
+        mid = int(np.argmin(np.abs(poses[:, 0])))
+        print(f"\n== {name}: free-space BEM {t_ref:.1f} s, tank BEM {t_bem:.1f} s for {len(poses)} poses, "
+              f"x = {poses[0, 0]:.3f} .. {poses[-1, 0]:.3f} m")
+        print(cal.summary())
+        target = PAPER_TARGET.get(name)
+        print(f"{'images':10s} {'mean rel err':>13s} {'max rel err':>12s} {'tank effect':>12s} {'paper':>8s}   departs beyond the paper's figure (x<0 | x>0)")
+        rows = {}
+        for images in ("complete", "paper8"):
+            C = conductance(cal.model, poses, args.sigma, tank, images=images)
+            I = C.receiver_currents_A()
+            rel = np.abs(I - I_bem) / np.abs(I_bem)
+            effect = np.abs(I / I[mid] - I_bem / I_bem[mid])  # tank effect relative to mid-tank
+            per_pose = rel.max(axis=1)
+            dep = _departure(poses[:, 0], per_pose, target if target else np.inf)
+            rows[images] = {"mean": float(rel.mean()), "max": float(rel.max()), "effect_max": float(effect.max()),
+                            "departs": dep, "rel": rel}
+            print(f"{images:10s} {rel.mean() * 100:12.3f}% {rel.max() * 100:11.3f}% {effect.max() * 100:11.3f}% "
+                  f"{(target or np.nan) * 100:7.2f}%   {_fmt(dep[0])} | {_fmt(dep[1])}")
+        print("x (m)     " + "  ".join(f"{'complete':>9s} {'paper8':>9s}" for _ in range(1)) + "   (max rel. error over receivers, %)")
+        for k in range(0, len(poses), max(1, len(poses) // 13)):
+            print(f"{poses[k, 0]:+.3f}    {rows['complete']['rel'][k].max() * 100:9.3f} {rows['paper8']['rel'][k].max() * 100:9.3f}")
+        results[name] = {k: {kk: vv for kk, vv in v.items() if kk != "rel"} for k, v in rows.items()}
+    return results
+
+
+if __name__ == "__main__":
+    main()
