@@ -1,0 +1,109 @@
+"""``esense sweep``: bench-log CSV that reads back, resumable stores, netCDF, plots, clear errors."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from validation.cli import main
+
+psm = pytest.importorskip("psm")
+
+
+@pytest.fixture(scope="module")
+def psm_file(tmp_path_factory):
+    """A 4-sphere PSM of the angels-4 proportions (radii and centres of the paper's symmetric fit)."""
+    model = psm.PolySphericalModel(
+        radii_m=np.array([0.0072, 0.0074, 0.0074, 0.0072]),
+        centres_m=np.array([[0.0769 / 2 + 0.0785, 0, 0], [0.0769 / 2, 0, 0], [-0.0769 / 2, 0, 0],
+                            [-0.0769 / 2 - 0.0785, 0, 0]]),
+        emitter=4,
+    )
+    path = tmp_path_factory.mktemp("psm") / "psm.json"
+    model.save(path)
+    return path
+
+
+def _run(*args):
+    result = CliRunner().invoke(main, ["sweep", *map(str, args)], catch_exceptions=False)
+    return result
+
+
+LINE = ("--from", "-0.3,0", "--to", "0.3,0.05", "--steps", 25, "--yaw", 0.3)
+
+
+def test_csv_is_a_bench_log_with_resistances(tmp_path, psm_file):
+    from validation.benchlog import read_bench_log
+
+    out = tmp_path / "sweep.csv"
+    r = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--tank", "1,0.8,0.6", "--sigma", 0.05,
+             *LINE, "--workers", 1, "--quiet", "-o", out)
+    assert r.exit_code == 0, r.output
+    log = read_bench_log(out)
+    assert log.meta["source"].startswith("esense sweep --model psm")
+    assert log.sigma_S_per_m == 0.05 and log.tank.size_m == (1.0, 0.8, 0.6) and log.emitter == 4
+    assert np.all(log.U_V == 1.0) and np.all(np.diff(log.t_s) > 0)
+    np.testing.assert_allclose(log.poses[[0, -1]], [[-0.3, 0, 0, 0.3], [0.3, 0.05, 0, 0.3]])
+    model = psm.PolySphericalModel.load(psm_file)
+    direct = psm.conductance(model, log.poses, 0.05, tank=log.tank)
+    np.testing.assert_allclose(log.currents_A, direct.receiver_currents_A(1.0), rtol=1e-12)
+    R = log.data[["R1_ohm", "R2_ohm", "R3_ohm"]].to_numpy()
+    np.testing.assert_allclose(R, 1.0 / log.currents_A, rtol=1e-12)
+    assert not (tmp_path / "sweep.csv.partial.zarr").exists()  # the working store is gone once the log is written
+    # an existing log is never silently replaced
+    again = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", *LINE, "--workers", 1, "-o", out)
+    assert again.exit_code != 0 and "exists" in again.output
+
+
+def test_zarr_store_resumes_and_exports_to_netcdf(tmp_path, psm_file):
+    import xarray as xr
+
+    args = ("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--unbounded",
+            "--grid", "-0.1:0.1:5,-0.1:0.1:3,0:1.5:2", "--workers", 1, "--quiet")
+    r = _run(*args, "-o", tmp_path / "map.zarr")
+    assert r.exit_code == 0, r.output
+    again = _run(*args, "-o", tmp_path / "map.zarr")
+    assert again.exit_code == 0 and "all 30 poses already computed" in again.output
+    nc = _run(*args, "-o", tmp_path / "map.nc")
+    assert nc.exit_code == 0, nc.output
+    z, n = xr.open_zarr(tmp_path / "map.zarr"), xr.open_dataset(tmp_path / "map.nc")
+    np.testing.assert_array_equal(z.K_S.values, n.K_S.values)
+    assert z.attrs["model"] == "psm" and z.attrs["tank_m"] == "null" and "code_version" in z.attrs
+    assert '"images": "complete"' in z.attrs["model_options"]
+    # another conductivity is another sweep: the store refuses to mix them
+    other = _run(*args[:-1], "--sigma", 0.1, "--quiet", "-o", tmp_path / "map.zarr")
+    assert other.exit_code != 0 and "differs in: sigma_S_per_m" in other.output
+
+
+def test_plot_needs_a_grid_and_writes_a_png(tmp_path, psm_file):
+    bad = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", *LINE, "--plot", tmp_path / "m.png",
+               "-o", tmp_path / "line.csv")
+    assert bad.exit_code != 0 and "needs --grid" in bad.output
+    ok = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--grid", "-0.3:0.3:9,-0.3:0.3:9",
+              "--workers", 1, "--quiet", "--plot", tmp_path / "m.png", "-o", tmp_path / "map.zarr")
+    assert ok.exit_code == 0, ok.output
+    assert (tmp_path / "m.png").stat().st_size > 10_000
+
+
+def test_bad_scheduler_is_a_clear_error_within_seconds(tmp_path, psm_file):
+    t0 = time.perf_counter()
+    r = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", *LINE, "--scheduler", "tcp://127.0.0.1:9",
+             "-o", tmp_path / "s.csv")
+    assert r.exit_code != 0
+    assert "cannot reach the dask scheduler at 'tcp://127.0.0.1:9'" in r.output
+    assert time.perf_counter() - t0 < 15
+
+
+@pytest.mark.parametrize("args, message", [
+    (("--steps", 5, "-o", "x.csv"), "give --from X0,Y0 --to X1,Y1 --steps N, or --grid"),
+    (("--grid", "0:1:2,0:1:2", "--steps", 3, "-o", "x.csv"), "either --grid or --from"),
+    (("--grid", "0:1:2", "-o", "x.csv"), "expected X0:X1:NX,Y0:Y1:NY"),
+    (("--grid", "0:0.1:2,0:0.1:2", "-o", "x.txt"), "must end in .csv, .zarr, .nc"),
+    (("--grid", "0:0.1:2,0:0.1:2", "--tank", "1,1", "-o", "x.csv"), "three lengths"),
+])
+def test_bad_arguments_are_named(tmp_path, monkeypatch, args, message):
+    monkeypatch.chdir(tmp_path)
+    r = _run("--model", "psm", "--sensor", "angels-4", *args)
+    assert r.exit_code != 0 and message in r.output, r.output
