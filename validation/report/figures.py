@@ -46,6 +46,7 @@ __all__ = [
     "relative_error_figure",
     "scene_figure",
     "potential_figure",
+    "current_lines",
     "path_coordinate",
     "png_is_blank",
     "COLOURS",
@@ -336,6 +337,10 @@ def relative_error_figure(
 ) -> Path:
     """Relative error against position, one panel per receiver, one curve per comparison.
 
+    Curves are coloured by model (the first word of the label); comparisons
+    against the BEM are dashed, those after a conductivity correction
+    ("corrected" in the label) dash-dotted.
+
     Parameters
     ----------
     errors : dict
@@ -349,7 +354,7 @@ def relative_error_figure(
     for j, k in enumerate(receivers):
         series = []
         for m, (name, e) in enumerate(errors.items()):
-            style = "--" if name.lower().endswith("vs bem") else "-"
+            style = "--" if name.lower().endswith("vs bem") else ("-." if "corrected" in name.lower() else "-")
             for s in _model_series(x, scale * np.asarray(e, dtype=float)[:, j], name, m, passes):
                 s.style = style
                 series.append(s)
@@ -485,6 +490,43 @@ def scene_figure(
     return png_path
 
 
+def current_lines(x_m, y_m, field_V_per_m, seeds_m, step_m: float | None = None, max_steps: int = 3000) -> list:
+    """Field lines of a 2D vector field on a grid, traced from seed points along the field (RK2).
+
+    A line stops where the field is undefined (NaN: inside a body), off the
+    grid, or where the field vanishes. Returns a list of (k, 2) arrays.
+    """
+    from scipy.interpolate import RegularGridInterpolator
+
+    x = np.asarray(x_m, dtype=float)
+    y = np.asarray(y_m, dtype=float)
+    F = np.asarray(field_V_per_m, dtype=float)
+    interp = [RegularGridInterpolator((y, x), F[..., c], bounds_error=False, fill_value=np.nan) for c in (0, 1)]
+    step = step_m or 0.5 * min(np.diff(x).min(), np.diff(y).min())
+
+    def direction(p):
+        v = np.array([interp[0](p[::-1])[0], interp[1](p[::-1])[0]])
+        norm = np.hypot(*v)
+        return None if not np.isfinite(norm) or norm == 0 else v / norm
+
+    lines = []
+    for seed in np.atleast_2d(np.asarray(seeds_m, dtype=float)):
+        p = seed.copy()
+        pts = [p.copy()]
+        for _ in range(max_steps):
+            d1 = direction(p)
+            if d1 is None:
+                break
+            d2 = direction(p + 0.5 * step * d1)
+            if d2 is None:
+                break
+            p = p + step * d2
+            pts.append(p.copy())
+        if len(pts) > 2:
+            lines.append(np.array(pts))
+    return lines
+
+
 def potential_figure(
     png_path,
     x_m,
@@ -492,93 +534,92 @@ def potential_figure(
     potential_V,
     sensor_outline_m=None,
     electrode_segments=(),
-    field_V_per_m=None,
+    seeds_m=None,
     title: str = "",
-    window_size=(1400, 900),
-    n_streamlines: int = 40,
+    window_size=(1700, 820),
+    n_isolines: int = 16,
 ) -> Path:
-    """Potential on a horizontal plane (colour map, isolines) with current lines.
+    """Potential on a horizontal plane (colour map and equipotentials) with current lines.
 
     Parameters
     ----------
     x_m, y_m : (nx,), (ny,) arrays
-        Grid lines of the plane (tank or sensor frame), metres.
+        Grid lines of the plane (tank frame), metres.
     potential_V : (ny, nx) array
         Potential at the grid points; NaN inside the sensor (left blank).
     sensor_outline_m : (k, 2) array, optional
-        Closed polygon of the sensor's outline in the plane.
+        Closed polygon of the sensor's cut by the plane.
     electrode_segments : sequence of ((k, 2) array, label)
-        Outline pieces of the electrodes, coloured and named in the legend.
-    field_V_per_m : (ny, nx, 2) array, optional
-        In-plane electric field; by default minus the gradient of the potential.
-        Current lines follow the current density sigma E, i.e. E.
+        The electrodes' traces on the outline, coloured and named in the legend.
+    seeds_m : (s, 2) array, optional
+        Start points of the current lines (e.g. around the emitter); the lines
+        follow E = -grad(potential), the direction of the current density.
     """
     x = np.asarray(x_m, dtype=float)
     y = np.asarray(y_m, dtype=float)
     phi = np.asarray(potential_V, dtype=float)
     if phi.shape != (y.size, x.size):
         raise ValueError(f"potential has shape {phi.shape}, expected (ny, nx) = {(y.size, x.size)}")
-    if field_V_per_m is None:
-        filled = np.where(np.isfinite(phi), phi, np.nanmean(phi))
-        gy, gx = np.gradient(filled, y, x)
-        field_V_per_m = np.stack([-gx, -gy], axis=-1)
-    inside = ~np.isfinite(phi)
+    finite = phi[np.isfinite(phi)]
+    if finite.size == 0:
+        raise ValueError("the potential has no finite value to draw")
+    gy, gx = np.gradient(phi, y, x)  # NaN next to the body: lines stop there
+    E = np.stack([-gx, -gy], axis=-1)
     grid = pv.RectilinearGrid(x, y, np.array([0.0]))
-    grid.point_data["potential (V)"] = np.where(inside, np.nan, phi).ravel()
-    E = np.zeros((y.size, x.size, 3))
-    E[..., :2] = np.where(inside[..., None], 0.0, field_V_per_m)
-    grid.point_data["E"] = E.reshape(-1, 3)
+    grid.point_data["potential (V)"] = phi.ravel()
     plotter = pv.Plotter(off_screen=True, window_size=window_size)
     plotter.set_background("white")
-    finite = phi[np.isfinite(phi)]
-    lo, hi = np.percentile(finite, [2, 98]) if finite.size else (0.0, 1.0)
+    lo, hi = np.percentile(finite, [1, 99])
     plotter.add_mesh(
-        grid,
-        scalars="potential (V)",
-        cmap="coolwarm",
-        clim=(lo, hi),
-        nan_opacity=0.0,
+        grid, scalars="potential (V)", cmap="coolwarm", clim=(lo, hi), nan_opacity=0.0,
         scalar_bar_args={"title": "potential (V)", "title_font_size": 24, "label_font_size": 20,
-                         "color": "black", "vertical": True, "position_x": 0.88, "position_y": 0.15,
-                         "height": 0.7, "width": 0.05, "fmt": "%.3f"},
+                         "color": "black", "vertical": True, "position_x": 0.87, "position_y": 0.12,
+                         "height": 0.72, "width": 0.05, "fmt": "%.2f"},
     )
-    contours = grid.contour(isosurfaces=np.linspace(lo, hi, 15), scalars="potential (V)")
-    if contours.n_points:
-        plotter.add_mesh(contours, color="#404040", line_width=1.5)
-    # current lines: streamlines of E seeded on a circle around the sensor
-    cx, cy = 0.5 * (x[0] + x[-1]), 0.5 * (y[0] + y[-1])
-    radius = 0.35 * min(x[-1] - x[0], y[-1] - y[0])
-    t = np.linspace(0, 2 * np.pi, n_streamlines, endpoint=False)
-    seeds = pv.PolyData(np.column_stack([cx + radius * np.cos(t), cy + radius * np.sin(t), np.zeros_like(t)]))
+    lift = 1e-3 * max(np.ptp(x), np.ptp(y))  # draw lines just above the coloured plane
     legend = []
-    try:
-        lines = grid.streamlines_from_source(seeds, vectors="E", integration_direction="both",
-                                             max_steps=4000, initial_step_length=0.5, surface_streamlines=True)
-        if lines.n_points:
-            plotter.add_mesh(lines, color="black", line_width=2.5)
+    filled = grid.copy()
+    filled.point_data["potential (V)"] = np.where(np.isfinite(phi), phi, np.nanmax(phi) + 10 * (hi - lo)).ravel()
+    contours = filled.contour(isosurfaces=np.linspace(lo, hi, n_isolines)[1:-1], scalars="potential (V)")
+    if contours.n_points:
+        contours.points[:, 2] += lift
+        plotter.add_mesh(contours, color="#505050", line_width=1.5)
+        legend.append(["equipotentials", "#505050"])
+    if seeds_m is not None:
+        lines = current_lines(x, y, E, seeds_m)
+        if lines:
+            for line in lines:
+                pts = np.column_stack([line, np.full(len(line), 2 * lift)])
+                plotter.add_mesh(pv.lines_from_points(pts), color="black", line_width=2.5)
             legend.append(["current lines", "black"])
-    except Exception:  # streamlines are decoration; the potential map stands alone
-        pass
-    legend.append(["equipotentials", "#404040"])
     if sensor_outline_m is not None:
         o = np.asarray(sensor_outline_m, dtype=float)
-        pts = np.column_stack([o, np.full(len(o), 1e-4)])
+        pts = np.column_stack([o, np.full(len(o), 3 * lift)])
         plotter.add_mesh(pv.lines_from_points(np.vstack([pts, pts[:1]])), color="#808080", line_width=4)
         legend.append(["sensor (insulating)", "#808080"])
     colours = _electrode_colours(max(len(electrode_segments), 1))
     for (seg, label), colour in zip(electrode_segments, colours):
-        s = np.asarray(seg, dtype=float)
-        pts = np.column_stack([s, np.full(len(s), 2e-4)])
-        plotter.add_mesh(pv.lines_from_points(pts), color=colour, line_width=8)
+        seg = np.asarray(seg, dtype=float)
+        for piece in np.split(seg, np.flatnonzero(np.isnan(seg[:, 0]))):
+            piece = piece[np.isfinite(piece[:, 0])]
+            if len(piece) > 1:
+                pts = np.column_stack([piece, np.full(len(piece), 4 * lift)])
+                plotter.add_mesh(pv.lines_from_points(pts), color=colour, line_width=9)
         legend.append([label, colour])
-    plotter.add_legend(legend, bcolor="white", border=True, size=(0.2, 0.04 * len(legend) + 0.02),
-                       loc="upper left", face="rectangle")
+    if legend:
+        plotter.add_legend(legend, bcolor="white", border=True, size=(0.17, 0.045 * len(legend) + 0.02),
+                           loc="upper left", face="rectangle")
     if title:
         plotter.add_text(title, position="upper_edge", font_size=16, color="black")
+    plotter.show_bounds(xtitle="x (m)", ytitle="y (m)", font_size=20, color="black", location="outer",
+                        grid=False, ticks="outside", n_xlabels=5, n_ylabels=5, fmt="%.2f", show_zaxis=False,
+                        show_zlabels=False, bounds=(x[0], x[-1], y[0], y[-1], 0.0, 0.0))
     plotter.view_xy()
-    plotter.show_bounds(xtitle="x (m)", ytitle="y (m)", font_size=18, color="black", location="outer",
-                        grid=False, ticks="outside", n_xlabels=5, n_ylabels=5, fmt="%.2f")
-    plotter.camera.zoom(0.95)
+    plotter.camera.zoom(1.25)
+    shift = -0.07 * (x[-1] - x[0])  # make room on the left for the legend
+    cam = plotter.camera
+    cam.focal_point = (cam.focal_point[0] + shift, *cam.focal_point[1:])
+    cam.position = (cam.position[0] + shift, *cam.position[1:])
     png_path = Path(png_path)
     png_path.parent.mkdir(parents=True, exist_ok=True)
     plotter.screenshot(str(png_path))
