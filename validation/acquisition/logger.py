@@ -75,13 +75,14 @@ class AcquisitionCounters:
     duplicates: int = 0   #: records received twice (same boot and seq)
     gaps: int = 0         #: jumps in the sequence
     missing: int = 0      #: records never received intact (sum of the gaps)
+    incomplete: int = 0   #: lines cut short by a lost port or the end of the acquisition
     restarts: int = 0     #: device restarts (new boot number)
     reconnects: int = 0   #: times the port was lost and opened again
 
     @property
     def rejected(self) -> int:
         """Lines (or fragments) kept in the side file instead of the log."""
-        return self.corrupt + self.framing + self.garbage + self.refused + self.duplicates
+        return self.corrupt + self.framing + self.garbage + self.refused + self.duplicates + self.incomplete
 
     def as_dict(self) -> dict:
         d = {f.name: getattr(self, f.name) for f in dc_fields(self)}
@@ -104,7 +105,7 @@ class AcquisitionSummary:
             f"{c.records} records written to {self.log_path} in {self.seconds:.1f} s (stopped by {self.stopped_by})",
             f"device: {self.device}",
             f"rejected {c.rejected}: checksum {c.corrupt}, framing {c.framing}, noise {c.garbage}, "
-            f"refused {c.refused}, duplicates {c.duplicates}",
+            f"refused {c.refused}, duplicates {c.duplicates}, cut short {c.incomplete}",
             f"sequence: {c.gaps} gaps ({c.missing} records missing), {c.restarts} device restarts, "
             f"{c.reconnects} reconnects",
         ]
@@ -190,6 +191,12 @@ class Logger:
         self._port = None
         self._status_shown = 0.0
         self._status_len = 0
+        self._stop_reason_text: str | None = None
+
+    def request_stop(self, reason: str = "stop request") -> None:
+        """Stop the loop at its next turn (safe from a signal handler or another thread)."""
+        self._stop_reason_text = reason
+        self.stop.set()
 
     # ------------------------------------------------------------- side file
     def _side_write(self, reason: str, raw: bytes = b"") -> None:
@@ -420,7 +427,7 @@ class Logger:
                     chunk = self._port.read(max(1, self._port.in_waiting))
                 except (serial.SerialException, OSError, _PortLost):
                     if buffer:
-                        self._reject("framing", "incomplete line when the port was lost", buffer)
+                        self._reject("incomplete", "incomplete line when the port was lost", buffer)
                         buffer = b""
                     if not self._reconnect(t0):
                         break
@@ -450,7 +457,7 @@ class Logger:
             stopped_by = "interrupt (Ctrl-C)"
         finally:
             if buffer:
-                self._reject("framing", "incomplete line at the end of the acquisition", buffer)
+                self._reject("incomplete", "incomplete line at the end of the acquisition", buffer)
             if self._port is not None:
                 self._send("STOP")
             self._close_port()
@@ -475,4 +482,4 @@ class Logger:
             return f"{self.samples} samples"
         if self.seconds is not None and time.monotonic() - t0 >= self.seconds:
             return f"{self.seconds} s"
-        return "stop request"
+        return self._stop_reason_text or "stop request"

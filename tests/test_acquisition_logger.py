@@ -1,0 +1,182 @@
+"""The logger end to end, against the virtual bench, through a real pseudo-terminal (and a socket):
+every fault kind, every good record exactly once, a kill -9 in the middle of a run."""
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from bem.conductance import ConductanceMatrix
+from meshes.sensor import preset
+from meshes.tank import Tank
+from validation.acquisition import Logger, rejected_path
+from validation.bench_sim import BenchDevice, FaultPlan, PtyTransport, SocketTransport, VirtualBench, wall_to_wall
+from validation.benchlog import read_bench_log
+
+META = {"sensor": "angels-4", "emitter": 4, "tank_m": [1.0, 1.0, 1.0], "sigma_S_per_m": 0.0354}
+
+
+def standin_simulate(model, sensor, poses, tank, sigma_S_per_m, objects=(), psm_model=None,
+                     contact_impedance_ohm_m2=None, **options):
+    """A trivial stand-in for the models: a valid K (symmetric, zero row sums) varying with x."""
+    n, P = sensor.n_electrodes, len(poses)
+    g = sigma_S_per_m * 0.02 * (1.0 + np.asarray(poses)[:, 0] ** 2)
+    off = -1.0 / (1.0 + np.abs(np.subtract.outer(np.arange(n), np.arange(n))))
+    np.fill_diagonal(off, 0.0)
+    K = g[:, None, None] * off
+    K[:, np.arange(n), np.arange(n)] = -K.sum(axis=2)
+    return ConductanceMatrix(K, sensor.emitter, sigma_S_per_m)
+
+
+def simulated_run(n=240, rate=240.0, seed=1):
+    bench = VirtualBench(preset("angels-4"), Tank((1.0, 1.0, 1.0)), 0.0354, simulate=standin_simulate, seed=seed)
+    return bench.run(wall_to_wall(n=n), rate_hz=rate)
+
+
+def serve_in_thread(device, linger_s=30.0):
+    stop = threading.Event()
+    thread = threading.Thread(target=device.serve, kwargs={"stop": stop, "linger_s": linger_s}, daemon=True)
+    thread.start()
+    return thread, stop
+
+
+def stop_when_done(device, thread, logger, run_length, timeout_s=15.0):
+    """Stop the logger once the device has produced everything and the logger has taken every sent record."""
+    t0 = time.monotonic()
+    while sum(device.report.fates.values()) < run_length and time.monotonic() - t0 < timeout_s:
+        time.sleep(0.02)
+    while logger.counters.records < device.report.fates["sent"] and time.monotonic() - t0 < timeout_s:
+        time.sleep(0.02)
+    logger.stop.set()
+
+
+def expected_missing(truth):
+    """Records the logger can know are missing: not sent intact, between two received ones of the same boot."""
+    d = truth.data
+    total = 0
+    for _, rows in d.groupby("boot"):
+        got = rows.seq[rows.fate == "sent"]
+        if len(got):
+            lost = rows[(rows.fate != "sent") & (rows.seq > got.min()) & (rows.seq < got.max())]
+            total += len(lost)
+    return total
+
+
+@pytest.mark.parametrize("kind", ["pty", "socket"])
+def test_every_fault_kind_every_good_record_exactly_once(tmp_path, kind):
+    run = simulated_run()
+    transport = PtyTransport(tmp_path / "bench") if kind == "pty" else SocketTransport()
+    plan = FaultPlan.parse("corrupt=3,drop=3,garbage=4,disconnect=1,restart=1", disconnect_s=0.3)
+    device = BenchDevice(run, transport, rate_hz=240.0, faults=plan, seed=7, truth_path=tmp_path / "truth.csv",
+                         truth_meta=META)
+    thread, stop_device = serve_in_thread(device)
+    logger = Logger(transport.path, tmp_path / "run.csv", META, quiet=True, reconnect_interval_s=0.05)
+    watcher = threading.Thread(target=stop_when_done, args=(device, thread, logger, len(run)), daemon=True)
+    watcher.start()
+    try:
+        summary = logger.run()
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    assert dict(device.report.faults) == plan.counts  # every fault really happened
+    log, truth = read_bench_log(tmp_path / "run.csv"), read_bench_log(tmp_path / "truth.csv")
+    assert log.warnings == [] and "SIMULAT" in log.meta["device"] and "SIMULATED" in truth.meta["source"]
+    sent = truth.data[truth.data.fate == "sent"]
+    got = list(zip(log.data.boot, log.data.seq))
+    assert len(got) == len(set(got)) == len(sent)  # exactly once
+    assert set(got) == set(zip(sent.boot, sent.seq))
+    # the values landed as the device sent them
+    merged = log.data.merge(sent, on=["boot", "seq"], suffixes=("", "_truth"))
+    for c in ("x_m", "y_m", "I1_A", "I2_A", "I3_A", "U_V", "temp_C", "pass"):
+        np.testing.assert_array_equal(merged[c], merged[c + "_truth"])
+    assert np.all(np.diff(log.t_s) >= 0)
+    c = summary.counters
+    assert c.corrupt == (truth.data.fate == "corrupt").sum() == 3
+    assert c.garbage == (sent.noise == "prefix").sum()
+    assert c.framing == (truth.data.noise == "line").sum()
+    assert c.garbage + c.framing == 4
+    assert c.restarts == 1 and c.reconnects == 1 and c.duplicates == 0 and c.refused == 0
+    assert c.missing == expected_missing(truth)
+    side = rejected_path(tmp_path / "run.csv").read_text()
+    assert side.count("\tchecksum: CRC") == 3 and "device restarted" in side and "lost; waiting" in side
+
+
+def test_refuses_to_overwrite_and_appends_on_request(tmp_path):
+    run = simulated_run(n=60)
+    transport = PtyTransport(tmp_path / "bench")
+    device = BenchDevice(run, transport, rate_hz=240.0, seed=3)
+    thread, stop_device = serve_in_thread(device)
+    try:
+        Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=20).run()
+        with pytest.raises(FileExistsError, match="refusing to overwrite"):
+            Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=10)
+        Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=10, append=True).run()
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    log = read_bench_log(tmp_path / "run.csv")
+    assert len(log) == 30 and len(set(zip(log.data.boot, log.data.seq))) == 30
+    assert np.all(np.diff(log.t_s) >= 0)
+
+
+def test_kill_minus_nine_leaves_a_readable_log(tmp_path):
+    run = simulated_run(n=4000, rate=400.0)
+    transport = PtyTransport(tmp_path / "bench")
+    device = BenchDevice(run, transport, rate_hz=400.0, seed=5, truth_path=tmp_path / "truth.csv", truth_meta=META)
+    thread, stop_device = serve_in_thread(device)
+    log_path = tmp_path / "run.csv"
+    meta = "sensor=angels-4,emitter=4,tank=1,1,1,sigma=0.0354"
+    cmd = [sys.executable, "-c", "from validation.cli import main; main()", "acquire", "--port", transport.path,
+           "-o", str(log_path), "--meta", meta, "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20:
+            if log_path.exists() and log_path.read_bytes().count(b"\n") > 200:
+                break
+            time.sleep(0.05)
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(5)
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    assert proc.returncode == -signal.SIGKILL
+    log = read_bench_log(log_path)  # no refusal: at most one partial last line, reported
+    assert len(log.warnings) <= 1 and len(log) > 150
+    truth = read_bench_log(tmp_path / "truth.csv")
+    sent = truth.data.set_index(["boot", "seq"])
+    rows = sent.loc[list(zip(log.data.boot, log.data.seq))]
+    np.testing.assert_array_equal(rows["I1_A"].to_numpy(), log.data["I1_A"].to_numpy())
+    assert np.all(np.diff(log.data.seq) == 1)  # nothing lost before the kill
+
+
+def test_ctrl_c_on_the_command_stops_cleanly_with_a_summary(tmp_path):
+    run = simulated_run(n=4000, rate=400.0)
+    transport = SocketTransport()
+    device = BenchDevice(run, transport, rate_hz=400.0, seed=5)
+    thread, stop_device = serve_in_thread(device)
+    log_path = tmp_path / "run.csv"
+    cmd = [sys.executable, "-c", "from validation.cli import main; main()", "acquire", "--port", transport.url,
+           "-o", str(log_path), "--meta", "sensor=angels-4,emitter=4,tank=1,1,1,sigma=0.0354"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20 and not (log_path.exists() and log_path.read_bytes().count(b"\n") > 50):
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=10)
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    assert proc.returncode == 0, err
+    log = read_bench_log(log_path)
+    assert log.warnings == [] and f"{len(log)} records written" in err and "stopped by interrupt (Ctrl-C)" in err
+    assert "0 records  0.0/s  rejected 0" in err  # the live status line was shown

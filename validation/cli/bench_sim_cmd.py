@@ -1,0 +1,143 @@
+"""``esense bench-sim``: the virtual bench, on a pseudo-terminal, a socket, or straight into a file."""
+from __future__ import annotations
+
+import click
+
+from validation.bench_sim.effects import EFFECT_NAMES
+
+
+@click.command("bench-sim")
+@click.option("--pty", "use_pty", is_flag=True, help="Serve on a pseudo-terminal (the default); its path is printed.")
+@click.option("--port", default=None, metavar="socket://HOST:PORT",
+              help="Serve on a TCP socket on this host and port instead (loopback; port 0: any free port).")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="No serial line: write the run straight into this bench log.")
+@click.option("--overwrite", is_flag=True, help="With -o: replace an existing file.")
+@click.option("--link", default=None, type=click.Path(dir_okay=False),
+              help="Path of the stable link to the pseudo-terminal (default: a new temporary folder).")
+@click.option("--sensor", default="angels-4", show_default=True, help="Sensor preset or sensor file.")
+@click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the last).")
+@click.option("--model", type=click.Choice(["psm", "bem"]), default="psm", show_default=True,
+              help="Model that gives the currents.")
+@click.option("--psm-model", default=None, type=click.Path(exists=True, dir_okay=False),
+              help="PSM JSON file (default: the PSM calibrated on the sensor's free-space BEM).")
+@click.option("--tank", default="1,1,1", show_default=True, help="Inner tank size LX,LY,LZ in m, or none.")
+@click.option("--depth", type=float, default=None, help="Water depth in m (default: the tank's height).")
+@click.option("--sigma", type=float, default=0.0354, show_default=True, help="Nominal water conductivity in S/m.")
+@click.option("--path", "path_spec", default="wall-to-wall", show_default=True,
+              help="Trajectory: wall-to-wall[:N], line:X0,Y0,Z0,YAW0:X1,Y1,Z1,YAW1:N, grid:X0,X1,NX:Y0,Y1,NY[:Z[:YAW]].")
+@click.option("--passes", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Repeat the path, back and forth (numbered in the pass column).")
+@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True,
+              help="Records per second.")
+@click.option("--voltage", type=float, default=1.0, show_default=True, help="Emitter voltage U in V.")
+@click.option("--temperature", type=float, default=20.0, show_default=True, help="Water temperature at start, C.")
+@click.option("--effect", "effects", multiple=True, metavar="NAME=VALUE",
+              help=f"Physical effect, repeatable; names: {', '.join(EFFECT_NAMES)} (see validation.bench_sim.effects).")
+@click.option("--faults", default=None, metavar="KIND=N,...",
+              help="Fault injection: corrupt, drop, garbage, disconnect, restart with counts, or all, or none.")
+@click.option("--disconnect-s", type=float, default=1.0, show_default=True, help="How long a disconnection lasts.")
+@click.option("--seed", type=int, default=None, help="Random seed (noise, faults).")
+@click.option("--truth", default=None, type=click.Path(dir_okay=False),
+              help="Also write what happened to every sample (true pose, fate) into this bench log.")
+@click.option("--autostart", is_flag=True, help="Stream at once instead of waiting for the host's START.")
+@click.option("--exit-when-done", is_flag=True, help="Close the line when the run is over (default: wait for Ctrl-C).")
+def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, psm_model, tank, depth, sigma,
+              path_spec, passes, rate, voltage, temperature, effects, faults, disconnect_s, seed, truth, autostart,
+              exit_when_done):
+    """A virtual bench for tests and demos (SIMULATED data, labelled so).
+
+    It streams records along a trajectory, in the bench's serial protocol,
+    with the bench's noise (0.05 % on currents, 0.1 mm on positions), from
+    the chosen model with optional physical effects and faults.
+
+    Example: esense bench-sim --pty --sensor angels-4 --faults all, then
+    esense acquire --port <printed path> -o run.csv --meta <printed meta>
+    """
+    import sys
+    import threading
+
+    from meshes.sensor import load_sensor
+    from meshes.tank import Tank
+    from validation.acquisition.meta_option import parse_meta_option
+    from validation.bench_sim import (
+        SIMULATOR_LABEL, BenchDevice, Effects, FaultPlan, PtyTransport, SocketTransport, VirtualBench, parse_path,
+        repeat_passes,
+    )
+    from validation.benchlog import write_bench_log
+
+    def say(text):
+        click.echo(text, err=True)
+
+    modes = sum([bool(use_pty), port is not None, output is not None])
+    if modes > 1:
+        raise click.UsageError("choose one of --pty, --port and -o")
+    try:
+        sens = load_sensor(sensor)
+        if emitter is not None:
+            sens = sens.with_emitter(emitter)
+        tank_obj = None if tank.strip().lower() == "none" else Tank(tuple(float(v) for v in tank.split(",")), depth)
+        fx = Effects.parse(effects)
+        plan = FaultPlan.parse(faults, disconnect_s)
+        poses, pass_numbers = repeat_passes(parse_path(path_spec, tank_obj.size_m if tank_obj else None), passes)
+    except ValueError as exc:
+        raise click.ClickException(str(exc)) from None
+    if output is not None and plan.total:
+        raise click.UsageError("--faults need a serial line (--pty or --port), not -o")
+
+    tank_meta = "none" if tank_obj is None else ",".join(f"{v:g}" for v in tank_obj.size_m)
+    meta_text = f"sensor={sensor},emitter={sens.emitter},tank={tank_meta},sigma={sigma:g}"
+    if tank_obj is not None and depth is not None:
+        meta_text += f",depth={depth:g}"
+    meta = parse_meta_option(meta_text)
+    meta.update({"temperature_C": temperature, "voltage_V": voltage})
+
+    say(f"bench-sim: computing {len(poses)} samples with the {model.upper()} ...")
+    try:
+        bench = VirtualBench(sens, tank_obj, sigma, model=model, psm_model=psm_model, effects=fx,
+                             temperature_C=temperature, seed=seed)
+        run = bench.run(poses, rate_hz=rate, passes=pass_numbers, U_V=voltage)
+    except ValueError as exc:
+        raise click.ClickException(str(exc)) from None
+
+    if output is not None:
+        import pandas as pd
+
+        rows = [run.record_values(i) for i in range(len(run))]
+        frame = pd.DataFrame(rows, columns=list(run.columns))
+        meta["source"] = f"{bench.describe()}; path {path_spec} x {passes} pass(es) at {rate:g} Hz"
+        try:
+            write_bench_log(output, meta, frame, overwrite=overwrite)
+        except (FileExistsError, ValueError) as exc:
+            raise click.ClickException(str(exc)) from None
+        say(f"bench-sim: wrote {len(run)} SIMULATED records to {output}")
+        return
+
+    try:
+        if port is not None:
+            host_port = port.removeprefix("socket://")
+            host, _, number = host_port.rpartition(":")
+            transport = SocketTransport(host or "127.0.0.1", int(number))
+        else:
+            transport = PtyTransport(link)
+    except (ValueError, OSError) as exc:
+        raise click.ClickException(f"cannot open the line: {exc}") from None
+    device = BenchDevice(run, transport, rate_hz=rate, faults=plan, seed=seed,
+                         name=f"esense bench-sim SIMULATOR (model {model})", autostart=autostart,
+                         truth_path=truth, truth_meta=meta, say=say)
+    click.echo(transport.path)
+    sys.stdout.flush()
+    say(f"bench-sim: {SIMULATOR_LABEL}")
+    say(f"bench-sim: serving {len(run)} records at {rate:g} Hz on {transport.path}"
+        + ("" if port is not None else f" (terminal {transport.device})"))
+    say(f"bench-sim: faults: {plan.describe()}; effects: {fx.describe()}")
+    say(f"bench-sim: log it with: esense acquire --port {transport.path} -o run.csv --meta {meta_text}")
+    stop = threading.Event()
+    try:
+        report = device.serve(stop, linger_s=0.0 if exit_when_done else float("inf"))
+    except KeyboardInterrupt:
+        stop.set()
+        report = device.report
+    finally:
+        transport.close()
+    say(f"bench-sim: {report.text()}")
