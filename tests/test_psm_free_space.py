@@ -75,3 +75,14 @@ def test_model_json_round_trip(tmp_path):
     np.testing.assert_array_equal(back.electrode_areas_m2, m.electrode_areas_m2)
     assert (back.emitter, back.gamma_criterion, back.reference) == (4, 1e-4, {"S_S": [[1.0]]})
     assert back.centres_m[0, 0] > 0  # electrode 1 at the head, +x
+
+
+def test_sphere_centres_follow_the_pose_convention_of_meshes():
+    from meshes.pose import sensor_to_tank
+    from psm.conductance import sphere_centres_m
+
+    m = PolySphericalModel(np.array([0.005, 0.006, 0.005]), np.array([[0.1, 0.01, 0.0], [0.0, 0.0, 0.02], [-0.1, 0.0, 0.0]]))
+    poses = np.array([[0.1, -0.2, 0.05, 0.0], [0.0, 0.3, -0.1, 1.2], [0.2, 0.1, 0.0, np.pi / 2]])
+    np.testing.assert_allclose(sphere_centres_m(m, poses), sensor_to_tank(m.centres_m, poses), atol=1e-15)
+    head = sphere_centres_m(m, poses[2:])[0, 0]
+    assert head[1] > poses[2, 1]  # yaw pi/2: the head points to +y

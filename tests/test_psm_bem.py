@@ -1,0 +1,57 @@
+"""The PSM against the BEM (slow; skipped while the BEM is not importable)."""
+import numpy as np
+import pytest
+
+from meshes.objects import Sphere
+from meshes.pose import Pose
+from meshes.scene import Scene
+from meshes.sensor import preset
+from meshes.tank import Tank
+from psm import calibrate, conductance
+from psm.paper import LENGTH_N2_M, RADIUS_N2_M
+
+bem = pytest.importorskip("bem")
+if not hasattr(bem, "conductance_matrix"):
+    pytest.skip("bem.conductance_matrix is not available yet", allow_module_level=True)
+
+pytestmark = pytest.mark.slow
+SIGMA = 0.0354
+
+
+@pytest.fixture(scope="module")
+def angels2():
+    sensor = preset("angels-2")
+    ref = bem.conductance_matrix(Scene(sensor), SIGMA)
+    return sensor, ref, calibrate(ref, symmetric=True, fix_length_m=LENGTH_N2_M, sensor=sensor)
+
+
+def test_two_electrode_radius_from_the_bem_is_the_papers(angels2):
+    _, _, cal = angels2
+    assert abs(cal.parameters[0] - RADIUS_N2_M) < 0.02e-2
+
+
+def test_tank_images_reproduce_the_bem_wall_effect(angels2):
+    sensor, ref, cal = angels2
+    tank = Tank((1.0, 1.0, 1.0))
+    poses = np.array([[0.0, 0, 0, 0], [0.3, 0, 0, 0], [0.36, 0, 0, 0]])
+    R_bem = np.array([bem.conductance_matrix(Scene(sensor, Pose(*p), tank), SIGMA).resistance_ohm[0] for p in poses])
+    R_psm = conductance(cal.model, poses, SIGMA, tank).resistance_ohm[:, 0]
+    R_free_bem = ref.resistance_ohm[0]
+    R_free_psm = conductance(cal.model, poses[:1], SIGMA).resistance_ohm[0, 0]
+    effect_bem = R_bem / R_free_bem - 1
+    effect_psm = R_psm / R_free_psm - 1
+    assert np.all(effect_bem > 0) and np.all(np.diff(effect_bem) > 0)
+    np.testing.assert_allclose(effect_psm, effect_bem, rtol=0.15)
+    np.testing.assert_allclose(R_psm, R_bem, rtol=0.005)
+
+
+def test_small_sphere_dipole_term_against_the_bem(angels2):
+    sensor, ref, cal = angels2
+    obj = Sphere((0.0, 0.05, 0.0), "conducting", radius_m=0.015)
+    I0_bem = ref.receiver_currents_A()[0]
+    I_bem = bem.conductance_matrix(Scene(sensor, objects=(obj,)), SIGMA).receiver_currents_A()[0]
+    I0_psm = conductance(cal.model, np.zeros((1, 4)), SIGMA).receiver_currents_A()[0, 0]
+    I_psm = conductance(cal.model, np.zeros((1, 4)), SIGMA, objects=[obj]).receiver_currents_A()[0, 0]
+    d_bem, d_psm = I_bem / I0_bem - 1, I_psm / I0_psm - 1
+    assert np.sign(d_bem) == np.sign(d_psm)
+    assert d_psm == pytest.approx(d_bem, rel=0.3)
