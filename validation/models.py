@@ -50,6 +50,7 @@ __all__ = [
     "pose_evaluator",
     "simulate",
     "calibrated_psm",
+    "calibration_layout",
     "psm_cache_dir",
     "code_version",
 ]
@@ -158,37 +159,64 @@ def psm_cache_dir() -> Path:
     return Path(base) / "psm"
 
 
-def _psm_cache_key(sensor: SensorDescription, edge_length_m, symmetric: bool) -> str:
+def _psm_cache_key(sensor: SensorDescription, edge_length_m, layout: dict) -> str:
     description = {
         "sensor": sensor.to_dict(),
         "bem_edge_length_m": edge_length_m,
-        "symmetric": bool(symmetric),
+        "layout": layout,
         "code_version": code_version(),
     }
     return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:20]
 
 
+def calibration_layout(sensor: SensorDescription, symmetric: bool | None = None) -> dict:
+    """The least constrained PSM layout that a free-space S determines: ``{"symmetric", "fix_length_m"}``.
+
+    S has m (m + 1) / 2 distinct entries (m receivers); the free layout of n
+    spheres has 2n - 1 parameters, the paper's symmetric one about half as
+    many. When even that is too many (n = 2: one conductance), the distance
+    between the outer sphere centres is fixed to the sensor's length, as the
+    paper does for its two-electrode sensor (L = 20 cm).
+
+    >>> calibration_layout(preset("angels-4"))  # doctest: +SKIP
+    {'symmetric': True, 'fix_length_m': None}
+    """
+    from psm.calibration import Layout
+
+    n = sensor.n_electrodes
+    n_data = (n - 1) * n // 2
+    candidates = [(False, None), (True, None), (True, float(sensor.length_m))]
+    if symmetric is not None:
+        candidates = [c for c in candidates if c[0] == bool(symmetric)] + [(bool(symmetric), float(sensor.length_m))]
+    for sym, fix in candidates:
+        if Layout(n, sym, fix).n_free <= n_data:
+            return {"symmetric": sym, "fix_length_m": fix}
+    raise ModelError(f"no PSM layout of {n} spheres is determined by the {n_data} conductance(s) of {sensor.name!r}")
+
+
 def calibrated_psm(
     sensor: SensorDescription,
     edge_length_m: float | None = None,
-    symmetric: bool = False,
+    symmetric: bool | None = None,
     cache: bool = True,
 ):
     """A PSM calibrated against the free-space BEM conductance of ``sensor``, computed once.
 
     The reference is ``bem.conductance_matrix(Scene(sensor), 1 S/m)`` in
     unbounded water (the PSM's geometry does not depend on the conductivity);
-    :func:`psm.calibrate` fits the spheres to it. The result is cached as a
-    PSM JSON file in :func:`psm_cache_dir`, keyed by the sensor description,
-    the BEM edge length, ``symmetric`` and :func:`code_version`.
+    :func:`psm.calibrate` fits the spheres to it in the layout of
+    :func:`calibration_layout`. The result is cached as a PSM JSON file in
+    :func:`psm_cache_dir`, keyed by the sensor description, the BEM edge
+    length, the layout and :func:`code_version`.
 
     Parameters
     ----------
     sensor : SensorDescription
     edge_length_m : float, optional
         Edge length of the calibration BEM mesh (``None``: the mesher's default).
-    symmetric : bool
-        Fit with the paper's symmetry constraints.
+    symmetric : bool, optional
+        Force (True) or forbid (False) the paper's symmetry constraints;
+        default: the least constrained layout the data determine.
     cache : bool
         Read and write the on-disk cache (``False``: always recompute).
 
@@ -198,7 +226,8 @@ def calibrated_psm(
     """
     from psm import PolySphericalModel
 
-    path = psm_cache_dir() / f"{sensor.name or 'sensor'}-{_psm_cache_key(sensor, edge_length_m, symmetric)}.json"
+    layout = calibration_layout(sensor, symmetric)
+    path = psm_cache_dir() / f"{sensor.name or 'sensor'}-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
     if cache and path.exists():
         try:
             return PolySphericalModel.load(path)
@@ -207,13 +236,13 @@ def calibrated_psm(
 
     from bem import conductance_matrix
     from meshes.scene import Scene
-    from psm import calibrate
+    from psm.calibration import calibrate
 
     reference = conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m)
-    model = calibrate(reference, symmetric=symmetric).model
+    model = calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_suffix(f".{os.getpid()}.partial")
+        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
         model.save(partial)
         os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
     return model
