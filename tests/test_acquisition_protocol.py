@@ -93,3 +93,19 @@ def test_meta_option():
         parse_meta_option("tank=1,1")
     with pytest.raises(ValueError, match="expected key=value"):
         parse_meta_option("angels-4")
+
+
+def test_the_protocol_document_examples_are_valid_lines():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parent.parent / "docs" / "serial-protocol.md").read_text()
+    lines = [ln.strip() for ln in doc.splitlines() if ln.startswith(("$H,", "$D,"))]
+    assert len(lines) == 2
+    _, hello = parse_line(lines[0].encode())
+    _, record = parse_line(lines[1].encode())
+    assert isinstance(hello, Hello) and isinstance(record, DataRecord)
+    assert len(hello.fields) == len(record.values) and record.boot == hello.boot
+    import re
+
+    for cmd in re.findall(r"`(\$C,[A-Z]+(?:,[0-9.]+)?\*[0-9A-F]{4})`", doc):
+        assert parse_command(cmd.encode()).name in ("ID", "START", "STOP", "VOLT")

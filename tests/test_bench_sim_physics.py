@@ -1,0 +1,176 @@
+"""The virtual bench: trajectories, the bench's noise, and each physical effect built into the physics."""
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from bem.conductance import ConductanceMatrix
+from meshes.objects import Sphere
+from meshes.sensor import preset
+from meshes.tank import Tank
+from validation.bench_sim import BenchNoise, Effects, FaultPlan, VirtualBench, parse_path, repeat_passes
+from validation.bench_sim.trajectory import grid, wall_to_wall
+
+NO_NOISE = BenchNoise(current_rel=0.0, position_m=0.0)
+
+
+class RecordingModel:
+    """Stand-in for validation.models.simulate that remembers how it was called; K does not depend on the pose."""
+
+    def __init__(self):
+        self.calls = []
+
+    def __call__(self, model, sensor, poses, tank, sigma_S_per_m, objects=(), psm_model=None,
+                 contact_impedance_ohm_m2=None, **options):
+        self.calls.append(dict(model=model, poses=np.array(poses), tank=tank, sigma=sigma_S_per_m, objects=objects,
+                               z_c=contact_impedance_ohm_m2))
+        n = sensor.n_electrodes
+        K = sigma_S_per_m * 0.03 * (n * np.eye(n) - np.ones((n, n)))
+        return ConductanceMatrix(np.broadcast_to(K, (len(poses), n, n)).copy(), sensor.emitter, sigma_S_per_m)
+
+
+def bench(effects=(), noise=NO_NOISE, sensor="angels-4", seed=0):
+    model = RecordingModel()
+    b = VirtualBench(preset(sensor), Tank((1.0, 1.0, 1.0)), 0.0354, effects=Effects.parse(effects), noise=noise,
+                     seed=seed, simulate=model)
+    return b, model
+
+
+def test_wall_to_wall_follows_the_paper_and_the_spec_example():
+    p = wall_to_wall((1.0, 1.0, 1.0))
+    assert p.shape == (161, 4)
+    np.testing.assert_allclose(p[[0, -1], 0], [-0.38, 0.38])
+    np.testing.assert_array_equal(p[:, 1:], 0.0)  # y = 0, mid-plane, yaw 0 (head to +x)
+    np.testing.assert_allclose(np.diff(p[:, 0]), 0.76 / 160)
+
+
+def test_paths_and_passes():
+    g = grid((-0.1, 0.1, 3), (0.0, 0.2, 2), z_m=0.05)
+    np.testing.assert_allclose(g[:, 0], [-0.1, 0.0, 0.1, 0.1, 0.0, -0.1])  # serpentine
+    np.testing.assert_allclose(g[:, 2], 0.05)
+    line = parse_path("line:0,0,0,0:0.2,0.1,0,1.5:5")
+    np.testing.assert_allclose(line[-1], [0.2, 0.1, 0.0, 1.5])
+    poses, passes = repeat_passes(line, 3)
+    assert passes.tolist() == [0] * 5 + [1] * 5 + [2] * 5
+    np.testing.assert_array_equal(poses[5:10], line[::-1])  # back ...
+    np.testing.assert_array_equal(poses[10:], line)          # ... and forth
+    for bad, msg in [("spiral", "unknown kind"), ("line:0,0,0:1,1,1,1:3", "needs 4 numbers"),
+                     ("grid:0,1", "grid:X0,X1,NX")]:
+        with pytest.raises(ValueError, match=msg):
+            parse_path(bad)
+
+
+def test_effect_parsing_refuses_unknown_names_and_bad_values():
+    with pytest.raises(ValueError, match="unknown effect 'salinity'"):
+        Effects.parse(["salinity=3"])
+    with pytest.raises(ValueError, match="expected 4 numbers"):
+        Effects.parse(["pose_offset=0.001,0"])
+    with pytest.raises(ValueError, match="unmodelled_object"):
+        Effects.parse(["unmodelled_object=cube,0,0,0,1"])
+    with pytest.raises(ValueError, match="2 gains for 3 receivers"):
+        bench(["channel_gain=1,1"])
+
+
+def test_without_effects_the_bench_measures_the_model_at_the_logged_pose():
+    b, model = bench()
+    poses = wall_to_wall(n=11)
+    run = b.run(poses, rate_hz=5.0, U_V=2.0)
+    call = model.calls[0]
+    assert call["sigma"] == 0.0354 and call["tank"] == Tank((1.0, 1.0, 1.0)) and call["objects"] == ()
+    np.testing.assert_array_equal(call["poses"], poses)
+    K = model(call["model"], preset("angels-4"), poses[:1], None, 0.0354)
+    np.testing.assert_allclose(run.currents_A, np.broadcast_to(K.receiver_currents_A(2.0), (11, 3)))
+    np.testing.assert_allclose(run.t_s, np.arange(11) / 5.0)
+    assert np.all(run.currents_A > 0)  # bench sign: into the receivers
+
+
+def test_each_effect_goes_where_the_physics_puts_it():
+    poses = wall_to_wall(n=21)
+    base, _ = bench()
+    ref = base.run(poses).currents_A
+
+    b, m = bench(["conductivity=-2%"])
+    run = b.run(poses)
+    assert m.calls[0]["sigma"] == pytest.approx(0.0354 * 0.98)
+    np.testing.assert_allclose(run.currents_A / ref, 0.98)  # K is proportional to sigma
+
+    b, m = bench(["pose_offset=0.002,-0.001,0,0.01"])
+    run = b.run(poses)
+    np.testing.assert_allclose(m.calls[0]["poses"] - poses, np.broadcast_to([0.002, -0.001, 0, 0.01], (21, 4)))
+    np.testing.assert_array_equal(run.poses, poses)  # the log keeps the nominal pose
+
+    b, m = bench(["tank_size=1.2,0.8,1.0", "water_depth=0.7"])
+    b.run(poses)
+    assert m.calls[0]["tank"] == Tank((1.2, 0.8, 1.0), 0.7)
+
+    b, m = bench(["contact_impedance=0.05", "unmodelled_object=sphere,0.1,0.08,0,0.02,conducting"])
+    b.run(poses)
+    assert m.calls[0]["z_c"] == 0.05
+    (obj,) = m.calls[0]["objects"]
+    assert isinstance(obj, Sphere) and obj.is_conducting and obj.centre_m == (0.1, 0.08, 0.0)
+
+    b, _ = bench(["channel_gain=1.01,0.99,1.0"])
+    np.testing.assert_allclose(b.run(poses).currents_A / ref, np.broadcast_to([1.01, 0.99, 1.0], (21, 3)))
+
+    b, _ = bench(["temperature_drift=0.5"])
+    run = b.run(poses)
+    np.testing.assert_allclose(run.temp_C[[0, -1]], [20.0, 20.5])
+    np.testing.assert_allclose(run.currents_A[-1] / ref[-1], 1.0 + 0.02 * 0.5)  # 2 %/K
+    np.testing.assert_allclose(run.sigma_true_S_per_m[-1], 0.0354 * 1.01)
+
+
+def test_the_bench_noise_has_the_papers_size():
+    b, m = bench(noise=BenchNoise(), seed=3)
+    poses = np.zeros((4000, 4))
+    run = b.run(poses)
+    exact, _ = bench()
+    ref = exact.run(poses[:1]).currents_A[0]
+    rel = run.currents_A / ref - 1.0
+    assert abs(rel.std() - 5e-4) < 0.05 * 5e-4 and abs(rel.mean()) < 5e-5
+    dx = m.calls[0]["poses"][:, :3] - poses[:, :3]
+    assert abs(dx.std() - 1e-4) < 0.05 * 1e-4
+    np.testing.assert_array_equal(m.calls[0]["poses"][:, 3], 0.0)
+
+
+def test_out_of_the_water_is_refused():
+    b, _ = bench(["tank_size=0.5,1,1"])
+    with pytest.raises(ValueError, match="out of the water"):
+        b.run(wall_to_wall(n=5))
+
+
+def test_with_the_real_psm_the_conductivity_offset_is_exact():
+    from psm import PolySphericalModel, conductance
+
+    psm_model = PolySphericalModel.collinear([0.0071, 0.0071], [0.2])
+    tank = Tank((1.0, 1.0, 1.0))
+    poses = wall_to_wall(n=9)
+    run = VirtualBench(preset("angels-2"), tank, 0.0354, model="psm", psm_model=psm_model, noise=NO_NOISE,
+                       effects=Effects.parse(["conductivity=-2.06%"])).run(poses)
+    direct = conductance(psm_model, poses, 0.0354, tank=tank).receiver_currents_A(1.0)
+    np.testing.assert_allclose(run.currents_A, direct * (1 - 0.0206), rtol=1e-12)
+    R = 1.0 / run.currents_A[:, 0]
+    assert R[4] < R[0] and R[4] < R[-1]  # the resistance rises towards the walls (paper, fig. 6)
+
+
+def test_cli_writes_a_simulated_log(tmp_path):
+    from psm import PolySphericalModel
+    from validation.benchlog import read_bench_log
+    from validation.cli import main
+
+    model_file = tmp_path / "psm.json"
+    PolySphericalModel.collinear([0.0071, 0.0071], [0.2]).save(model_file)
+    out = tmp_path / "sim.csv"
+    args = ["bench-sim", "-o", str(out), "--sensor", "angels-2", "--psm-model", str(model_file), "--passes", "2",
+            "--path", "wall-to-wall:21", "--effect", "conductivity=-2%", "--seed", "1"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 0, result.output
+    log = read_bench_log(out)
+    assert len(log) == 42 and log.pass_numbers.tolist() == [0, 1]
+    assert "SIMULATED" in log.meta["source"] and "conductivity=-2%" in log.meta["source"]
+    assert log.sigma_S_per_m == 0.0354  # the meta keeps the nominal conductivity
+    np.testing.assert_allclose(log.poses[:21, 0], np.linspace(-0.38, 0.38, 21), atol=5e-5)
+    again = CliRunner().invoke(main, args)
+    assert again.exit_code != 0 and "exists" in again.output
+    bad = CliRunner().invoke(main, ["bench-sim", "-o", str(tmp_path / "x.csv"), "--faults", "all"])
+    assert bad.exit_code != 0 and "--faults need a serial line" in bad.output
