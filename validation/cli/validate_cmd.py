@@ -26,38 +26,47 @@ def _parse_models(text: str) -> tuple[str, ...]:
     return models
 
 
-def run_validation(logs, models, outdir, psm=None, conductivity_correction=False, objects=(), stride=1,
-                   near_wall_m=None, near_object_m=None, potential=True, potential_n=81, edge_length_m=None,
-                   title="electrosense validation", extra_sections=(), intro="", footer="", extra_metrics=None,
-                   show_progress=True, echo=click.echo):
-    """Validate already-read logs (BenchLog objects) and write the report; return (results, paths).
+def validate_logs(logs, models, psm=None, conductivity_correction=False, objects=(), stride=1, near_wall_m=None,
+                  near_object_m=None, edge_length_m=None, show_progress=True, bar=None):
+    """Validate already-read logs (BenchLog objects); return the list of LogValidation results.
 
+    ``psm``: a PSM (object or JSON path) for every log, a dict sensor name -> PSM, or None (calibrated, cached).
     Shared by ``esense validate`` and ``esense demo``.
     """
-    from tqdm.auto import tqdm
-
     from validation.compare import NEAR_OBJECT_M, NEAR_WALL_M
     from validation.compare.validate import EvaluatorCache, validate_log
-    from validation.report.validation_report import write_validation_report
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     evaluators = EvaluatorCache(psm_model=psm, **bem_options)
     results = []
-    with tqdm(total=len(logs) * (len(models) + 1), desc="validate", unit="step", disable=not show_progress) as bar:
-        for log in logs:
-            if stride > 1:
-                log = _every(log, stride)
-            results.append(validate_log(
-                log, models, psm_model=psm, conductivity_correction=conductivity_correction, objects=objects,
-                near_wall_m=NEAR_WALL_M if near_wall_m is None else near_wall_m,
-                near_object_m=NEAR_OBJECT_M if near_object_m is None else near_object_m,
-                evaluators=evaluators, progress=show_progress and "bem" in models,
-                label=_label(log, results), **bem_options))
+    for log in logs:
+        if stride > 1:
+            log = _every(log, stride)
+        results.append(validate_log(
+            log, models, conductivity_correction=conductivity_correction, objects=objects,
+            near_wall_m=NEAR_WALL_M if near_wall_m is None else near_wall_m,
+            near_object_m=NEAR_OBJECT_M if near_object_m is None else near_object_m,
+            evaluators=evaluators, progress=show_progress and "bem" in models,
+            label=_label(log, results), **bem_options))
+        if bar is not None:
             bar.update(len(models))
+    return results
+
+
+def run_validation(logs, models, outdir, psm=None, conductivity_correction=False, objects=(), stride=1,
+                   near_wall_m=None, near_object_m=None, potential=True, potential_n=81, edge_length_m=None,
+                   title="electrosense validation", footer="", show_progress=True):
+    """Validate logs and write the report (metrics.json, PNGs, index.html) into ``outdir``; return (results, paths)."""
+    from tqdm.auto import tqdm
+
+    from validation.report.validation_report import write_validation_report
+
+    with tqdm(total=len(logs) * (len(models) + 1), desc="validate", unit="step", disable=not show_progress) as bar:
+        results = validate_logs(logs, models, psm, conductivity_correction, objects, stride, near_wall_m,
+                                near_object_m, edge_length_m, show_progress, bar)
         bar.set_description("figures")
-        paths = write_validation_report(results, outdir, title=title, extra_sections=extra_sections, intro=intro,
-                                        footer=footer, potential=potential, potential_n=potential_n,
-                                        edge_length_m=edge_length_m, extra_metrics=extra_metrics, progress=bar)
+        paths = write_validation_report(results, outdir, title=title, footer=footer, potential=potential,
+                                        potential_n=potential_n, edge_length_m=edge_length_m, progress=bar)
     return results, paths
 
 

@@ -44,6 +44,7 @@ class EvaluatorCache:
     """
 
     def __init__(self, psm_model=None, **bem_options):
+        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
         self.psm_model = psm_model
         self.bem_options = bem_options
         self._evaluators = {}
@@ -61,9 +62,41 @@ class EvaluatorCache:
             psm = None
             if model == "psm":
                 psm = self.psm_model
+                if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
+                    psm = psm.get(sensor.name)
                 options = {k: v for k, v in options.items() if k == "edge_length_m"}
-            self._evaluators[key] = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
+            try:
+                evaluator = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
+            except ImportError:  # an installation without bem.PoseSweep: one full solve per pose
+                if model != "bem":
+                    raise
+                evaluator = _PosewiseBem(sensor, tank, float(sigma_S_per_m), tuple(objects), options)
+            self._evaluators[key] = evaluator
         return self._evaluators[key]
+
+
+@dataclass
+class _PosewiseBem:
+    """The BEM pose by pose (``bem.conductance_matrix`` of each scene), when no pose sweep is available."""
+
+    sensor: object
+    tank: object
+    sigma_S_per_m: float
+    objects: tuple
+    options: dict
+
+    def conductance(self, poses, progress: bool = False):
+        from tqdm.auto import tqdm
+
+        from bem import conductance_matrix
+        from bem.conductance import ConductanceMatrix
+        from meshes.pose import Pose
+        from meshes.scene import Scene
+
+        K = [conductance_matrix(Scene(self.sensor, Pose.from_array(p), self.tank, self.objects), self.sigma_S_per_m,
+                                **self.options).K_S
+             for p in tqdm(poses, desc="BEM poses", disable=not progress, leave=False)]
+        return ConductanceMatrix(np.array(K), self.sensor.emitter, self.sigma_S_per_m, {"model": "bem"})
 
 
 @dataclass

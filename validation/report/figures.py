@@ -366,7 +366,12 @@ def relative_error_figure(
 
 # ------------------------------------------------------------------ 3D figures
 def _electrode_colours(n: int) -> list[str]:
-    return [_CYCLE[k % len(_CYCLE)] for k in range(n)]
+    """The electrode colours of :mod:`meshes.render`, so that every picture of a sensor agrees."""
+    try:
+        from meshes.render import ELECTRODE_COLOURS
+    except ImportError:  # pragma: no cover - meshes without its renderer
+        ELECTRODE_COLOURS = _CYCLE
+    return [ELECTRODE_COLOURS[k % len(ELECTRODE_COLOURS)] for k in range(n)]
 
 
 def _polydata(mesh) -> "pv.PolyData":

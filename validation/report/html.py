@@ -123,12 +123,17 @@ class Section:
     notes: Sequence[str] = field(default_factory=list)
     subsections: Sequence["Section"] = field(default_factory=list)
     preformatted: str = ""
+    links: Sequence[tuple[str, str]] = field(default_factory=list)
+    """(text, relative href) pairs, e.g. another report beside this one."""
 
     def to_html(self, page_folder: Path, level: int = 2, embed: bool = False) -> str:
         parts = [f"<h{level}>{html.escape(self.title)}</h{level}>"]
         paragraphs = [self.text] if isinstance(self.text, str) else list(self.text)
         parts += [f"<p>{html.escape(p)}</p>" for p in paragraphs if p]
         parts += [f'<p class="note">{html.escape(n)}</p>' for n in self.notes]
+        if self.links:
+            parts.append("<ul>" + "".join(f'<li><a href="{html.escape(href)}">{html.escape(text)}</a></li>'
+                                          for text, href in self.links) + "</ul>")
         if self.preformatted:
             parts.append(f"<pre>{html.escape(self.preformatted)}</pre>")
         parts += [t.to_html() for t in self.tables]

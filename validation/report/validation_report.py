@@ -254,14 +254,18 @@ def write_metrics_json(results, path, extra: dict | None = None) -> Path:
 
 
 def write_validation_report(results: Sequence, outdir, title: str = "electrosense validation",
-                            extra_sections: Sequence[Section] = (), intro: str | Sequence[str] = "",
+                            extra_sections: Sequence[Section] = (), leading_sections: Sequence[Section] = (),
+                            intro: str | Sequence[str] = "",
                             footer: str = "", potential: bool = True, potential_n: int = 81,
                             edge_length_m=None, extra_metrics: dict | None = None, progress=None) -> dict:
-    """Write metrics.json, the PNGs and index.html into ``outdir``; return their paths."""
+    """Write metrics.json, the PNGs and index.html into ``outdir``; return their paths.
+
+    ``leading_sections`` go before the validation's sections, ``extra_sections`` after.
+    """
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     metrics = write_metrics_json(results, outdir / "metrics.json", extra_metrics)
     sections = validation_sections(results, outdir, potential, potential_n, edge_length_m, progress)
-    sections += list(extra_sections)
+    sections = list(leading_sections) + sections + list(extra_sections)
     page = write_html(outdir / "index.html", title, sections, intro=intro, footer=footer)
     return {"metrics": metrics, "index": page, "figures": sorted(outdir.glob("*.png"))}

@@ -1,0 +1,232 @@
+"""``esense demo``: the whole chain on the bundled bench logs, into one report.
+
+Example::
+
+    esense demo -o esense-demo
+    esense demo --quick -o /tmp/demo      # reduced settings (coarse meshes, few poses)
+
+Steps: mesh the paper's sensors (those named by the bundled logs), compute
+their free-space BEM conductance matrices, calibrate the PSM on them, validate
+BEM and PSM against the bundled example logs (with the paper's conductivity
+correction), run the gap diagnosis when it is installed, and write one report
+(``index.html``, ``metrics.json``, PNGs, the calibrated PSMs as JSON). The
+folder's ``index.html`` is printed at the end.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+#: The paper's free-space S_BEM of the 4-electrode sensor, in units of gamma/100 (S per S/m), emitter 4.
+PAPER_S_BEM_ANGELS4 = [[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [-2.2540, -2.6875, 7.6781]]
+
+#: (name, BEM sensor edge length m, stride over the logged poses, potential figure grid)
+SETTINGS = {
+    "full": {"edge_length_m": None, "bem_poses": 21, "potential_n": 81, "max_logs": None},
+    "quick": {"edge_length_m": 0.012, "bem_poses": 3, "potential_n": 0, "max_logs": 1},
+}
+
+
+def bundled_logs() -> list[Path]:
+    """The example bench logs shipped with the package (validation/data/*.csv)."""
+    folder = Path(__file__).resolve().parent.parent / "data"
+    return sorted(folder.glob("*.csv"))
+
+
+def _sensor_section(sensor, folder: Path, edge_length_m, bar, echo):
+    """Mesh, free-space BEM and PSM calibration of one sensor: (Section, PSM model)."""
+    import numpy as np
+
+    from meshes.quality import mesh_quality
+    from meshes.render import render_mesh
+    from meshes.sensor_mesh import mesh_sensor
+    from psm import calibrate
+    from validation.report.html import Figure, Section, Table
+
+    name = sensor.name
+    mesh = mesh_sensor(sensor, edge_length_m=edge_length_m)
+    png = render_mesh(mesh, folder / f"mesh_{name}.png", title=f"{name}: BEM mesh ({mesh.n_triangles} triangles)",
+                      emitter=sensor.emitter)
+    quality = mesh_quality(mesh)
+    bar.update(1)
+    t0 = time.perf_counter()
+    reference = _free_space_bem(sensor, mesh)
+    bem_s = time.perf_counter() - t0
+    bar.update(1)
+    t0 = time.perf_counter()
+    # the paper's fit: mirror-symmetric spheres; with 2 electrodes the model length is the real one (20 cm)
+    calibration = calibrate(reference, symmetric=True, sensor=sensor,
+                            fix_length_m=sensor.length_m if sensor.n_electrodes == 2 else None)
+    psm_s = time.perf_counter() - t0
+    model = calibration.model
+    model.save(folder / f"psm_{name}.json")
+    bar.update(1)
+    echo(f"{name}: {mesh.n_triangles} triangles, free-space BEM {bem_s:.1f} s, PSM fit Gamma = "
+         f"{calibration.gamma_criterion:.2e} ({psm_s:.1f} s)")
+    S = 100 * reference.S_S  # gamma/100 units: S per (S/m) x 100
+    tables = [Table(["", *[f"receiver {k}" for k in reference.receivers]],
+                    [[f"receiver {k}", *row] for k, row in zip(reference.receivers, S.tolist())],
+                    caption=f"{name}: free-space BEM S in units of sigma/100 (S per S/m, x100)", digits=5)]
+    if name == "angels-4":
+        paper = np.array(PAPER_S_BEM_ANGELS4)
+        rel = (S - paper) / np.abs(paper)
+        tables.append(Table(["", *[f"receiver {k}" for k in reference.receivers]],
+                            [[f"receiver {k}", *(100 * row).tolist()] for k, row in zip(reference.receivers, rel)],
+                            caption="angels-4: our S against the paper's S_BEM table, relative difference (%)",
+                            digits=3))
+    tables.append(Table(
+        ["parameter", "value (cm)", "uncertainty (cm)"],
+        [[n, 100 * v, 100 * u] for n, v, u in zip(calibration.parameter_names, np.asarray(calibration.parameters),
+                                                   np.asarray(calibration.uncertainties))],
+        caption=f"{name}: PSM calibrated on the free-space BEM, criterion (17) Gamma = "
+                f"{calibration.gamma_criterion:.3e}", digits=4))
+    text = [f"Mesh: {mesh.n_triangles} triangles ({_quality_text(quality)}). Free-space BEM conductance in "
+            f"{bem_s:.1f} s; PSM fit in {psm_s:.1f} s, saved as psm_{name}.json."]
+    return Section(f"Sensor {name}", text, tables=tables, figures=[Figure(png, f"{name}: BEM mesh, electrodes "
+                                                                               "coloured")]), model
+
+
+def _quality_text(q) -> str:
+    return (f"smallest angle {q.min_angle_deg:.1f} deg, largest aspect ratio {q.max_aspect_ratio:.1f}, "
+            f"edges {1000 * q.min_edge_m:.2f} to {1000 * q.max_edge_m:.2f} mm, "
+            f"{'watertight' if q.is_watertight else 'NOT watertight'}")
+
+
+def _free_space_bem(sensor, mesh):
+    """The sensor's free-space BEM conductance at 1 S/m from its mesh."""
+    from bem import conductance_matrix
+    from bem.conductance import ConductanceMatrix
+
+    C = conductance_matrix(mesh, 1.0)
+    return ConductanceMatrix(C.K_S, sensor.emitter, 1.0, C.info)
+
+
+def _diagnosis_section(log_paths, folder: Path, echo):
+    """Run ``esense diagnose`` on the logs into folder/diagnosis; a summary Section, or None when not installed."""
+    import importlib
+    import json
+
+    from validation.report.html import Section, Table
+
+    try:
+        command = importlib.import_module("validation.cli.diagnose_cmd").diagnose
+    except (ImportError, AttributeError) as exc:
+        return Section("Gap diagnosis", notes=[f"the gap diagnosis is not available in this installation ({exc})"])
+    out = folder / "diagnosis"
+    sections = []
+    for path in log_paths:
+        sub = out / Path(path).stem
+        try:
+            command.main([str(path), "-o", str(sub)], standalone_mode=False)
+            d = json.loads((sub / "diagnosis.json").read_text())
+        except Exception as exc:  # the report still stands without it; say why
+            sections.append(Section(f"{Path(path).stem}", notes=[f"diagnosis failed: {type(exc).__name__}: {exc}"]))
+            continue
+        rows = []
+        for c in d.get("ranking", [])[:6]:
+            rows.append([c.get("effect"), json.dumps(c.get("params"))[:60], c.get("heldout_gap"), c.get("shrink")])
+        chosen = ", ".join(d.get("chosen", [])) or "none"
+        echo(f"diagnosis of {Path(path).name}: {chosen} (held-out gap {d.get('gap_before')} -> {d.get('gap_after')})")
+        text = [f"Chosen effect(s): {chosen}. Held-out RMS relative gap before: {d.get('gap_before')}, "
+                f"after: {d.get('gap_after')}."]
+        confusable = d.get("confusable") or []
+        if confusable:
+            text.append("Cannot be told apart on these data: " + "; ".join(
+                " / ".join(map(str, c.get("pair", c) if isinstance(c, dict) else c)) for c in confusable))
+        sections.append(Section(
+            f"{Path(path).stem}", text,
+            tables=[Table(["effect", "parameters", "held-out gap", "shrink"], rows, caption="Candidates, best first")]
+            if rows else [],
+            links=[("full diagnosis report", f"diagnosis/{Path(path).stem}/index.html")]))
+    return Section("Gap diagnosis", ["What unmodelled effect explains the gap between the bench and the BEM/PSM, "
+                                     "fitted on part of the data and scored on the rest (esense diagnose)."],
+                   subsections=sections)
+
+
+@click.command("demo")
+@click.option("-o", "--out", "outdir", type=click.Path(file_okay=False, path_type=Path), default=Path("esense-demo"),
+              show_default=True, help="Folder of the report (index.html, metrics.json, PNGs, PSM JSON files).")
+@click.option("--quick", is_flag=True,
+              help="Reduced settings for a smoke test: coarse BEM mesh, one log, 3 BEM poses, no potential figure.")
+@click.option("--bem-poses", type=click.IntRange(min=2), default=None,
+              help="About how many poses per log the BEM (and the comparison) uses; the PSM's figures use the same.")
+@click.option("--data", "data_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="Use the bench logs (*.csv) of this folder instead of the bundled ones.")
+@click.option("--no-diagnosis", is_flag=True, help="Skip the gap diagnosis.")
+@click.option("--quiet", is_flag=True, help="No progress bars.")
+def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
+    """Mesh the paper's sensors, compute BEM matrices, calibrate the PSM, validate both on the bundled logs, report."""
+    import os
+
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    from tqdm.auto import tqdm
+
+    from validation.benchlog import read_bench_log
+    from validation.report.validation_report import write_validation_report
+
+    from .validate_cmd import print_summary, validate_logs
+
+    t_start = time.perf_counter()
+    settings = dict(SETTINGS["quick" if quick else "full"])
+    if bem_poses is not None:
+        settings["bem_poses"] = bem_poses
+    paths = bundled_logs() if data_dir is None else sorted(Path(data_dir).glob("*.csv"))
+    if not paths:
+        raise click.ClickException(f"no bench logs (*.csv) in {data_dir or 'the bundled data (validation/data)'}")
+    if settings["max_logs"]:
+        paths = paths[: settings["max_logs"]]
+    logs = [read_bench_log(p) for p in paths]
+    sensors = list({log.sensor.name: log.sensor for log in logs}.values())
+    outdir.mkdir(parents=True, exist_ok=True)
+    echo = click.echo
+    echo(f"esense demo: {len(logs)} bundled log(s) ({', '.join(p.name for p in paths)}), "
+         f"sensors {', '.join(s.name for s in sensors)}; report in {outdir}")
+    steps = 3 * len(sensors) + 3 * len(logs) + (0 if no_diagnosis else 1)
+    with tqdm(total=steps, desc="demo", unit="step", disable=quiet) as bar:
+        bar.set_description("sensors: mesh, BEM, PSM")
+        sensor_sections, psms = [], {}
+        for sensor in sensors:
+            section, psms[sensor.name] = _sensor_section(sensor, outdir, settings["edge_length_m"], bar, echo)
+            sensor_sections.append(section)
+        bar.set_description("validate (BEM, PSM)")
+        strides = [max(1, len(log) // max(settings["bem_poses"] - 1, 1)) for log in logs]
+        results = []
+        for log, stride in zip(logs, strides):
+            results += validate_logs([log], ("bem", "psm"), psm=psms, conductivity_correction=True, stride=stride,
+                                     edge_length_m=settings["edge_length_m"], show_progress=not quiet, bar=bar)
+            results[-1].label = _unique(results[-1].label, results[:-1])
+        extra = []
+        if not no_diagnosis:
+            bar.set_description("gap diagnosis")
+            extra.append(_diagnosis_section(paths, outdir, echo))
+            bar.update(1)
+        bar.set_description("figures and report")
+        intro = [
+            "This report is made by `esense demo` from the example bench logs bundled with electrosense: "
+            "the paper's sensors are meshed, their free-space BEM conductance matrices computed, the "
+            "poly-spherical model (PSM) calibrated on them, and both models compared with the logged currents.",
+            f"Settings: {'quick (reduced)' if quick else 'full'}; BEM mesh edge length "
+            f"{settings['edge_length_m'] or 'mesher default'} m; the BEM solves pose by pose, so the comparison "
+            "uses " + ", ".join(f"{len(r.log)} poses of {p.name} (every {s}th)" if s > 1 else f"all poses of {p.name}"
+                                for r, p, s in zip(results, paths, strides)) + ".",
+        ]
+        report = write_validation_report(
+            results, outdir, title="electrosense demo: BEM and PSM against the bench",
+            leading_sections=sensor_sections, extra_sections=extra, intro=intro,
+            footer=f"esense demo{' --quick' if quick else ''}; {time.perf_counter() - t_start:.0f} s",
+            potential=settings["potential_n"] > 0, potential_n=settings["potential_n"] or 81,
+            edge_length_m=settings["edge_length_m"], progress=bar,
+            extra_metrics={"demo": {"settings": settings, "logs": [p.name for p in paths],
+                                    "psm_files": [f"psm_{s.name}.json" for s in sensors]}})
+    print_summary(results, report)
+    echo(f"done in {time.perf_counter() - t_start:.0f} s; open {report['index'].resolve()}")
+
+
+def _unique(label, earlier) -> str:
+    used = {r.label for r in earlier}
+    out, k = label, 2
+    while out in used:
+        out, k = f"{label}-{k}", k + 1
+    return out
