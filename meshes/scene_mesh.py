@@ -41,6 +41,7 @@ from .scene import Scene
 from .tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
+           "trajectory_focus_m",
            "distance_to_object_m"]
 
 
@@ -62,6 +63,23 @@ def sensor_axis_points_m(scene: Scene, n: int = 2) -> np.ndarray:
     half_core = 0.5 * s.length_m - s.radius_m
     x = np.linspace(-half_core, half_core, n)
     return scene.pose.to_tank(np.c_[x, np.zeros(n), np.zeros(n)])
+
+
+def trajectory_focus_m(sensor, poses, n_per_pose: int = 5) -> np.ndarray:
+    """(P * n, 3) points along the sensor's axis at every pose: a ``focus_m`` for one tank mesh per trajectory.
+
+    Example
+    -------
+    >>> from meshes import preset
+    >>> trajectory_focus_m(preset("angels-2"), [[0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0]], 2).round(2).tolist()
+    [[-0.09, 0.0, 0.0], [0.09, 0.0, 0.0], [0.01, 0.0, 0.0], [0.19, 0.0, 0.0]]
+    """
+    from .pose import poses_array, sensor_to_tank
+
+    half_core = 0.5 * sensor.length_m - sensor.radius_m
+    x = np.linspace(-half_core, half_core, n_per_pose)
+    axis = np.c_[x, np.zeros(n_per_pose), np.zeros(n_per_pose)]
+    return sensor_to_tank(axis, poses_array(poses)).reshape(-1, 3)
 
 
 def distance_to_object_m(obj, points_m: np.ndarray) -> np.ndarray:

@@ -130,3 +130,13 @@ def test_mesh_scene_refuses_before_meshing_and_allows_unbounded_water():
         mesh_scene(scene((0, 0, 0.15, 0)))
     sm = mesh_scene(scene(tank=None))
     assert sm.tank is None and sm.combined().region_names == ("sensor",)
+
+
+def test_trajectory_focus_follows_each_pose_heading():
+    from meshes.scene_mesh import trajectory_focus_m
+
+    poses = np.array([[0.0, 0.0, -0.1, 0.0], [0.2, 0.1, -0.1, np.pi / 2]])
+    pts = trajectory_focus_m(SENSOR, poses, n_per_pose=3).reshape(2, 3, 3)
+    half_core = 0.5 * SENSOR.length_m - SENSOR.radius_m
+    assert np.allclose(pts[0], [[-half_core, 0, -0.1], [0, 0, -0.1], [half_core, 0, -0.1]])
+    assert np.allclose(pts[1], [[0.2, 0.1 - half_core, -0.1], [0.2, 0.1, -0.1], [0.2, 0.1 + half_core, -0.1]])
