@@ -107,3 +107,21 @@ def test_bad_arguments_are_named(tmp_path, monkeypatch, args, message):
     monkeypatch.chdir(tmp_path)
     r = _run("--model", "psm", "--sensor", "angels-4", *args)
     assert r.exit_code != 0 and message in r.output, r.output
+
+
+def test_a_sensor_file_travels_with_the_log(tmp_path, psm_file):
+    """A sensor that is not a preset is written beside the log, so that the log reads back on its own."""
+    from dataclasses import replace
+
+    from meshes.sensor import preset, save_sensor
+    from validation.benchlog import read_bench_log
+
+    sensor = replace(preset("angels-4"), name="my-four", notes="moved rings")
+    save_sensor(sensor, tmp_path / "mine.json")
+    out = tmp_path / "logs" / "sweep.csv"
+    out.parent.mkdir()
+    r = _run("--model", "psm", "--psm", psm_file, "--sensor", tmp_path / "mine.json", *LINE, "--quiet", "-o", out)
+    assert r.exit_code == 0, r.output
+    log = read_bench_log(out)
+    assert log.meta["sensor"] == "sweep.sensor.json" and log.sensor.name == "my-four"
+    assert log.sensor.electrodes == sensor.electrodes

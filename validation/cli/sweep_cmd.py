@@ -22,6 +22,7 @@ import click
 
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
 DEFAULT_SIGMA_S_PER_M = 0.0354  # the paper's tank water
+PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
 
 
 def _parse_tank(text):
@@ -97,7 +98,9 @@ def _bench_log_frame(C, poses):
 @click.option("--edge-length", "edge_length_m", type=float, help="BEM mesh edge length in m (default: the mesher's).")
 @click.option("--contact-impedance", "contact_impedance", type=float, help="Electrode contact impedance in ohm m^2.")
 @click.option("--scheduler", help="dask scheduler address (tcp://host:port); default: Dask config, else this machine.")
-@click.option("--workers", type=int, help="Local workers (default: this machine's cores; 1: in this process).")
+@click.option("--workers", type=int,
+              help="Local workers (1: in this process). Default: this machine's cores for the BEM; for the PSM, "
+                   f"1 unless there are more than {PSM_POSES_PER_EXTRA_WORKER} poses (starting workers costs seconds).")
 @click.option("--chunk", "chunk_poses", type=int, help="Poses per stored chunk (default: about 16 chunks per worker).")
 @click.option("--plot", "plot_png", type=click.Path(dir_okay=False), help="Also write the tank map (grid sweeps) as PNG.")
 @click.option("--plot-quantity", type=click.Choice(["resistance", "current_change"]), default="resistance",
@@ -204,6 +207,8 @@ def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma
         attrs.pop("grid")
 
     # -------------------------------------------------------------- the run
+    if workers is None and model == "psm" and len(poses) <= PSM_POSES_PER_EXTRA_WORKER:
+        workers = 1
     n_workers = workers or local_cores()
     store = SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
                                       chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
