@@ -27,11 +27,12 @@ built ring by ring:
 3. **Zipping.** Neighbouring rings of different counts are joined by the
    classic advancing-front zip (always advance the ring whose next vertex
    comes first in angle); the tips are fans.
-4. **True perimeter.** A ring of ``M`` vertices on the circle of radius ``r``
-   is an inscribed polygon whose perimeter is short by a factor
-   ``sin(pi/M)/(pi/M)`` (an area error ~ (2 pi/M)^2 / 6). Vertices are placed
-   at ``r * (pi/M) / sin(pi/M)`` so that every faceted ring has the true
-   perimeter, which removes the leading geometric error of the mesh.
+4. **Ring radius.** A ring of ``M`` vertices on the circle of radius ``r``
+   is an inscribed polygon that misses a fraction ~ (2 pi/M)^2 / 6 of the
+   circle's area. By default (``ring_radius="area"``) the vertices sit at
+   ``r * sqrt((2 pi/M) / sin(2 pi/M))`` so that every faceted ring encloses
+   the circle's area, which removes most of the geometric error of flat
+   facets from the conductances (``"perimeter"`` matches the perimeter).
 
 Faces are wound so that the normals point out of the sensor body (into the
 water); ``electrode`` holds the electrode number of each face (0 on the
@@ -100,6 +101,17 @@ class SensorProfile:
         return float(s2 + R * np.arcsin(np.clip((-c - x) / R, -1, 1)))
 
 
+def _ring_radius_factor(m: int, mode: str) -> float:
+    """Vertex radius / circle radius for a ring of ``m`` vertices."""
+    if mode == "inscribed":
+        return 1.0
+    if mode == "perimeter":
+        return (np.pi / m) / np.sin(np.pi / m)
+    if mode == "area":
+        return float(np.sqrt((2 * np.pi / m) / np.sin(2 * np.pi / m)))
+    raise ValueError(f"mesh_sensor: ring_radius must be 'area', 'perimeter' or 'inscribed', got {mode!r}")
+
+
 def _ring_positions(breaks: np.ndarray, edges: np.ndarray, h_far: float, h_edge: float, grading: float) -> np.ndarray:
     """Arc lengths of the rings: every breakpoint plus graded rings between them."""
 
@@ -158,10 +170,12 @@ def _zip(ring_a: np.ndarray, angles_a: np.ndarray, ring_b: np.ndarray, angles_b:
 def mesh_sensor(
     sensor: SensorDescription,
     edge_length_m: float | None = None,
-    grading: float = 1.25,
-    edge_refinement: float = 20.0,
+    grading: float = 1.2,
+    edge_refinement: float = 30.0,
     max_aspect: float = 3.0,
-    true_perimeter: bool = True,
+    azimuthal_refinement: float = 1.5,
+    ring_radius: str = "area",
+    uniform_cylinder: bool = True,
 ) -> LabelledMesh:
     """Closed, graded, labelled triangle mesh of a sensor in its own frame.
 
@@ -177,9 +191,19 @@ def mesh_sensor(
     edge_refinement : float
         Far edge length divided by the ring spacing at an electrode edge.
     max_aspect : float
-        Largest ratio of azimuthal to axial edge length near electrode edges.
-    true_perimeter : bool
-        Place ring vertices so that each faceted ring has the circle's perimeter.
+        Azimuthal edge length at most ``max_aspect`` times the local axial spacing...
+    azimuthal_refinement : float
+        ...but never below ``edge_length_m / azimuthal_refinement``: near the
+        electrode edges the solution varies along the axis, hardly around it,
+        so the rings there are fine axially and only moderately fine around.
+    uniform_cylinder : bool
+        Give every ring of the cylinder the same count (``2 pi R`` over
+        ``edge_length_m / azimuthal_refinement``): a faceted cylinder of one
+        cross-section, with no radius steps where the counts would change.
+    ring_radius : {"area", "perimeter", "inscribed"}
+        Where the ring vertices go: on the circle (``"inscribed"``), or further
+        out so that each faceted ring encloses the circle's area (``"area"``,
+        the default: best capacitance per triangle) or has its perimeter.
 
     Returns
     -------
@@ -200,6 +224,8 @@ def mesh_sensor(
         raise ValueError(f"mesh_sensor: grading must exceed 1, got {grading}")
     if not edge_refinement >= 1.0:
         raise ValueError(f"mesh_sensor: edge_refinement must be >= 1, got {edge_refinement}")
+    if not azimuthal_refinement >= 1.0:
+        raise ValueError(f"mesh_sensor: azimuthal_refinement must be >= 1, got {azimuthal_refinement}")
     if not max_aspect >= 1.0:
         raise ValueError(f"mesh_sensor: max_aspect must be >= 1, got {max_aspect}")
     if h_far > sensor.radius_m * 2:
@@ -217,8 +243,13 @@ def mesh_sensor(
     r_rings[0] = r_rings[-1] = 0.0
 
     h_axial = size(s_rings)
-    h_phi = np.minimum(h_far, max_aspect * h_axial)
+    h_phi = np.clip(max_aspect * h_axial, h_far / azimuthal_refinement, h_far)
     counts = np.where(r_rings > 0, np.maximum(3, np.ceil(2 * np.pi * r_rings / h_phi)), 1).astype(int)
+    if uniform_cylinder:
+        on_cylinder = (s_rings >= profile.s_junction[0] - 1e-12) & (s_rings <= profile.s_junction[1] + 1e-12)
+        m_cyl = int(np.ceil(2 * np.pi * sensor.radius_m / (h_far / azimuthal_refinement)))
+        counts[on_cylinder] = m_cyl
+        counts = np.minimum(counts, m_cyl)
     counts[0] = counts[-1] = 1
 
     vertices, rings, angles = [], [], []
@@ -231,7 +262,7 @@ def mesh_sensor(
         else:
             offset = offset + np.pi / m if k > 0 and counts[k - 1] == m else 0.0
             phi = offset + 2 * np.pi * np.arange(m) / m
-            rv = r * (np.pi / m) / np.sin(np.pi / m) if true_perimeter else r
+            rv = r * _ring_radius_factor(m, ring_radius)
             vertices.append(np.column_stack([np.full(m, x), rv * np.cos(phi), rv * np.sin(phi)]))
         rings.append(np.arange(n_vertices, n_vertices + m))
         angles.append(phi)
