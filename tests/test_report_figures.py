@@ -95,3 +95,35 @@ def test_html_page(tmp_path):
         Table(["a", "b"], [[1]])
     with pytest.raises(ValueError, match="does not exist"):
         write_html(tmp_path / "bad.html", "t", [Section("s", figures=[Figure(tmp_path / "missing.png")])])
+
+
+def test_current_lines_follow_the_field():
+    from validation.report.figures import current_lines
+
+    x = np.linspace(-1, 1, 41)
+    y = np.linspace(-1, 1, 41)
+    E = np.zeros((41, 41, 2))
+    E[..., 0] = 1.0  # uniform field along +x: straight lines at constant y
+    lines = current_lines(x, y, E, [[-0.9, 0.3], [-0.9, -0.5]])
+    assert len(lines) == 2
+    for line, y0 in zip(lines, (0.3, -0.5)):
+        np.testing.assert_allclose(line[:, 1], y0, atol=1e-12)
+        assert np.all(np.diff(line[:, 0]) > 0) and line[-1, 0] > 0.9
+
+
+def test_potential_figure_of_a_dipole(tmp_path):
+    from validation.report.figures import potential_figure
+
+    x = np.linspace(-0.15, 0.15, 61)
+    y = np.linspace(-0.1, 0.1, 41)
+    X, Y = np.meshgrid(x, y)
+    r_plus = np.hypot(X + 0.0925, Y)
+    r_minus = np.hypot(X - 0.0925, Y)
+    phi = 0.01 / r_plus - 0.01 / r_minus
+    phi[(np.abs(X) < 0.1) & (np.abs(Y) < 0.01)] = np.nan  # the body
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    seeds = np.column_stack([-0.09 + 0.02 * np.cos(t), 0.02 * np.sin(t)])
+    p = potential_figure(tmp_path / "phi.png", x, y, phi, seeds_m=seeds, title="dipole")
+    assert p.exists() and not png_is_blank(p)
+    with pytest.raises(ValueError, match="expected \\(ny, nx\\)"):
+        potential_figure(tmp_path / "bad.png", x, y, phi.T)

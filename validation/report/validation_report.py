@@ -194,8 +194,11 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
 
 
 def validation_sections(results: Sequence, folder, potential: bool = True, potential_n: int = 81,
-                        edge_length_m=None, progress=None) -> list[Section]:
-    """Sections of the page: a summary, then one per log (tables and figures)."""
+                        edge_length_m=None, progress=None, potential_logs: int | None = None) -> list[Section]:
+    """Sections of the page: a summary, then one per log (tables and figures).
+
+    ``potential_logs``: draw the BEM potential figure (one BEM solve each) for the first N logs only.
+    """
     sections = [Section(
         "Summary",
         ["Receiver currents simulated at every logged pose and compared with the bench. Errors are relative: "
@@ -203,8 +206,9 @@ def validation_sections(results: Sequence, folder, potential: bool = True, poten
          "'mean abs.' is the paper's mean relative error."],
         tables=[_summary_table(results)],
     )]
-    for r in results:
-        figures, notes = log_figures(r, folder, potential=potential, potential_n=potential_n,
+    for i, r in enumerate(results):
+        draw = potential and (potential_logs is None or i < potential_logs)
+        figures, notes = log_figures(r, folder, potential=draw, potential_n=potential_n,
                                      edge_length_m=edge_length_m)
         if progress is not None:
             progress.update(1)
@@ -257,7 +261,8 @@ def write_validation_report(results: Sequence, outdir, title: str = "electrosens
                             extra_sections: Sequence[Section] = (), leading_sections: Sequence[Section] = (),
                             intro: str | Sequence[str] = "",
                             footer: str = "", potential: bool = True, potential_n: int = 81,
-                            edge_length_m=None, extra_metrics: dict | None = None, progress=None) -> dict:
+                            edge_length_m=None, extra_metrics: dict | None = None, progress=None,
+                            potential_logs: int | None = None) -> dict:
     """Write metrics.json, the PNGs and index.html into ``outdir``; return their paths.
 
     ``leading_sections`` go before the validation's sections, ``extra_sections`` after.
@@ -265,7 +270,7 @@ def write_validation_report(results: Sequence, outdir, title: str = "electrosens
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     metrics = write_metrics_json(results, outdir / "metrics.json", extra_metrics)
-    sections = validation_sections(results, outdir, potential, potential_n, edge_length_m, progress)
+    sections = validation_sections(results, outdir, potential, potential_n, edge_length_m, progress, potential_logs)
     sections = list(leading_sections) + sections + list(extra_sections)
     page = write_html(outdir / "index.html", title, sections, intro=intro, footer=footer)
     return {"metrics": metrics, "index": page, "figures": sorted(outdir.glob("*.png"))}
