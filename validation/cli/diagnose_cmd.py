@@ -1,0 +1,66 @@
+"""``esense diagnose``: where the sim-to-real gap lies, which unmodelled effect causes it, how far it shrinks."""
+from __future__ import annotations
+
+import click
+
+from validation.diagnosis.effects import EFFECT_NAMES
+
+
+@click.command("diagnose")
+@click.argument("logs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--model", type=click.Choice(["bem", "psm"]), default="psm", show_default=True,
+              help="Baseline simulation of the logged poses (effects are evaluated with the calibrated PSM either way).")
+@click.option("--effects", default="all", show_default=True,
+              help=f"Candidates to consider: 'all' or a comma list of {', '.join(EFFECT_NAMES)}.")
+@click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),
+              help="Output folder: diagnosis.json and index.html with figures.")
+@click.option("--psm-model", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="PSM JSON to use instead of the one calibrated on the sensor's free-space BEM.")
+@click.option("--edge-length", "edge_length_m", type=float, default=None,
+              help="BEM sensor mesh edge length (m) for --model bem (default: the mesher's).")
+@click.option("--split-poses", type=int, default=0, show_default=True,
+              help="With --model psm: run the BEM on this many poses to split the gap into the PSM's approximation "
+                   "and the physics the BEM lacks (0: skip).")
+@click.option("--max-effects", type=click.IntRange(1, 3), default=3, show_default=True,
+              help="Largest number of effects combined by the forward selection.")
+@click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")
+def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, max_effects, no_figures):
+    """Diagnose the gap between bench LOG(s) and the simulation.
+
+    Fits every candidate effect (conductivity, temperature_drift,
+    contact_impedance, channel_gain, pose_offset, water_depth, tank_size,
+    unmodelled_object) on part of the data and scores it on the rest; chooses
+    up to three by forward selection, or 'none' when the gap is at the noise
+    level. Told nothing but what the logs say.
+
+    Example: esense diagnose run.csv --model psm -o diag/
+    """
+    from validation.diagnosis.observations import DiagnosisInputError, from_bench_logs
+    from validation.diagnosis.pipeline import diagnose as run_diagnosis
+    from validation.diagnosis.pipeline import parse_effects
+    from validation.diagnosis.report import write_report
+    from validation.diagnosis.select import SelectionRules
+
+    try:
+        from validation.benchlog import read_bench_log
+    except ImportError as exc:  # pragma: no cover - the reader is part of the project
+        raise click.ClickException(f"the bench-log reader is not available: {exc}") from None
+    try:
+        names = parse_effects(effects)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--effects") from None
+    try:
+        obs = from_bench_logs([read_bench_log(p) for p in logs])
+    except (ValueError, DiagnosisInputError) as exc:
+        raise click.ClickException(str(exc)) from None
+    base_options = {"edge_length_m": edge_length_m} if (model == "bem" and edge_length_m) else {}
+    click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
+    d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
+                      rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
+                      progress=lambda s: click.echo(f"  {s}"))
+    page = write_report(d, outdir, figures=not no_figures)
+    click.echo(f"noise {100 * d.noise:.3f} %, gap {100 * d.gap_before:.3f} % -> {100 * d.gap_after:.3f} % (held-out)")
+    click.echo(f"chosen: {', '.join(d.chosen) or '(nothing: ' + d.selection.verdict + ')'}")
+    for p in d.confusable[:5]:
+        click.echo(f"  cannot tell apart {p['pair'][0]} / {p['pair'][1]} ({p['angle_deg']:.1f} deg): {p['separate_by']}")
+    click.echo(f"wrote {page} and {page.parent / 'diagnosis.json'} ({d.seconds:.1f} s)")

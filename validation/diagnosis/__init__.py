@@ -1,0 +1,26 @@
+"""Gap diagnosis: where the sim-to-real gap lies, which unmodelled effect causes it, how far it shrinks.
+
+Modules, one idea each:
+
+* :mod:`.observations`: what the logs say (poses, currents, times, passes, meta);
+* :mod:`.forward`: forward models ``(poses, tank, objects) -> K`` (the PSM
+  as effect model, the project's models, a point-electrode stand-in);
+* :mod:`.effects`: the candidate library, physical parametrised additions;
+* :mod:`.where`: the residual broken down by receiver, place, time, heading;
+* :mod:`.fitting`: noise level, held-out folds, fits with uncertainties;
+* :mod:`.select`: ranking, forward selection, confusable pairs;
+* :mod:`.pipeline`: :func:`diagnose`, the whole chain;
+* :mod:`.report`: ``diagnosis.json`` and ``index.html``;
+* :mod:`.blind`: worlds with withheld effects, for tests and studies.
+
+Example
+-------
+>>> from validation.diagnosis import EFFECT_NAMES
+>>> EFFECT_NAMES[-1]
+'none'
+"""
+from .effects import EFFECT_NAMES, library
+from .observations import DiagnosisInputError, Observations, from_bench_logs
+from .pipeline import Diagnosis, diagnose
+
+__all__ = ["EFFECT_NAMES", "library", "Observations", "DiagnosisInputError", "from_bench_logs", "Diagnosis", "diagnose"]

@@ -1,0 +1,346 @@
+"""The candidate library: physical, parametrised additions to the simulation.
+
+Each candidate changes what is simulated, never the curve itself:
+
+=====================  ===========================================  ==========================
+name                   what changes (parameters)                    how it is evaluated
+=====================  ===========================================  ==========================
+``conductivity``       sigma -> sigma (1 + s)         (s)           exact: K is linear in sigma
+``temperature_drift``  sigma (1 + b (t - t_ref)) or                 exact
+                       sigma (1 + alpha (T - T_ref)) (b or alpha)
+``contact_impedance``  z_c on every electrode (common: z; per        series network on K
+                       electrode: z_1..z_n, ohm m^2)                (lumped: z_c / area)
+``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
+``pose_offset``        robot frame shifted/turned against the tank  effect model at moved poses
+                       (dx, dy, dyaw)
+``water_depth``        free surface (or floor) elsewhere (dd)       effect model in that tank
+``tank_size``          walls elsewhere (dLx, dLy)                   effect model in that tank
+``unmodelled_object``  a sphere at (x, y, z) of dipole chi b^3      effect model with the sphere
+``none``               nothing: the gap is noise                    --
+=====================  ===========================================  ==========================
+
+Geometric effects are evaluated with an *effect model* (the calibrated PSM,
+fast and vectorised) as a change of K added to the baseline (the BEM or the
+PSM at the logged poses): ``K = K_base + (K_eff(changed) - K_eff(nominal))``.
+When the baseline *is* the effect model this is the effect model itself.
+Then the water's conductivity scales K, the contact impedance is put in series,
+and the channel gains scale the receivers' readings: the order of the physics.
+
+Example
+-------
+>>> lib = library()
+>>> sorted(lib)[:3]
+['channel_gain', 'conductivity', 'contact_impedance']
+>>> [f.param_names for f in lib["pose_offset"]]
+[('dx_m', 'dy_m', 'dyaw_rad')]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from meshes.objects import Sphere
+from meshes.tank import Tank
+
+from .forward import electrode_areas_m2, receiver_currents, series_contact, sphere_dipole_m3
+from .observations import Observations
+
+__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales"]
+
+#: Candidate names, in the order they are reported.
+EFFECT_NAMES = (
+    "conductivity",
+    "temperature_drift",
+    "contact_impedance",
+    "channel_gain",
+    "pose_offset",
+    "water_depth",
+    "tank_size",
+    "unmodelled_object",
+    "none",
+)
+
+
+# ----------------------------------------------------------------------- scenarios
+@dataclass
+class Scenario:
+    """What is simulated for a subset of the samples."""
+
+    poses: np.ndarray  # (p, 4)
+    tank: Tank | None
+    objects: tuple
+    sigma_scale: np.ndarray  # (p,)
+    contact_ohm_m2: np.ndarray | None  # (n,)
+    gain: np.ndarray  # (m,)
+    geometry_changed: bool = False
+
+
+@dataclass
+class Problem:
+    """Observations + baseline simulation + effect model: everything a prediction needs.
+
+    Parameters
+    ----------
+    obs : Observations
+    K_base : (P, n, n)
+        The baseline model's K at the logged poses, nominal physics.
+    effect_model : callable ``(poses, tank, objects) -> K`` (P, n, n)
+        The fast model used for geometric changes.
+    K_effect0 : (P, n, n), optional
+        ``effect_model`` at the logged poses, nominal scene (computed if absent).
+    """
+
+    obs: Observations
+    K_base: np.ndarray
+    effect_model: Callable
+    K_effect0: np.ndarray | None = None
+    baseline_name: str = ""
+    t_ref_s: float = field(init=False)
+    T_ref_C: float | None = field(init=False)
+    areas_m2: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        obs = self.obs
+        n = obs.sensor.n_electrodes
+        self.K_base = np.asarray(self.K_base, float).reshape(obs.n_poses, n, n)
+        if self.K_effect0 is None:
+            self.K_effect0 = self.effect_model(obs.poses, obs.tank, tuple(obs.objects))
+        self.t_ref_s = float(np.mean(obs.t_s))
+        T0 = obs.meta.get("temperature_C") if isinstance(obs.meta, dict) else None
+        if obs.temperature_C is not None:
+            self.T_ref_C = float(T0) if isinstance(T0, (int, float)) else float(np.mean(obs.temperature_C))
+        else:
+            self.T_ref_C = None
+        self.areas_m2 = electrode_areas_m2(obs.sensor)
+        self.I_base = receiver_currents(self.K_base, obs.emitter) * obs.U_V[:, None]
+        if np.any(np.abs(self.I_base) == 0):
+            raise ValueError("the baseline simulation gives a zero receiver current: cannot form relative residuals")
+
+    # -------------------------------------------------------------------------
+    def nominal(self, idx: np.ndarray) -> Scenario:
+        obs = self.obs
+        return Scenario(
+            poses=obs.poses[idx].copy(), tank=obs.tank, objects=tuple(obs.objects),
+            sigma_scale=np.ones(len(idx)), contact_ohm_m2=None, gain=np.ones(obs.n_receivers),
+        )
+
+    def predict(self, scenario: Scenario, idx: np.ndarray) -> np.ndarray:
+        """Receiver currents (p, m) of ``scenario`` for the samples ``idx``."""
+        K = self.K_base[idx]
+        if scenario.geometry_changed:
+            K = K + (self.effect_model(scenario.poses, scenario.tank, scenario.objects) - self.K_effect0[idx])
+        K = K * scenario.sigma_scale[:, None, None]
+        if scenario.contact_ohm_m2 is not None:
+            K = series_contact(K, np.asarray(scenario.contact_ohm_m2) / self.areas_m2)
+        I = receiver_currents(K, self.obs.emitter) * self.obs.U_V[idx, None]
+        return I * scenario.gain[None, :]
+
+    def relative_residual(self, I_pred: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """(bench - prediction) / |baseline| for the samples ``idx``: (p, m)."""
+        return (self.obs.currents_A[idx] - I_pred) / np.abs(self.I_base[idx])
+
+
+# -------------------------------------------------------------------------- effects
+@dataclass(frozen=True)
+class Effect:
+    """One form of a candidate effect.
+
+    ``apply(theta, scenario, problem, idx) -> scenario`` adds the effect with
+    physical parameters ``theta`` (units in ``units``). ``scales`` are typical
+    magnitudes (the fit works in ``theta / scales``), ``lower``/``upper``
+    physical bounds. ``order`` fixes the order in which combined effects are
+    applied (objects are placed in the believed frame before the frame moves).
+    """
+
+    name: str
+    form: str
+    param_names: tuple
+    units: tuple
+    scales: tuple
+    lower: tuple
+    upper: tuple
+    apply: Callable = field(compare=False, repr=False)
+    geometric: bool = False
+    order: int = 10
+    describe: str = ""
+
+    @property
+    def n_params(self) -> int:
+        return len(self.param_names)
+
+    @property
+    def label(self) -> str:
+        return self.name if self.form == "" else f"{self.name}[{self.form}]"
+
+
+def combined_scales(effects) -> np.ndarray:
+    return np.concatenate([np.asarray(e.scales, float) for e in effects]) if effects else np.zeros(0)
+
+
+def _conductivity(theta, sc, pb, idx):
+    sc.sigma_scale = sc.sigma_scale * (1.0 + theta[0])
+    return sc
+
+
+def _drift_time(theta, sc, pb, idx):
+    sc.sigma_scale = sc.sigma_scale * (1.0 + theta[0] * (pb.obs.t_s[idx] - pb.t_ref_s) / 3600.0)
+    return sc
+
+
+def _drift_temperature(theta, sc, pb, idx):
+    sc.sigma_scale = sc.sigma_scale * (1.0 + theta[0] * (pb.obs.temperature_C[idx] - pb.T_ref_C))
+    return sc
+
+
+def _gain(theta, sc, pb, idx):
+    sc.gain = sc.gain * (1.0 + np.asarray(theta))
+    return sc
+
+
+def _contact(theta, sc, pb, idx):
+    n = pb.obs.sensor.n_electrodes
+    z = np.broadcast_to(np.asarray(theta, float), (n,))
+    sc.contact_ohm_m2 = z if sc.contact_ohm_m2 is None else sc.contact_ohm_m2 + z
+    return sc
+
+
+def _pose_offset(theta, sc, pb, idx):
+    dx, dy, dyaw = theta
+    c, s = np.cos(dyaw), np.sin(dyaw)
+    p = sc.poses.copy()
+    x, y = p[:, 0].copy(), p[:, 1].copy()
+    p[:, 0] = c * x - s * y + dx
+    p[:, 1] = s * x + c * y + dy
+    p[:, 3] = p[:, 3] + dyaw
+    sc.poses, sc.geometry_changed = p, True
+    return sc
+
+
+def _reframe_depth(sc, floor_z: float, surface_z: float):
+    """Water between ``floor_z`` and ``surface_z`` (believed frame): a new tank, poses/objects re-framed."""
+    lx, ly, _ = sc.tank.size_m
+    depth = surface_z - floor_z
+    if not depth > 0:
+        raise ValueError("water depth would be negative")
+    shift = -0.5 * depth - floor_z
+    p = sc.poses.copy()
+    p[:, 2] += shift
+    objs = tuple(replace(o, centre_m=(o.centre_m[0], o.centre_m[1], o.centre_m[2] + shift)) for o in sc.objects)
+    sc.tank, sc.poses, sc.objects, sc.geometry_changed = Tank((lx, ly, depth), depth), p, objs, True
+    return sc
+
+
+def _depth_surface(theta, sc, pb, idx):
+    return _reframe_depth(sc, sc.tank.floor_z_m, sc.tank.free_surface_z_m + theta[0])
+
+
+def _depth_floor(theta, sc, pb, idx):
+    return _reframe_depth(sc, sc.tank.floor_z_m + theta[0], sc.tank.free_surface_z_m)
+
+
+def _tank_size(theta, sc, pb, idx):
+    lx, ly, lz = sc.tank.size_m
+    sc.tank = Tank((lx + theta[0], ly + theta[1], lz), sc.tank.water_depth_m)
+    sc.geometry_changed = True
+    return sc
+
+
+def object_sphere(theta, sigma_S_per_m: float) -> Sphere | None:
+    """The sphere with dipole strength ``theta[3]`` (m^3) at ``theta[:3]``: conducting if > 0, insulating if < 0."""
+    x, y, z, m = theta
+    if m == 0:
+        return None
+    if m > 0:
+        return Sphere((x, y, z), conductivity_S_per_m=np.inf, radius_m=float(m) ** (1 / 3), name="unmodelled")
+    return Sphere((x, y, z), conductivity_S_per_m=0.0, radius_m=float(-2 * m) ** (1 / 3), name="unmodelled")
+
+
+def _object(theta, sc, pb, idx):
+    sphere = object_sphere(theta, pb.obs.sigma_S_per_m)
+    if sphere is not None:
+        sc.objects = tuple(sc.objects) + (sphere,)
+    sc.geometry_changed = True
+    return sc
+
+
+def _none(theta, sc, pb, idx):
+    return sc
+
+
+def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
+    """All candidates, by name; each a list of forms (alternative parametrisations).
+
+    Candidates that cannot apply to ``obs`` are left out (no tank: no
+    ``water_depth``/``tank_size``; no logged temperature: the temperature form
+    of ``temperature_drift``).
+    """
+    n = obs.sensor.n_electrodes if obs is not None else 4
+    m = n - 1
+    lib: dict[str, list[Effect]] = {}
+    lib["conductivity"] = [
+        Effect("conductivity", "", ("sigma_rel_change",), ("1",), (0.01,), (-0.5,), (1.0,), _conductivity,
+               describe="sigma_true = sigma_believed (1 + s)")
+    ]
+    drift = [
+        Effect("temperature_drift", "time", ("drift_per_hour",), ("1/h",), (0.01,), (-1.0,), (1.0,), _drift_time,
+               describe="sigma(t) = sigma (1 + b (t - t_mean))")
+    ]
+    if obs is None or obs.has_temperature:
+        drift.append(
+            Effect("temperature_drift", "temperature", ("alpha_per_K",), ("1/K",), (0.02,), (-0.2,), (0.2,),
+                   _drift_temperature, describe="sigma(T) = sigma (1 + alpha (T - T_ref)), alpha about 0.02/K")
+        )
+    lib["temperature_drift"] = drift
+    lib["contact_impedance"] = [
+        Effect("contact_impedance", "common", ("z_c_ohm_m2",), ("ohm m^2",), (1e-3,), (0.0,), (10.0,), _contact,
+               describe="one contact impedance in series with every electrode (lumped z_c / area)"),
+        Effect("contact_impedance", "per_electrode", tuple(f"z_c{k}_ohm_m2" for k in range(1, n + 1)),
+               ("ohm m^2",) * n, (1e-3,) * n, (0.0,) * n, (10.0,) * n, _contact,
+               describe="a contact impedance per electrode"),
+    ]
+    receivers = obs.sensor.receivers if obs is not None else tuple(range(1, m + 1))
+    lib["channel_gain"] = [
+        Effect("channel_gain", "", tuple(f"gain_rel_change_I{k}" for k in receivers), ("1",) * m, (0.01,) * m,
+               (-0.5,) * m, (0.5,) * m, _gain, describe="receiver k reads (1 + g_k) times its current")
+    ]
+    lib["pose_offset"] = [
+        Effect("pose_offset", "", ("dx_m", "dy_m", "dyaw_rad"), ("m", "m", "rad"), (0.005, 0.005, 0.01),
+               (-0.05, -0.05, -0.2), (0.05, 0.05, 0.2), _pose_offset, geometric=True, order=1,
+               describe="true pose = rotation(dyaw) logged pose + (dx, dy)")
+    ]
+    if obs is None or obs.tank is not None:
+        depth = obs.tank.water_depth_m if obs is not None else 1.0
+        lxy = obs.tank.size_m[:2] if obs is not None else (1.0, 1.0)
+        lib["water_depth"] = [
+            Effect("water_depth", "surface", ("d_surface_m",), ("m",), (0.01,), (-0.4 * depth,), (0.4 * depth,),
+                   _depth_surface, geometric=True, order=3, describe="free surface higher by d than believed"),
+            Effect("water_depth", "floor", ("d_floor_m",), ("m",), (0.01,), (-0.4 * depth,), (0.4 * depth,),
+                   _depth_floor, geometric=True, order=3, describe="floor higher by d than believed"),
+        ]
+        lib["tank_size"] = [
+            Effect("tank_size", "", ("dLx_m", "dLy_m"), ("m", "m"), (0.01, 0.01),
+                   (-0.2 * lxy[0], -0.2 * lxy[1]), (0.2 * lxy[0], 0.2 * lxy[1]), _tank_size, geometric=True, order=2,
+                   describe="walls at +-(L + dL)/2 instead of +-L/2")
+        ]
+    lo, hi = _object_bounds(obs)
+    lib["unmodelled_object"] = [
+        Effect("unmodelled_object", "", ("x_m", "y_m", "z_m", "dipole_m3"), ("m", "m", "m", "m^3"),
+               (0.05, 0.05, 0.05, 1e-6), tuple(lo) + (-1e-3,), tuple(hi) + (1e-3,), _object, geometric=True, order=0,
+               describe="a sphere of dipole strength chi b^3 (conducting if > 0, insulating if < 0) at (x, y, z)")
+    ]
+    lib["none"] = [Effect("none", "", (), (), (), (), (), _none, describe="nothing: the gap is noise")]
+    return lib
+
+
+def _object_bounds(obs: Observations | None):
+    if obs is None:
+        return (-1.0, -1.0, -1.0), (1.0, 1.0, 1.0)
+    if obs.tank is not None:
+        lo, hi = obs.tank.water_bounds_m
+        margin = 0.01
+        return tuple(lo + margin), tuple(hi - margin)
+    lo = obs.poses[:, :3].min(axis=0) - 0.5
+    hi = obs.poses[:, :3].max(axis=0) + 0.5
+    return tuple(lo), tuple(hi)

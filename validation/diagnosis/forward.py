@@ -1,0 +1,262 @@
+"""Forward models for the diagnosis: nodal conductance K at many poses, for a modified scene.
+
+The diagnosis asks one question of a simulator, again and again with other
+inputs: *what is K (P, n, n) at these poses, in this tank, with these
+objects?* (the water's conductivity is fixed at the nominal value; K is
+proportional to it, so a conductivity change is a scale applied afterwards).
+Two kinds answer it:
+
+* :class:`ModelSimulator`: the project's models through
+  :func:`validation.models.simulate` (``"psm"``: the calibrated PSM,
+  vectorised; ``"bem"``: the BEM pose sweep), with a memo of the answers so
+  that a fit never asks twice for the same scene;
+* :class:`PointElectrodeSimulator`: a small, self-contained point-electrode
+  model (free-space potential coefficients, box images, dipole spheres). It
+  is the stand-in used when the PSM cannot be imported, and in the unit tests
+  of the diagnosis machinery; it is *not* a replacement for the PSM.
+
+Both are callables ``sim(poses, tank, objects) -> K`` with ``.name``,
+``.sensor`` and ``.sigma_S_per_m``.
+
+Example
+-------
+>>> import numpy as np
+>>> from meshes.sensor import preset
+>>> from meshes.tank import Tank
+>>> sim = PointElectrodeSimulator(preset("angels-4"), 0.0354)
+>>> K = sim(np.array([[0.0, 0.0, 0.0, 0.0]]), Tank((1.0, 1.0, 1.0)), ())
+>>> K.shape, bool(np.allclose(K.sum(axis=-1), 0.0, atol=1e-15))
+((1, 4, 4), True)
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from meshes.objects import Sphere
+from meshes.pose import sensor_to_tank
+from meshes.sensor import SensorDescription
+from meshes.tank import Tank
+
+__all__ = ["ModelSimulator", "PSMEffectModel", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
+
+
+# ----------------------------------------------------------------------------- helpers
+def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
+    """Wetted area (m^2) of each electrode: hemisphere (+ collar) for a cap, a band for a ring."""
+    r = sensor.radius_m
+    areas = []
+    for e in sensor.electrodes:
+        width = e.x_max_m - e.x_min_m
+        if e.kind == "cap":
+            areas.append(2 * np.pi * r**2 + 2 * np.pi * r * max(width - r, 0.0))
+        else:
+            areas.append(2 * np.pi * r * width)
+    return np.asarray(areas)
+
+
+def series_contact(K_S: np.ndarray, series_ohm: np.ndarray) -> np.ndarray:
+    """K of the electrodes seen through series resistances (one per electrode): K (1 + Z K)^-1.
+
+    With electrode terminal potentials W and water-side potentials V, the
+    currents leaving the electrodes are I = K V = Z^-1 (W - V), hence
+    I = K (1 + Z K)^-1 W. This is the lumped (electrode-averaged) model of a
+    contact impedance z_c: Z = z_c / area. It keeps K symmetric with zero
+    row sums.
+    """
+    K = np.asarray(K_S, dtype=float)
+    Z = np.asarray(series_ohm, dtype=float)
+    n = K.shape[-1]
+    A = np.eye(n) + Z[..., :, None] * K  # (1 + Z K)
+    # K (1 + Z K)^-1 = ((1 + K Z)^-1 K)  ; solve on the transposed system for stability
+    return np.linalg.solve(np.swapaxes(A, -1, -2), np.swapaxes(K, -1, -2)).swapaxes(-1, -2)
+
+
+def receiver_currents(K_S: np.ndarray, emitter: int) -> np.ndarray:
+    """Bench currents (..., n-1) per volt: into each receiver, all receivers at one potential."""
+    e = emitter - 1
+    n = K_S.shape[-1]
+    rec = [k for k in range(n) if k != e]
+    return -K_S[..., rec, e]
+
+
+def _key(*parts) -> str:
+    h = hashlib.sha1()
+    for p in parts:
+        if isinstance(p, np.ndarray):
+            h.update(np.ascontiguousarray(p, dtype=float).tobytes())
+            h.update(str(p.shape).encode())
+        else:
+            h.update(repr(p).encode())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------------ the models
+@dataclass
+class ModelSimulator:
+    """K at poses through :func:`validation.models.simulate` (``"psm"`` or ``"bem"``), memoised.
+
+    Parameters
+    ----------
+    model : {"psm", "bem"}
+    sensor : SensorDescription
+    sigma_S_per_m : float
+    options : dict
+        Passed on to :func:`validation.models.simulate` (``psm_model``,
+        ``edge_length_m``, ``images``...).
+    """
+
+    model: str
+    sensor: SensorDescription
+    sigma_S_per_m: float
+    options: dict = field(default_factory=dict)
+    calls: int = 0
+    _memo: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.model
+
+    def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
+        from validation.models import simulate
+
+        poses = np.asarray(poses, dtype=float)
+        key = _key(poses, tank, tuple(objects), contact_impedance_ohm_m2)
+        if key not in self._memo:
+            self.calls += 1
+            C = simulate(
+                self.model, self.sensor, poses, tank, self.sigma_S_per_m, objects=tuple(objects),
+                contact_impedance_ohm_m2=contact_impedance_ohm_m2, **self.options,
+            )
+            K = C.K_S * (self.sigma_S_per_m / C.sigma_S_per_m)
+            if len(self._memo) > 4096:
+                self._memo.clear()
+            self._memo[key] = K.reshape(len(poses), self.sensor.n_electrodes, self.sensor.n_electrodes)
+        return self._memo[key]
+
+
+@dataclass
+class PSMEffectModel:
+    """The calibrated PSM as effect model: :func:`psm.conductance` with a fixed image series.
+
+    The number of image shells is chosen once, adaptively, on the nominal
+    scene, then kept fixed so that K varies smoothly with the tank's size
+    (finite-difference sensitivities would otherwise see the series' steps).
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+    sigma_S_per_m : float
+    model : psm.PolySphericalModel, optional
+        Default: :func:`validation.models.calibrated_psm` of ``sensor`` (cached).
+    """
+
+    sensor: SensorDescription
+    sigma_S_per_m: float
+    model: object = None
+    image_shells: int | None = None
+    calls: int = 0
+
+    def __post_init__(self):
+        if self.model is None:
+            from validation.models import calibrated_psm
+
+            self.model = calibrated_psm(self.sensor)
+
+    @property
+    def name(self) -> str:
+        return "psm"
+
+    def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
+        from psm.conductance import conductance_array
+
+        self.calls += 1
+        poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        K, info = conductance_array(
+            self.model, poses, self.sigma_S_per_m, tank=tank, objects=tuple(objects),
+            contact_impedance_ohm_m2=contact_impedance_ohm_m2, sensor=self.sensor,
+            image_shells=self.image_shells if tank is not None else None,
+        )
+        if tank is not None and self.image_shells is None:
+            self.image_shells = int(info.get("image_shells", 8))
+        return K
+
+
+@dataclass
+class PointElectrodeSimulator:
+    """A stand-in forward model: point electrodes with box images and dipole spheres.
+
+    Electrode p is a sphere of radius ``radius_factor * sensor.radius_m`` at its
+    axial centre. The potential coefficients are free-space ``1/(4 pi sigma r)``
+    plus the images of an insulating box summed over ``shells`` cubic shells,
+    plus the dipole of each spherical object (``chi b^3``, the PSM's small-object
+    term). Receiver currents follow from the isolated-sensor conductance
+    ``K = P (P^T M P)^-1 P^T``.
+
+    Only meant for testing the diagnosis machinery and as a fallback; the PSM
+    is the model of record.
+    """
+
+    sensor: SensorDescription
+    sigma_S_per_m: float
+    radius_factor: float = 0.72
+    shells: int = 2
+    calls: int = 0
+
+    @property
+    def name(self) -> str:
+        return "point-electrodes"
+
+    def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
+        self.calls += 1
+        poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        n = self.sensor.n_electrodes
+        c = sensor_to_tank(self.sensor.electrode_centres_m, poses)  # (P, n, 3)
+        d = c[:, :, None, :] - c[:, None, :, :]
+        r = np.linalg.norm(d, axis=-1)
+        a = self.radius_factor * self.sensor.radius_m
+        M = np.where(np.eye(n, dtype=bool), 1.0 / a, 1.0 / np.where(r > 0, r, 1.0))
+        if tank is not None:
+            M = M + self._images(c, tank)
+        for obj in objects:
+            M = M + self._dipole(c, obj)
+        M = M / (4 * np.pi * self.sigma_S_per_m)
+        Pm = np.vstack([np.eye(n - 1), -np.ones((1, n - 1))])
+        G = np.linalg.inv(np.einsum("ip,Pij,jq->Ppq", Pm, M, Pm))
+        K = np.einsum("ip,Ppq,jq->Pij", Pm, G, Pm)
+        if contact_impedance_ohm_m2 is not None:
+            z = np.broadcast_to(np.asarray(contact_impedance_ohm_m2, dtype=float), (n,))
+            K = series_contact(K, z / electrode_areas_m2(self.sensor))
+        return 0.5 * (K + np.swapaxes(K, -1, -2))
+
+    def _images(self, c: np.ndarray, tank: Tank) -> np.ndarray:
+        lo, hi = tank.water_bounds_m
+        width = hi - lo
+        centre = 0.5 * (lo + hi)
+        k = np.arange(-self.shells, self.shells + 1)
+        ii, jj, kk = np.meshgrid(k, k, k, indexing="ij")
+        idx = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
+        idx = idx[np.any(idx != 0, axis=1)]  # (Q, 3), the source itself excluded
+        sign = np.where(idx % 2 == 0, 1.0, -1.0)  # mirror parity per axis
+        offset = idx * width
+        rel = c - centre  # (P, n, 3)
+        images = centre + offset[None, None] + sign[None, None] * rel[:, :, None, :]  # (P, n, Q, 3)
+        d = c[:, :, None, None, :] - images[:, None, :, :, :]  # (P, p, q, Q, 3)
+        return np.sum(1.0 / np.linalg.norm(d, axis=-1), axis=-1)
+
+    def _dipole(self, c: np.ndarray, obj) -> np.ndarray:
+        if not isinstance(obj, Sphere):
+            raise ValueError(f"the point-electrode stand-in models spheres only, got {type(obj).__name__}")
+        u = c - np.asarray(obj.centre_m)  # (P, n, 3): c_p - x_o
+        ru3 = np.linalg.norm(u, axis=-1) ** 3
+        dot = -np.einsum("Ppk,Pqk->Ppq", u, u)  # (c_p - x_o) . (x_o - c_q)
+        return sphere_dipole_m3(obj, self.sigma_S_per_m) * dot / (ru3[:, :, None] * ru3[:, None, :])
+
+
+def sphere_dipole_m3(obj, sigma_water_S_per_m: float) -> float:
+    """Dipole strength chi b^3 (m^3) of a sphere: chi = (s_o - s)/(s_o + 2 s), 1 for a conductor."""
+    s = obj.conductivity_S_per_m
+    chi = 1.0 if np.isinf(s) else (s - sigma_water_S_per_m) / (s + 2 * sigma_water_S_per_m)
+    return chi * obj.radius_m**3

@@ -1,0 +1,219 @@
+"""The gap diagnosis from observations to a result: where, which effect, how far it shrinks.
+
+:func:`diagnose` runs the whole chain:
+
+1. the baseline: the model (``"bem"`` or ``"psm"``) at the logged poses, in
+   the believed tank, at the believed conductivity;
+2. the residual r = (bench - baseline) / |baseline|, the noise level s
+   estimated from the data, and where r lies (:mod:`.where`);
+3. every candidate of :mod:`.effects` fitted and cross-validated on held-out
+   passes or segments (:mod:`.fitting`), ranked by penalised held-out score;
+4. greedy forward selection (:mod:`.select`), or ``none`` when the gap is
+   noise; the pairs that cannot be told apart on these poses.
+
+Geometric effects are evaluated by an *effect model*: the calibrated PSM
+(vectorised) when it can be imported, as a change added to the baseline.
+
+Example
+-------
+>>> from validation.diagnosis.pipeline import diagnose  # doctest: +SKIP
+>>> d = diagnose(obs, model="psm")  # doctest: +SKIP
+>>> d.chosen, d.gap_before, d.gap_after  # doctest: +SKIP
+(['conductivity'], 0.0203, 0.0006)
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .effects import EFFECT_NAMES, Problem, library
+from .fitting import make_folds, noise_level
+from .forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
+from .observations import Observations
+from .select import (CandidateScore, Selection, SelectionRules, confusable_pairs, forward_selection,
+                     rank_candidates)
+from .where import breakdown, region_mask
+
+__all__ = ["Diagnosis", "diagnose", "parse_effects", "default_effect_model"]
+
+
+def parse_effects(spec: str | None) -> list[str]:
+    """``"all"`` or ``"NAME,NAME"`` -> list of candidate names (``none`` always included)."""
+    if spec is None or spec.strip().lower() == "all":
+        return list(EFFECT_NAMES)
+    names = [s.strip() for s in spec.split(",") if s.strip()]
+    unknown = [n for n in names if n not in EFFECT_NAMES]
+    if unknown:
+        raise ValueError(f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECT_NAMES)}")
+    if "none" not in names:
+        names.append("none")
+    return names
+
+
+def default_effect_model(obs: Observations, psm_model=None):
+    """The calibrated PSM (or ``psm_model``) as effect model, or the point-electrode stand-in if the PSM cannot be used."""
+    try:
+        if psm_model is not None:
+            from validation.models import _load_psm
+
+            psm_model = _load_psm(psm_model)
+        sim = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, psm_model)
+        sim(obs.poses, obs.tank, tuple(obs.objects))  # fails early if the PSM is not usable; fixes the image shells
+        return sim, "psm"
+    except Exception as exc:  # the PSM is missing or broken: say so and go on with the stand-in
+        warnings.warn(f"PSM unavailable as effect model ({exc}); using the point-electrode stand-in")
+        return PointElectrodeSimulator(obs.sensor, obs.sigma_S_per_m), "point-electrodes"
+
+
+@dataclass
+class Diagnosis:
+    """Everything the report needs."""
+
+    obs: Observations
+    model: str
+    effect_model: str
+    noise: float
+    r0: np.ndarray
+    where: dict
+    region: np.ndarray
+    folds: list
+    ranking: list
+    selection: Selection
+    confusable: list
+    seconds: float
+    model_split: dict | None = None
+    notes: list = field(default_factory=list)
+    I_base: np.ndarray | None = None
+
+    @property
+    def baseline(self) -> CandidateScore:
+        return next(c for c in self.ranking if c.name == "none")
+
+    @property
+    def chosen(self) -> list[str]:
+        if self.selection.verdict == "none":
+            return ["none"]
+        return [e.name for e in self.selection.chosen[-1].effects] if self.selection.chosen else []
+
+    @property
+    def final(self) -> CandidateScore:
+        return self.selection.chosen[-1] if self.selection.chosen else self.baseline
+
+    @property
+    def gap_before(self) -> float:
+        return self.baseline.heldout_gap
+
+    @property
+    def gap_after(self) -> float:
+        return self.final.heldout_gap
+
+
+def _model_split(obs, model_K_psm, n_poses: int, bem_options: dict) -> dict:
+    """PSM vs BEM on a subsample of the poses, and BEM vs bench there."""
+    from .forward import receiver_currents
+
+    idx = np.unique(np.linspace(0, obs.n_poses - 1, min(n_poses, obs.n_poses)).round().astype(int))
+    bem = ModelSimulator("bem", obs.sensor, obs.sigma_S_per_m, dict(bem_options))
+    K_bem = bem(obs.poses[idx], obs.tank, tuple(obs.objects))
+    I_bem = receiver_currents(K_bem, obs.emitter) * obs.U_V[idx, None]
+    I_psm = receiver_currents(model_K_psm[idx], obs.emitter) * obs.U_V[idx, None]
+    psm_vs_bem = (I_psm - I_bem) / np.abs(I_bem)
+    bench_vs_bem = (obs.currents_A[idx] - I_bem) / np.abs(I_bem)
+    bench_vs_psm = (obs.currents_A[idx] - I_psm) / np.abs(I_psm)
+    rms = lambda x: float(np.sqrt(np.mean(x**2)))  # noqa: E731
+    total = rms(bench_vs_psm) ** 2
+    return {
+        "poses": idx.tolist(),
+        "psm_vs_bem_rms": rms(psm_vs_bem),
+        "bench_vs_bem_rms": rms(bench_vs_bem),
+        "bench_vs_psm_rms": rms(bench_vs_psm),
+        "share_psm_approximation": rms(psm_vs_bem) ** 2 / total if total > 0 else 0.0,
+        "share_missing_physics": rms(bench_vs_bem) ** 2 / total if total > 0 else 0.0,
+        "note": "shares of the squared gap; they need not add to 1 when the two parts correlate",
+    }
+
+
+def diagnose(
+    obs: Observations,
+    model: str = "psm",
+    effects: str | list | None = "all",
+    effect_model=None,
+    K_base: np.ndarray | None = None,
+    rules: SelectionRules = SelectionRules(),
+    model_options: dict | None = None,
+    split_with_bem: int = 0,
+    psm_model=None,
+    progress=None,
+) -> Diagnosis:
+    """Diagnose the gap between ``obs`` and ``model``.
+
+    Parameters
+    ----------
+    obs : Observations
+    model : {"psm", "bem"}
+        The baseline simulation.
+    effects : "all", "NAME,NAME" or list of names
+        Candidates to consider (``none`` is always considered).
+    effect_model : callable, optional
+        ``(poses, tank, objects) -> K`` for geometric effects (default: the
+        calibrated PSM, or the stand-in when the PSM cannot be used).
+    K_base : (P, n, n), optional
+        The baseline's K at the logged poses, if already computed.
+    rules : SelectionRules
+    model_options : dict
+        Options of :func:`validation.models.simulate` for the baseline.
+    psm_model : PolySphericalModel or path, optional
+        The PSM for the effects (and the baseline with ``model="psm"``).
+    split_with_bem : int
+        With ``model="psm"``: run the BEM on this many poses to split the gap
+        into the PSM's approximation and the missing physics (0: skip).
+    progress : callable(str), optional
+    """
+    t0 = time.perf_counter()
+    say = progress or (lambda s: None)
+    notes = []
+    names = parse_effects(effects) if isinstance(effects, (str, type(None))) else list(effects) + (["none"] if "none" not in effects else [])
+    if K_base is None:
+        say(f"baseline: {model} at {obs.n_poses} poses")
+        options = dict(model_options or {})
+        if model == "psm" and psm_model is not None:
+            options["psm_model"] = psm_model
+        base_sim = ModelSimulator(model, obs.sensor, obs.sigma_S_per_m, options)
+        K_base = base_sim(obs.poses, obs.tank, tuple(obs.objects))
+    else:
+        base_sim = None
+    if effect_model is None:
+        effect_model, effect_name = default_effect_model(obs, psm_model)
+    else:
+        effect_name = getattr(effect_model, "name", type(effect_model).__name__)
+    if effect_name == "point-electrodes":
+        notes.append("geometric effects evaluated with the point-electrode stand-in (the PSM was not usable)")
+    problem = Problem(obs, K_base, effect_model, baseline_name=model)
+    everything = np.arange(obs.n_poses)
+    r0 = problem.relative_residual(problem.I_base, everything)
+    noise = noise_level(r0, obs.pass_indices())
+    if not noise > 0:
+        noise = max(1e-6, 1e-3 * float(np.sqrt(np.mean(r0**2))))
+        notes.append("the noise estimate was zero (noise-free data?); a floor of 1e-6 relative is used")
+    where = breakdown(obs, r0)
+    mask = region_mask(where)
+    folds = make_folds(obs)
+    lib = {k: v for k, v in library(obs).items() if k in names}
+    skipped = [n for n in names if n not in lib]
+    if skipped:
+        notes.append(f"candidates not applicable to these data: {', '.join(skipped)}")
+    ranking = rank_candidates(problem, lib, folds, noise, r0, mask, progress=lambda n: say(f"fitting {n}"))
+    selection = forward_selection(problem, ranking, folds, noise, rules, mask)
+    confusable = confusable_pairs(ranking, rules)
+    split = None
+    if model == "psm" and split_with_bem > 0:
+        try:
+            say(f"PSM vs BEM on {split_with_bem} poses")
+            split = _model_split(obs, problem.K_base, split_with_bem, model_options or {})
+        except Exception as exc:  # report, do not fail the diagnosis
+            notes.append(f"PSM/BEM split not computed: {exc}")
+    return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
+                     time.perf_counter() - t0, split, notes, problem.I_base)

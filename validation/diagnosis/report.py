@@ -1,0 +1,251 @@
+"""The diagnosis written out: ``diagnosis.json`` and an offline ``index.html`` with figures.
+
+The page reuses the validation report's machinery (:mod:`validation.report.html`
+for the page, :mod:`validation.report.figures` for the curves and bars).
+
+``diagnosis.json`` holds at least
+
+* ``gap_before``, ``gap_after``: RMS relative gap on held-out data, before and
+  after the chosen effect(s); ``gap_before_region``, ``gap_after_region``: the
+  same in the region where the gap concentrates; ``noise``: the measurement
+  noise estimated from the data;
+* ``where``: the breakdowns (receiver, place, time, heading, pass) with the
+  share of the squared gap, and ``concentration``;
+* ``ranking``: every candidate alone: ``effect``, ``form``, ``params``,
+  ``uncertainty`` (1 sigma), ``heldout_gap``, ``shrink`` (1 - gap after /
+  gap before, held-out), the same in the region, the penalised score;
+* ``chosen``: the effect names (``["none"]`` when the gap is noise);
+  ``combination``: the fitted chosen combination;
+* ``confusable``: pairs that these data cannot tell apart, with the reason
+  and the measurement that would separate them.
+
+Example
+-------
+>>> from validation.diagnosis.report import write_report  # doctest: +SKIP
+>>> write_report(diagnosis, "out/")  # doctest: +SKIP
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .pipeline import Diagnosis
+from .select import CandidateScore
+
+__all__ = ["diagnosis_dict", "write_json", "write_report"]
+
+
+def _clean(x):
+    """JSON-safe: numpy to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _clean(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def _derived(name: str, params: dict, d: Diagnosis) -> dict:
+    """Readable consequences of the parameters (the true conductivity, the sphere's radius...)."""
+    out = {}
+    if name == "conductivity":
+        out["sigma_true_S_per_m"] = d.obs.sigma_S_per_m * (1 + params["sigma_rel_change"])
+    elif name == "unmodelled_object":
+        m = params["dipole_m3"]
+        out["radius_if_conducting_m"] = float(max(m, 0.0) ** (1 / 3)) if m > 0 else None
+        out["radius_if_insulating_m"] = float((-2 * m) ** (1 / 3)) if m < 0 else None
+        out["kind"] = "more conducting than water" if m > 0 else "less conducting than water"
+    elif name == "water_depth" and d.obs.tank is not None:
+        if "d_surface_m" in params:
+            out["water_depth_true_m"] = d.obs.tank.water_depth_m + params["d_surface_m"]
+        else:
+            out["water_depth_true_m"] = d.obs.tank.water_depth_m - params["d_floor_m"]
+    elif name == "tank_size" and d.obs.tank is not None:
+        out["Lx_true_m"] = d.obs.tank.size_m[0] + params["dLx_m"]
+        out["Ly_true_m"] = d.obs.tank.size_m[1] + params["dLy_m"]
+    return out
+
+
+def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
+    before, before_r = d.gap_before, d.baseline.region_gap
+    params = c.fit.params()
+    name = c.name
+    p = params.get(name, {}) if len(c.effects) == 1 else params
+    u = c.fit.uncertainty().get(name, {}) if len(c.effects) == 1 else c.fit.uncertainty()
+    row = {
+        "effect": name,
+        "form": c.effects[0].form if len(c.effects) == 1 else [e.form for e in c.effects],
+        "params": p,
+        "uncertainty": u,
+        "n_params": c.n_params,
+        "heldout_gap": c.heldout_gap,
+        "shrink": 1 - c.heldout_gap / before if before > 0 else 0.0,
+        "heldout_gap_region": c.region_gap,
+        "shrink_region": (1 - c.region_gap / before_r) if (before_r and c.region_gap is not None) else None,
+        "train_gap": c.fit.train_rms,
+        "score": c.score,
+        "delta_score_vs_none": c.score - d.baseline.score,
+        "fit": c.fit.message,
+    }
+    if len(c.effects) == 1:
+        row["derived"] = _derived(name, p, d)
+        row["describe"] = c.effects[0].describe
+    return row
+
+
+def diagnosis_dict(d: Diagnosis) -> dict:
+    """Everything of ``d`` as a JSON-ready dict."""
+    where = {k: v for k, v in d.where.items() if k != "labels"}
+    final = d.final
+    before_r, after_r = d.baseline.region_gap, final.region_gap
+    out = {
+        "tool": "esense diagnose",
+        "model": d.model,
+        "effect_model": d.effect_model,
+        "source": d.obs.source,
+        "n_poses": d.obs.n_poses,
+        "n_passes": int(len(np.unique(d.obs.passes))),
+        "receivers": list(d.obs.sensor.receivers),
+        "noise": d.noise,
+        "gap_before": d.gap_before,
+        "gap_after": d.gap_after,
+        "shrink": 1 - d.gap_after / d.gap_before if d.gap_before > 0 else 0.0,
+        "gap_before_region": before_r,
+        "gap_after_region": after_r,
+        "region": {"axis": d.where["concentration"]["axis"], "group": d.where["concentration"]["group"]},
+        "verdict": d.selection.verdict,
+        "chosen": d.chosen,
+        "combination": _candidate_row(final, d) if d.selection.chosen else None,
+        "where": where,
+        "model_split": d.model_split,
+        "ranking": [_candidate_row(c, d) for c in d.ranking],
+        "selection_steps": d.selection.steps,
+        "confusable": d.confusable,
+        "heldout": {"folds": len(d.folds),
+                    "kind": "passes" if len(np.unique(d.obs.passes)) >= 3 else "contiguous segments of each pass"},
+        "definitions": {
+            "gap": "RMS over held-out samples and receivers of (bench - simulation) / |simulation|",
+            "shrink": "1 - heldout_gap / gap_before",
+            "score": "SSE_heldout / noise^2 + n_params ln(N) (lower is better)",
+            "noise": "robust spread of second differences of the residual along each pass / sqrt(6)",
+        },
+        "notes": d.notes,
+        "seconds": d.seconds,
+    }
+    return _clean(out)
+
+
+def write_json(d: Diagnosis, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(diagnosis_dict(d), indent=2) + "\n")
+    return path
+
+
+def _figures(d: Diagnosis, folder: Path) -> list:
+    """Residual along the path (before/after, per receiver) and the share of the gap by place."""
+    from validation.report.figures import Panel, Series, bar_figure, curves_figure, path_coordinate
+    from validation.report.html import Figure
+
+    figs = []
+    final = d.final
+    after = final.heldout
+    panels = []
+    for j, k in enumerate(d.obs.sensor.receivers):
+        series = []
+        for p in np.unique(d.obs.passes):
+            idx = d.obs.pass_indices()[list(np.unique(d.obs.passes)).index(p)]
+            x, xlabel = path_coordinate(d.obs.poses[idx])
+            lab = p == np.unique(d.obs.passes)[0]
+            series.append(Series(x, 100 * d.r0[idx, j], "before" if lab else "", "scatter", "black", marker_size=6))
+            series.append(Series(x, 100 * after[idx, j], ("after " + "+".join(d.chosen)) if lab else "", "scatter",
+                                 "#d9541a", marker_size=6))
+        panels.append(Panel(f"receiver {k}", xlabel, "bench / model - 1 (%)", series))
+    figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png"),
+                       "relative residual along the path, before and after the chosen effect(s) (held-out predictions)"))
+    table = d.where["by_place"]
+    if len(table) >= 1:
+        figs.append(Figure(bar_figure([r["group"] for r in table],
+                                      {"share of the squared gap": [r["share"] for r in table],
+                                       "share of the samples": [r["fraction"] for r in table]},
+                                      folder / "gap_by_place.png", "where the gap lies", "share"),
+                           "share of the squared gap by place, against the share of the samples there"))
+    names = [c.name for c in d.ranking]
+    figs.append(Figure(bar_figure(names, {"held-out gap (%)": [100 * c.heldout_gap for c in d.ranking],
+                                          "noise (%)": [100 * d.noise] * len(names)},
+                                  folder / "ranking.png", "candidates alone", "RMS relative (%)", panel_size=(1400, 560)),
+                       "held-out gap left by each candidate alone, against the noise level"))
+    return figs
+
+
+def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
+    """Write ``diagnosis.json`` and ``index.html`` (with figures unless ``figures=False``) into ``outdir``."""
+    from validation.report.html import Section, Table, write_html
+
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(d, out / "diagnosis.json")
+    dd = diagnosis_dict(d)
+    pct = lambda v: None if v is None else 100 * v  # noqa: E731
+    notes = list(d.notes)
+    figs = []
+    if figures:
+        try:
+            figs = _figures(d, out)
+        except Exception as exc:  # a figure must never cost the diagnosis
+            notes.append(f"figures not drawn: {exc}")
+    summary = Table(
+        ["quantity", "value"],
+        [["chosen", ", ".join(dd["chosen"]) or "(nothing)"], ["verdict", dd["verdict"]],
+         ["noise (%)", pct(dd["noise"])], ["gap before (held-out, %)", pct(dd["gap_before"])],
+         ["gap after (held-out, %)", pct(dd["gap_after"])], ["shrink", dd["shrink"]],
+         [f"gap before in {dd['region']['group']} (%)", pct(dd["gap_before_region"])],
+         [f"gap after in {dd['region']['group']} (%)", pct(dd["gap_after_region"])]],
+        caption="verdict",
+    )
+    ranking = Table(
+        ["effect", "form", "parameters", "1-sigma", "held-out gap (%)", "shrink", "region shrink", "score - none"],
+        [[r["effect"], r["form"], ", ".join(f"{k}={v:.4g}" for k, v in r["params"].items()),
+          ", ".join(f"{v:.2g}" for v in r["uncertainty"].values()), pct(r["heldout_gap"]), r["shrink"],
+          r["shrink_region"], r["delta_score_vs_none"]] for r in dd["ranking"]],
+        caption="every candidate alone, best first",
+    )
+    where_tables = [
+        Table(["group", "n", "RMS (%)", "mean (%)", "share", "enrichment"],
+              [[str(r["group"]), r["n"], pct(r["rms"]), pct(r["mean"]), r["share"], r["enrichment"]]
+               for r in dd["where"][key]], caption=key.replace("_", " "))
+        for key in ("by_receiver", "by_place", "by_time", "by_heading", "by_pass")
+    ]
+    c = dd["where"]["concentration"]
+    where_text = (f"The gap concentrates in {c['axis']} = {c['group']}: {100 * c['share']:.0f} % of the squared gap "
+                  f"on {100 * c['fraction']:.0f} % of the values. Time trend of the mean residual: "
+                  f"{100 * dd['where']['time_trend']['slope_per_hour']:.3g} +- "
+                  f"{100 * dd['where']['time_trend']['slope_stderr']:.2g} %/h.")
+    sections = [
+        Section("Verdict", tables=[summary], notes=notes),
+        Section("Where the gap lies", where_text, tables=where_tables, figures=figs[:2]),
+        Section("Which effect", "Each candidate fitted on training samples and scored on held-out ones.",
+                tables=[ranking], figures=figs[2:]),
+        Section("Cannot be told apart", [f"{p['pair'][0]} / {p['pair'][1]}: {p['reason']}; to separate them: "
+                                         f"{p['separate_by']}." for p in dd["confusable"]] or "no such pair"),
+    ]
+    if dd["model_split"]:
+        s = dd["model_split"]
+        sections.insert(2, Section("PSM approximation vs missing physics", tables=[Table(
+            ["part", "RMS (%)", "share"],
+            [["PSM vs BEM", pct(s["psm_vs_bem_rms"]), s["share_psm_approximation"]],
+             ["bench vs BEM", pct(s["bench_vs_bem_rms"]), s["share_missing_physics"]]], caption="on a subsample of poses")]))
+    write_html(out / "index.html", "Sim-to-real gap diagnosis", sections,
+               intro=f"{d.obs.n_poses} poses, model {d.model}, effects evaluated with {d.effect_model}.",
+               footer=f"esense diagnose, {d.seconds:.1f} s")
+    return out / "index.html"
