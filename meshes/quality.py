@@ -106,8 +106,9 @@ def _edge_table(faces: np.ndarray):
     """Directed half-edges, their undirected keys, and how many faces share each undirected edge."""
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     face_of = np.tile(np.arange(len(faces)), 3)
-    key = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    key = np.sort(directed, axis=1).astype(np.int64)
+    n = int(key.max()) + 1 if len(key) else 1
+    _, inverse, counts = np.unique(key[:, 0] * n + key[:, 1], return_inverse=True, return_counts=True)
     return directed, key, face_of, inverse.ravel(), counts
 
 

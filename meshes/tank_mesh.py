@@ -114,6 +114,15 @@ def _signed_distance_inside(uv: np.ndarray, polygon_uv: np.ndarray) -> np.ndarra
     return np.min(np.einsum("pkj,kj->pk", uv[:, None, :] - a[None], inward), axis=1)
 
 
+def _polygon_corners(polygon_uv: np.ndarray) -> np.ndarray:
+    """The corners of a polygon given with extra nodes along its straight sides."""
+    prev = polygon_uv - np.roll(polygon_uv, 1, axis=0)
+    nxt = np.roll(polygon_uv, -1, axis=0) - polygon_uv
+    cross = prev[:, 0] * nxt[:, 1] - prev[:, 1] * nxt[:, 0]
+    scale = np.linalg.norm(prev, axis=1) * np.linalg.norm(nxt, axis=1)
+    return polygon_uv[np.abs(cross) > 1e-9 * scale]
+
+
 def _quadtree_points(lo: np.ndarray, hi: np.ndarray, size_uv: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
     """Leaf centres of a quadtree over [lo, hi] refined until each leaf fits the local size."""
     extent = hi - lo
@@ -136,8 +145,11 @@ def _quadtree_points(lo: np.ndarray, hi: np.ndarray, size_uv: Callable[[np.ndarr
 
 
 def _unique_edges(tri: np.ndarray) -> np.ndarray:
-    e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1)
-    return np.unique(e, axis=0)
+    """(E, 2) edges of a triangulation, each once (smaller vertex first)."""
+    e = np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]), axis=1).astype(np.int64)
+    n = int(e.max()) + 1
+    key = np.unique(e[:, 0] * n + e[:, 1])
+    return np.stack([key // n, key % n], axis=1)
 
 
 def mesh_convex_polygon(boundary_uv: np.ndarray, size_uv: Callable[[np.ndarray], np.ndarray],
@@ -163,29 +175,32 @@ def mesh_convex_polygon(boundary_uv: np.ndarray, size_uv: Callable[[np.ndarray],
     """
     boundary = np.asarray(boundary_uv, dtype=float)
     n_fix = len(boundary)
+    sides = _polygon_corners(boundary)
     lo, hi = boundary.min(axis=0), boundary.max(axis=0)
     interior = _quadtree_points(lo, hi, size_uv)
 
     def keep_clear(p):  # interior nodes too close to the boundary make slivers
-        return p[_signed_distance_inside(p, boundary) > 0.45 * size_uv(p)] if len(p) else p
+        return p[_signed_distance_inside(p, sides) > 0.45 * size_uv(p)] if len(p) else p
 
     interior = keep_clear(interior)
-    for _ in range(n_smoothing if len(interior) else 0):
+    bars = None
+    for step in range(n_smoothing if len(interior) else 0):
         p = np.concatenate([boundary, interior])
-        bars = _unique_edges(Delaunay(p).simplices)
+        if step % 5 == 0:  # re-triangulate now and then; the nodes move little in between
+            bars = _unique_edges(Delaunay(p).simplices)
         vec = p[bars[:, 0]] - p[bars[:, 1]]
         length = np.linalg.norm(vec, axis=1)
         h_bar = size_uv(0.5 * (p[bars[:, 0]] + p[bars[:, 1]]))
         target = 1.2 * h_bar * np.sqrt(np.sum(length**2) / np.sum(h_bar**2))
-        force = np.maximum(target - length, 0.0)[:, None] * vec / length[:, None]
+        force = np.maximum(target - length, 0.0)[:, None] * vec / np.maximum(length, 1e-300)[:, None]
         total = np.zeros_like(p)
-        np.add.at(total, bars[:, 0], force)
-        np.add.at(total, bars[:, 1], -force)
-        interior = interior + 0.2 * total[n_fix:]
-        # pull nodes that left the polygon (or came too close to its sides) back in
-        d = _signed_distance_inside(interior, boundary)
-        h_i = size_uv(interior)
-        interior = interior[d > 0.2 * h_i]
+        for axis in (0, 1):
+            total[:, axis] = (np.bincount(bars[:, 0], force[:, axis], minlength=len(p))
+                              - np.bincount(bars[:, 1], force[:, axis], minlength=len(p)))
+        moved = interior + 0.2 * total[n_fix:]
+        # a node that would leave the polygon (or come too close to its sides) stays where it was
+        ok = _signed_distance_inside(moved, sides) > 0.2 * size_uv(moved)
+        interior = np.where(ok[:, None], moved, interior)
     interior = keep_clear(interior)
     points = np.concatenate([boundary, interior])
     tri = Delaunay(points).simplices
@@ -243,8 +258,8 @@ def mesh_tank(tank: Tank, edge_length_m: float | None = None, focus_m=None, *, g
     grading : float
         Growth of the edge length per metre from the focus (default 0.5).
     max_edge_length_m : float, optional
-        Largest edge length (default: 1/4 of the smallest dimension, but not
-        below ``edge_length_m``).
+        Largest edge length (default: a quarter of the smaller horizontal
+        side, but not below ``edge_length_m``).
 
     Returns
     -------
@@ -257,7 +272,8 @@ def mesh_tank(tank: Tank, edge_length_m: float | None = None, focus_m=None, *, g
     h0 = smallest / 15 if edge_length_m is None else float(edge_length_m)
     if not h0 > 0:
         raise ValueError(f"mesh_tank: edge_length_m must be positive, got {edge_length_m}")
-    h_max = max(h0, smallest / 4) if max_edge_length_m is None else max(h0, float(max_edge_length_m))
+    horizontal = float(min(hi[:2] - lo[:2]))
+    h_max = max(h0, horizontal / 4) if max_edge_length_m is None else max(h0, float(max_edge_length_m))
     size = graded_size_function(h0, focus_m, grading, h_max)
     return mesh_axis_box(lo, hi, size)
 
