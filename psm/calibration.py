@@ -23,7 +23,8 @@ Uncertainties come from the Jacobian J of the residual at the optimum:
 freedom when there are more data than parameters, otherwise the stated
 uncertainty of the reference (``reference_uncertainty_S``, or its
 ``rounding_uncertainty_S`` info, or its asymmetry as a proxy of its
-discretisation error).
+discretisation error, or else an assumed 1e-3 relative uncertainty,
+stated in the result).
 
 Example
 -------
@@ -46,6 +47,11 @@ from .model import ModelError, PolySphericalModel
 from .potential_coefficients import isolated_conductance, potential_coefficients
 
 __all__ = ["Calibration", "CalibrationError", "calibrate", "gamma_criterion", "Layout"]
+
+
+#: relative uncertainty assumed for a reference that states none, when the fit is exact (the BEM's
+#: discretisation error on the default meshes is of this order, see the BEM notes)
+ASSUMED_REFERENCE_REL_UNCERTAINTY = 1e-3
 
 
 class CalibrationError(ValueError):
@@ -258,9 +264,13 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
         u = reference_uncertainty_S if reference_uncertainty_S is not None else reference.info.get("rounding_uncertainty_S")
         if u is not None:
             s2, basis = (float(u) / norm) ** 2, f"stated uncertainty of the reference entries ({float(u):.3g} S)"
-        else:
+        elif reference.asymmetry > 1e-6:
             s2 = (reference.asymmetry * float(np.max(np.abs(S_ref))) / norm) ** 2
             basis = "the reference's asymmetry, as a proxy of its discretisation error (exact fit, no residual)"
+        else:
+            s2 = (ASSUMED_REFERENCE_REL_UNCERTAINTY * float(np.max(np.abs(S_ref))) / norm) ** 2
+            basis = (f"an assumed relative uncertainty {ASSUMED_REFERENCE_REL_UNCERTAINTY:g} of the reference entries "
+                     "(exact fit, no residual, no stated uncertainty: pass reference_uncertainty_S)")
     cov = s2 * np.linalg.pinv(J.T @ J)
     std = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
