@@ -203,6 +203,14 @@ def _finish(boundary, sigma, system: BemSystem, sol, emitter, timing) -> BemSolu
     return BemSolution(boundary, float(sigma), x, W, system.scale_m, system.z_c, C, emitter, info)
 
 
+def check_object_materials(objects) -> None:
+    """The BEM models objects as perfect insulators (0 S/m) or perfect conductors (inf); refuse others."""
+    for i, obj in enumerate(objects, start=1):
+        if not (obj.is_insulating or obj.is_conducting):
+            raise ValueError(f"object_{i} ({obj.label}) has conductivity {obj.conductivity_S_per_m} S/m: the BEM "
+                             "handles insulating (0) or perfectly conducting (inf) objects only")
+
+
 def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge_length_m=None,
                 **mesh_options) -> BemSolution:
     """Mesh a :class:`meshes.scene.Scene` (or take a sensor ``LabelledMesh`` in unbounded water) and solve it."""
@@ -216,6 +224,7 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     else:
         from meshes.scene_mesh import mesh_scene
 
+        check_object_materials(scene.objects)
         sm = mesh_scene(scene, edge_length_m, **mesh_options)
         boundary = WaterBoundary.from_meshes(
             sm.sensor_in_tank, sm.tank, sm.objects, tuple(o.is_conducting for o in scene.objects),

@@ -119,6 +119,9 @@ class PoseSweep:
 
         if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
             raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+        from .solve import check_object_materials
+
+        check_object_materials(objects)
         self.sensor = sensor
         self.tank = tank
         self.objects = tuple(objects)
