@@ -54,7 +54,7 @@ def test_graded_towards_a_focus_point():
     d = np.linalg.norm(m.centroids_m - focus, axis=1)
     near, far = d < 0.08, d > 0.6
     assert near.any() and far.any()
-    h_max = 0.4 / 4  # the default cap: a quarter of the smallest dimension (the depth)
+    h_max = 0.6 / 4  # the default cap: a quarter of the smaller horizontal side
     assert size[far].mean() > 2 * size[near].mean()
     assert 0.5 * h_max < size[far].mean() < 1.2 * h_max
     # edges follow the size function h = 0.005 + 0.5 d within a factor of two
