@@ -125,3 +125,23 @@ def test_a_sensor_file_travels_with_the_log(tmp_path, psm_file):
     log = read_bench_log(out)
     assert log.meta["sensor"] == "sweep.sensor.json" and log.sensor.name == "my-four"
     assert log.sensor.electrodes == sensor.electrodes
+
+
+def test_bem_sweep_with_an_object_reads_back_and_rises_towards_the_walls(tmp_path):
+    """A coarse BEM line in a small tank, from a scene file with a conducting ball far off the path."""
+    from validation.benchlog import read_bench_log
+
+    scene = tmp_path / "bench.toml"
+    scene.write_text('[tank]\nsize_m = [0.5, 0.4, 0.3]\n[sensor]\npreset = "angels-2"\npose = [0, 0, 0, 0]\n'
+                     '[[objects]]\nshape = "sphere"\ncentre_m = [0.0, 0.15, 0.0]\nradius_m = 0.02\n'
+                     'material = "conducting"\n[water]\nsigma_S_per_m = 0.05\n')
+    out = tmp_path / "bem.csv"
+    r = _run("--model", "bem", "--scene", scene, "--from", "-0.1,0", "--to", "0.1,0", "--steps", 3,
+             "--edge-length", 0.02, "--tank-edge-length", 0.1, "--workers", 1, "--quiet", "-o", out)
+    assert r.exit_code == 0, r.output
+    log = read_bench_log(out)
+    assert log.meta["source"].startswith("esense sweep --model bem") and log.sigma_S_per_m == 0.05
+    assert log.meta["objects"][0]["conductivity_S_per_m"] == "conducting"
+    R = log.data["R1_ohm"].to_numpy()
+    assert R[0] > R[1] and R[2] > R[1]  # insulating walls 5 cm from the tips raise the resistance
+    assert abs(R[0] - R[2]) / R[1] < 0.01  # the set-up is mirror symmetric in x

@@ -284,6 +284,7 @@ def pose_evaluator(
     contact_impedance_ohm_m2=None,
     images: str = "complete",
     poses=None,
+    prepare: bool = True,
     **bem_options,
 ):
     """The pose-invariant part of a model run: an object with ``.conductance(poses) -> ConductanceMatrix``.
@@ -293,8 +294,12 @@ def pose_evaluator(
     sweep can scatter them to dask workers once and send only poses after.
 
     Parameters are those of :func:`simulate`; ``poses`` (optional) are the
-    poses it will be used for: the PSM settles its image series over all of
-    them at once, so that chunked runs give exactly what one call gives.
+    poses it will be used for. Give them for a sweep cut into chunks: the
+    BEM then grades one tank mesh towards all of them and assembles its
+    pose-invariant blocks at once, the PSM settles its image series over all
+    of them, so that every chunk, on any worker, is computed exactly as one
+    call over all poses would. ``prepare=False`` leaves the BEM's blocks to
+    its first call (for a single call over all poses).
     """
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
@@ -307,7 +312,16 @@ def pose_evaluator(
         options = dict(bem_options)
         if contact_impedance_ohm_m2 is not None:
             options["contact_impedance_ohm_m2"] = contact_impedance_ohm_m2
-        return PoseSweep(sensor, tank=tank, objects=objects, sigma_S_per_m=sigma_S_per_m, **options)
+        if poses is not None and tank is not None and "focus_m" not in options:
+            from meshes.scene_mesh import trajectory_focus_m
+
+            # one tank mesh for the whole sweep, graded towards every pose (not the first chunk's)
+            options["focus_m"] = trajectory_focus_m(sensor, poses_array(poses))
+        sweep = PoseSweep(sensor, tank=tank, objects=objects, sigma_S_per_m=sigma_S_per_m, **options)
+        if poses is not None and prepare:
+            # build the environment's blocks here, once, before the sweep is shipped to workers
+            sweep.conductance(poses_array(poses)[:1])
+        return sweep
     if model == "psm":
         unknown = sorted(set(bem_options) - set(_PSM_CALIBRATION_OPTIONS))
         if unknown:
@@ -377,6 +391,7 @@ def simulate(
     """
     poses = poses_array(poses)
     evaluator = pose_evaluator(
-        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images, None, **bem_options
+        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images,
+        poses=poses, prepare=False, **bem_options,
     )
     return evaluator.conductance(poses, progress=progress)

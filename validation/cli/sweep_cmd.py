@@ -95,7 +95,10 @@ def _bench_log_frame(C, poses):
 @click.option("--z", "z_m", type=float, default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
-@click.option("--edge-length", "edge_length_m", type=float, help="BEM mesh edge length in m (default: the mesher's).")
+@click.option("--edge-length", "edge_length_m", type=float,
+              help="BEM sensor mesh edge length in m (default: the mesher's); with the PSM, of its calibration BEM.")
+@click.option("--tank-edge-length", "tank_edge_length_m", type=float,
+              help="BEM tank mesh edge length nearest the poses, in m (default: the BEM's).")
 @click.option("--contact-impedance", "contact_impedance", type=float, help="Electrode contact impedance in ohm m^2.")
 @click.option("--scheduler", help="dask scheduler address (tcp://host:port); default: Dask config, else this machine.")
 @click.option("--workers", type=int,
@@ -109,9 +112,7 @@ def _bench_log_frame(C, poses):
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="out.csv (bench log with R<k>_ohm columns), out.zarr (resumable store) or out.nc (netCDF).")
-def sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps, grid_text,
-          yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses, plot_png,
-          plot_quantity, overwrite, quiet, output):
+def sweep(**options):
     """Run a model over a line or a grid of poses and write the receiver currents and resistances.
 
     The sweep runs on this machine's cores, or on a dask cluster with
@@ -120,12 +121,12 @@ def sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma,
 
     Example: esense sweep --model psm --sensor angels-4 --from -0.4,0 --to 0.4,0 --steps 161 -o sweep.csv
     """
+    from types import SimpleNamespace
+
     from validation.sweep.grid import GridError
 
     try:
-        _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps,
-               grid_text, yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses,
-               plot_png, plot_quantity, overwrite, quiet, Path(output))
+        _sweep(SimpleNamespace(**options))
     except click.ClickException:
         raise
     except (ValueError, GridError, FileExistsError) as exc:
@@ -134,9 +135,7 @@ def sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma,
         raise click.ClickException(str(exc)) from None
 
 
-def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma, from_xy, to_xy, steps, grid_text,
-           yaw, z_m, images, edge_length_m, contact_impedance, scheduler, workers, chunk_poses, plot_png,
-           plot_quantity, overwrite, quiet, out: Path):
+def _sweep(o):
     from meshes.scene_file import apply_overrides, load_scene, load_scene_settings
     from meshes.tank import Tank
     from validation.models import code_version, pose_evaluator
@@ -144,43 +143,49 @@ def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma
     from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
     from validation.sweep.store import SweepStore, export_netcdf, open_sweep, remove_store
 
+    model, psm_file, sigma, workers, out = o.model, o.psm_file, o.sigma, o.workers, Path(o.output)
+    images, edge_length_m, contact_impedance = o.images, o.edge_length_m, o.contact_impedance
     # ------------------------------------------------------------ what to run
     if out.suffix not in _OUTPUT_SUFFIXES:
         raise click.BadParameter(f"{out}: the output must end in {', '.join(_OUTPUT_SUFFIXES)}", param_hint="-o")
     if psm_file and model != "psm":
         raise click.BadParameter("--psm goes with --model psm", param_hint="--psm")
-    if unbounded and tank_text:
+    if o.unbounded and o.tank_text:
         raise click.BadParameter("give either --tank or --unbounded", param_hint="--tank")
-    scene = load_scene(scene_file) if scene_file else None
-    settings = load_scene_settings(scene_file) if scene_file else {}
-    if scene is None and sensor_spec is None:
+    scene = load_scene(o.scene_file) if o.scene_file else None
+    settings = load_scene_settings(o.scene_file) if o.scene_file else {}
+    if scene is None and o.sensor_spec is None:
         raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
-    tank = _parse_tank(tank_text) if tank_text else None
-    if scene is None and tank is None and not unbounded:
+    tank = _parse_tank(o.tank_text) if o.tank_text else None
+    if scene is None and tank is None and not o.unbounded:
         tank = Tank((1.0, 1.0, 1.0))
-    scene = apply_overrides(scene, sensor=sensor_spec, tank=tank, unbounded=unbounded)
+    scene = apply_overrides(scene, sensor=o.sensor_spec, tank=tank, unbounded=o.unbounded)
     sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
     if sigma is None:
         sigma = float(settings.get("water", {}).get("sigma_S_per_m", DEFAULT_SIGMA_S_PER_M))
 
     grid = None
-    if grid_text:
-        if from_xy or to_xy or steps:
+    if o.grid_text:
+        if o.from_xy or o.to_xy or o.steps:
             raise click.BadParameter("give either --grid or --from/--to/--steps", param_hint="--grid")
-        grid = parse_grid(grid_text, yaw_rad=yaw, z_m=z_m)
+        grid = parse_grid(o.grid_text, yaw_rad=o.yaw, z_m=o.z_m)
         poses = grid.poses
     else:
-        if not (from_xy and to_xy and steps):
+        if not (o.from_xy and o.to_xy and o.steps):
             raise click.BadParameter("give --from X0,Y0 --to X1,Y1 --steps N, or --grid", param_hint="--from")
-        poses = line_poses(parse_xy(from_xy, "--from"), parse_xy(to_xy, "--to"), steps, yaw, z_m)
-    if plot_png and grid is None:
+        poses = line_poses(parse_xy(o.from_xy, "--from"), parse_xy(o.to_xy, "--to"), o.steps, o.yaw, o.z_m)
+    if o.plot_png and grid is None:
         raise click.BadParameter("--plot draws a tank map: it needs --grid", param_hint="--plot")
     final = None if out.suffix == ".zarr" else out
-    if final is not None and final.exists() and not overwrite:
+    if final is not None and final.exists() and not o.overwrite:
         raise click.ClickException(f"{final} exists; pass --overwrite to replace it")
     store_path = out if final is None else out.with_name(out.name + ".partial.zarr")
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
+    if o.tank_edge_length_m is not None:
+        if model != "bem":
+            raise click.BadParameter("--tank-edge-length is a BEM option", param_hint="--tank-edge-length")
+        bem_options["tank_edge_length_m"] = o.tank_edge_length_m
     model_options = {"images": images} if model == "psm" else {}
     model_options.update(bem_options)
     if contact_impedance is not None:
@@ -211,7 +216,7 @@ def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma
         workers = 1
     n_workers = workers or local_cores()
     store = SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
-                                      chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
+                                      o.chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
     pending = store.pending_chunks()
     if pending:
         n_left = sum(b - a for a, b in pending)
@@ -221,7 +226,7 @@ def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
         evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
                                    poses=poses, **bem_options)
-        result = run_sweep(evaluator, poses, store, scheduler=scheduler, workers=workers, progress=not quiet)
+        result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
         C = result.conductance
         click.echo(f"computed {result.n_computed} poses in {result.seconds:.1f} s "
                    f"({result.poses_per_s:.3g} poses/s, {result.workers} worker{'s' if result.workers > 1 else ''})")
@@ -249,17 +254,17 @@ def _sweep(model, psm_file, sensor_spec, scene_file, tank_text, unbounded, sigma
             meta["water_depth_m"] = tank.water_depth_m
         if objects:
             meta["objects"] = _objects_description(objects)
-            for o in meta["objects"]:  # JSON has no infinity: write a conducting object by name
-                if math.isinf(o.get("conductivity_S_per_m", 0.0)):
-                    o["conductivity_S_per_m"] = "conducting"
-        write_bench_log(out, meta, _bench_log_frame(C, poses), overwrite=overwrite)
+            for obj in meta["objects"]:  # JSON has no infinity: write a conducting object by name
+                if math.isinf(obj.get("conductivity_S_per_m", 0.0)):
+                    obj["conductivity_S_per_m"] = "conducting"
+        write_bench_log(out, meta, _bench_log_frame(C, poses), overwrite=o.overwrite)
     elif out.suffix == ".nc":
         export_netcdf(store_path, out)
-    if plot_png:
+    if o.plot_png:
         from validation.sweep.plot import plot_tank_map
 
-        plot_tank_map(open_sweep(store_path), plot_png, quantity=plot_quantity)
-        click.echo(f"wrote {plot_png}")
+        plot_tank_map(open_sweep(store_path), o.plot_png, quantity=o.plot_quantity)
+        click.echo(f"wrote {o.plot_png}")
     if final is not None:
         remove_store(store_path)
     click.echo(f"wrote {out}")
