@@ -26,7 +26,7 @@ PAPER_S_BEM_ANGELS4 = [[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [
 #: (0: none; drawn for the first log only), how many logs. The full demo is sized to run in under 5 minutes
 #: on 2 cores: the BEM solves pose by pose, so it sees a subset of each log.
 SETTINGS = {
-    "full": {"edge_length_m": 0.008, "bem_poses": 9, "potential_n": 61, "max_logs": None},
+    "full": {"edge_length_m": 0.008, "bem_poses": 13, "potential_n": 61, "max_logs": None},
     "quick": {"edge_length_m": 0.012, "bem_poses": 3, "potential_n": 0, "max_logs": 1},
 }
 
@@ -105,45 +105,71 @@ def _free_space_bem(sensor, mesh):
     return ConductanceMatrix(C.K_S, sensor.emitter, 1.0, C.info)
 
 
-def _diagnosis_section(log_paths, folder: Path, echo):
-    """Run ``esense diagnose`` on the logs into folder/diagnosis; a summary Section, or None when not installed."""
+def _format_params(params: dict, uncertainty: dict | None) -> str:
+    uncertainty = uncertainty or {}
+    parts = []
+    for k, v in (params or {}).items():
+        u = uncertainty.get(k)
+        if isinstance(v, (int, float)):
+            parts.append(f"{k} = {v:.4g}" + (f" +- {u:.2g}" if isinstance(u, (int, float)) else ""))
+        else:
+            parts.append(f"{k} = {v}")
+    return "; ".join(parts)
+
+
+def _diagnosis_section(logs, log_paths, folder: Path, echo):
+    """Run ``esense diagnose`` on each log into folder/diagnosis/<log>; a summary Section with its figures.
+
+    The diagnosis uses the PSM calibrated by the demo (``psm_<sensor>.json``). When the diagnosis is
+    not installed the section says so.
+    """
     import importlib
     import json
 
-    from validation.report.html import Section, Table
+    from validation.report.html import Figure, Section, Table
 
     try:
         command = importlib.import_module("validation.cli.diagnose_cmd").diagnose
     except (ImportError, AttributeError) as exc:
         return Section("Gap diagnosis", notes=[f"the gap diagnosis is not available in this installation ({exc})"])
-    out = folder / "diagnosis"
     sections = []
-    for path in log_paths:
-        sub = out / Path(path).stem
+    for log, path in zip(logs, log_paths):
+        stem = Path(path).stem
+        sub = folder / "diagnosis" / stem
+        args = [str(path), "-o", str(sub)]
+        psm_file = folder / f"psm_{log.sensor.name}.json"
+        if psm_file.exists():
+            args += ["--psm-model", str(psm_file)]
         try:
-            command.main([str(path), "-o", str(sub)], standalone_mode=False)
+            command.main(args, standalone_mode=False)
             d = json.loads((sub / "diagnosis.json").read_text())
         except Exception as exc:  # the report still stands without it; say why
-            sections.append(Section(f"{Path(path).stem}", notes=[f"diagnosis failed: {type(exc).__name__}: {exc}"]))
+            sections.append(Section(stem, notes=[f"diagnosis failed: {type(exc).__name__}: {exc}"]))
             continue
-        rows = []
-        for c in d.get("ranking", [])[:6]:
-            rows.append([c.get("effect"), json.dumps(c.get("params"))[:60], c.get("heldout_gap"), c.get("shrink")])
+        rows = [[c.get("effect"), _format_params(c.get("params"), c.get("uncertainty")),
+                 100 * c["heldout_gap"] if isinstance(c.get("heldout_gap"), (int, float)) else None,
+                 100 * c["shrink"] if isinstance(c.get("shrink"), (int, float)) else None]
+                for c in d.get("ranking", [])[:8]]
         chosen = ", ".join(d.get("chosen", [])) or "none"
-        echo(f"diagnosis of {Path(path).name}: {chosen} (held-out gap {d.get('gap_before')} -> {d.get('gap_after')})")
-        text = [f"Chosen effect(s): {chosen}. Held-out RMS relative gap before: {d.get('gap_before')}, "
-                f"after: {d.get('gap_after')}."]
-        confusable = d.get("confusable") or []
-        if confusable:
-            text.append("Cannot be told apart on these data: " + "; ".join(
-                " / ".join(map(str, c.get("pair", c) if isinstance(c, dict) else c)) for c in confusable))
+        before, after = d.get("gap_before"), d.get("gap_after")
+        gap_text = (f"{100 * before:.3f} % -> {100 * after:.3f} %" if isinstance(before, (int, float))
+                    and isinstance(after, (int, float)) else f"{before} -> {after}")
+        echo(f"diagnosis of {Path(path).name}: {chosen} (held-out RMS gap {gap_text})")
+        text = [f"Chosen effect(s): {chosen}. Held-out RMS relative gap: {gap_text}."]
+        if "source" in log.meta:
+            text.append(f"What the log's meta says about how it was made: {log.meta['source']}")
+        notes = [f"cannot tell apart {' / '.join(c['pair'])}: {c.get('separate_by', c.get('reason', ''))}"
+                 for c in (d.get("confusable") or [])[:4] if isinstance(c, dict) and "pair" in c]
+        figures = [Figure(sub / name, f"{stem}: {caption}") for name, caption in
+                   (("gap_by_place.png", "where the gap lies"), ("ranking.png", "candidate effects, held-out"))
+                   if (sub / name).exists()]
         sections.append(Section(
-            f"{Path(path).stem}", text,
-            tables=[Table(["effect", "parameters", "held-out gap", "shrink"], rows, caption="Candidates, best first")]
-            if rows else [],
-            links=[("full diagnosis report", f"diagnosis/{Path(path).stem}/index.html")]))
-    return Section("Gap diagnosis", ["What unmodelled effect explains the gap between the bench and the BEM/PSM, "
-                                     "fitted on part of the data and scored on the rest (esense diagnose)."],
+            stem, text, notes=notes, figures=figures, side_by_side=True,
+            tables=[Table(["effect", "parameters +- std. error", "held-out gap (%)", "shrink (%)"], rows,
+                          caption="Candidate effects, best first")] if rows else [],
+            links=[("the full diagnosis of this log", f"diagnosis/{stem}/index.html")]))
+    return Section("Gap diagnosis", ["Which unmodelled effect explains the gap between the bench and the PSM: each "
+                                     "candidate fitted on part of the data and scored on the rest (esense diagnose)."],
                    subsections=sections)
 
 
@@ -202,7 +228,7 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
         extra = []
         if not no_diagnosis:
             bar.set_description("gap diagnosis")
-            extra.append(_diagnosis_section(paths, outdir, echo))
+            extra.append(_diagnosis_section(logs, paths, outdir, echo))
             bar.update(1)
         bar.set_description("figures and report")
         intro = [

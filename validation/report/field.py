@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["PlanePotential", "mid_plane_potential", "sensor_outline_xy", "electrode_segments_xy", "inside_sensor"]
+__all__ = ["PlanePotential", "mid_plane_potential", "sensor_outline_xy", "electrode_segments_xy", "inside_sensor",
+           "electrode_seeds_xy", "tank_walls_xy"]
 
 
 @dataclass
@@ -122,3 +123,33 @@ def mid_plane_potential(
     phi = np.full(X.shape, np.nan)
     phi[~inside] = solution.potential_at(pts[~inside], V)
     return PlanePotential(x, y, phi, time.perf_counter() - t0)
+
+
+def electrode_seeds_xy(sensor, pose, electrode: int, offset_m: float, n: int = 24) -> np.ndarray:
+    """Start points (n, 2) of current lines: the electrode's trace on the mid-plane pushed ``offset_m`` into the water."""
+    e = sensor.electrodes[electrode - 1]
+    r, half = sensor.radius_m, 0.5 * sensor.length_m - sensor.radius_m
+    if e.kind == "cap":
+        sign = 1.0 if e.x_max_m > 0 else -1.0
+        t = np.linspace(-np.pi / 2 * 0.95, np.pi / 2 * 0.95, n)
+        pts = np.column_stack([sign * (half + (r + offset_m) * np.cos(t)), (r + offset_m) * np.sin(t)])
+    else:
+        x = np.linspace(e.x_min_m, e.x_max_m, max(n // 2, 2))
+        pts = np.vstack([np.column_stack([x, np.full_like(x, r + offset_m)]),
+                         np.column_stack([x, np.full_like(x, -r - offset_m)])])
+    return pose.to_tank(np.column_stack([pts, np.zeros(len(pts))]))[:, :2]
+
+
+def tank_walls_xy(tank, x_range, y_range) -> list:
+    """The tank's vertical walls that cross the picture, as (2, 2) segments in the plane."""
+    if tank is None:
+        return []
+    (x0, y0, _), (x1, y1, _) = tank.water_bounds_m
+    out = []
+    for x in (x0, x1):
+        if x_range[0] - 1e-9 <= x <= x_range[1] + 1e-9:
+            out.append(np.array([[x, max(y0, y_range[0])], [x, min(y1, y_range[1])]]))
+    for y in (y0, y1):
+        if y_range[0] - 1e-9 <= y <= y_range[1] + 1e-9:
+            out.append(np.array([[max(x0, x_range[0]), y], [min(x1, x_range[1]), y]]))
+    return out

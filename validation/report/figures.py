@@ -417,6 +417,7 @@ def scene_figure(
     object_meshes=(),
     title: str = "",
     window_size=(1800, 900),
+    passes=None,
 ) -> Path:
     """The 3D scene: tank, sensor mesh (electrodes coloured), path coloured by ``values``.
 
@@ -436,6 +437,8 @@ def scene_figure(
         Scalar per pose for the path's colour map (e.g. error in %).
     object_meshes : sequence of LabelledMesh
         Objects in the tank frame.
+    passes : (P,) array, optional
+        Pass labels: each pass is drawn as its own line.
     """
     has_closeup = sensor_mesh is not None
     plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
@@ -459,10 +462,13 @@ def scene_figure(
         legend.append(["sensor", "#444444"])
     if trajectory_m is not None:
         pts = np.atleast_2d(np.asarray(trajectory_m, dtype=float))
-        path = pv.lines_from_points(pts) if len(pts) > 1 else pv.PolyData(pts)
+        path = pv.PolyData(pts)
+        cells = [np.concatenate([[len(idx)], idx]) for idx in _segments(passes, len(pts)) if len(idx) > 1]
+        if cells:
+            path.lines = np.concatenate(cells)
         if values is not None:
             path.point_data[value_label] = np.asarray(values, dtype=float).ravel()
-            tube = path.tube(radius=0.006) if len(pts) > 1 else path
+            tube = path.tube(radius=0.006) if cells else path
             plotter.add_mesh(tube, scalars=value_label, cmap="viridis", scalar_bar_args=_scalar_bar(value_label))
         else:
             plotter.add_mesh(path, color="black", line_width=4)
@@ -540,6 +546,7 @@ def potential_figure(
     sensor_outline_m=None,
     electrode_segments=(),
     seeds_m=None,
+    walls_m=(),
     title: str = "",
     window_size=(1700, 820),
     n_isolines: int = 16,
@@ -559,6 +566,8 @@ def potential_figure(
     seeds_m : (s, 2) array, optional
         Start points of the current lines (e.g. around the emitter); the lines
         follow E = -grad(potential), the direction of the current density.
+    walls_m : sequence of (2, 2) arrays
+        Insulating tank walls crossing the picture, drawn as thick lines.
     """
     x = np.asarray(x_m, dtype=float)
     y = np.asarray(y_m, dtype=float)
@@ -602,6 +611,11 @@ def potential_figure(
         pts = np.column_stack([o, np.full(len(o), 3 * lift)])
         plotter.add_mesh(pv.lines_from_points(np.vstack([pts, pts[:1]])), color="#808080", line_width=4)
         legend.append(["sensor (insulating)", "#808080"])
+    for wall in walls_m:
+        pts = np.column_stack([np.asarray(wall, dtype=float), np.full(2, 3 * lift)])
+        plotter.add_mesh(pv.lines_from_points(pts), color="#1b2a49", line_width=10)
+    if len(walls_m):
+        legend.append(["tank wall (insulating)", "#1b2a49"])
     colours = _electrode_colours(max(len(electrode_segments), 1))
     for (seg, label), colour in zip(electrode_segments, colours):
         seg = np.asarray(seg, dtype=float)

@@ -151,7 +151,7 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
     try:
         from meshes.sensor_mesh import mesh_sensor
 
-        sensor_mesh = mesh_sensor(log.sensor)
+        sensor_mesh = mesh_sensor(log.sensor, edge_length_m=edge_length_m)
     except Exception as exc:  # the figure still shows the tank and the path
         sensor_mesh = None
         notes.append(f"sensor mesh not drawn: {exc}")
@@ -165,23 +165,25 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
             notes.append(f"objects not drawn: {exc}")
     p = scene_figure(folder / f"scene_{slug}.png", sensor_mesh, pose, log.tank, log.poses[:, :3], err,
                      value_label=f"{first.upper()} mean abs. error (%)", object_meshes=object_meshes,
-                     title=f"{result.label}: path coloured by {first.upper()} error")
+                     title=f"{result.label}: path coloured by {first.upper()} error", passes=passes)
     figures.append(Figure(p, f"{result.label}: the scene; the sensor is drawn at the pose of largest "
                              f"{first.upper()} error (x = {pose.x_m:.3f} m), the path coloured by the "
                              "mean abs. error over receivers."))
     if potential:
         try:
-            from .field import electrode_segments_xy, mid_plane_potential, sensor_outline_xy
+            from .field import (electrode_seeds_xy, electrode_segments_xy, mid_plane_potential, sensor_outline_xy,
+                                tank_walls_xy)
 
             U0 = float(log.U_V[worst])
             plane = mid_plane_potential(log.sensor, pose, log.tank, log.sigma_S_per_m, U_V=U0, n=potential_n,
                                         edge_length_m=edge_length_m, objects=result.objects)
             sensor = log.sensor
-            emitter_centre = pose.to_tank(sensor.electrode_centres_m[[sensor.emitter - 1]])[0, :2]
-            t = np.linspace(0, 2 * np.pi, 24, endpoint=False)
-            seeds = emitter_centre + 1.8 * sensor.radius_m * np.column_stack([np.cos(t), np.sin(t)])
+            spacing = float(np.diff(plane.x_m).max())
+            seeds = electrode_seeds_xy(sensor, pose, sensor.emitter, offset_m=0.002 + 2.5 * spacing)
+            walls = tank_walls_xy(log.tank, (plane.x_m[0], plane.x_m[-1]), (plane.y_m[0], plane.y_m[-1]))
             p = potential_figure(folder / f"potential_{slug}.png", plane.x_m, plane.y_m, plane.potential_V,
                                  sensor_outline_xy(sensor, pose), electrode_segments_xy(sensor, pose), seeds_m=seeds,
+                                 walls_m=walls,
                                  title=f"BEM potential on the mid-plane, emitter at {U0:g} V, x = {pose.x_m:.3f} m")
             figures.append(Figure(p, f"{result.label}: BEM potential on the sensor's horizontal mid-plane at the "
                                      "pose of largest error, equipotentials and current lines from the emitter "
