@@ -42,6 +42,7 @@ from scipy.optimize import least_squares
 
 from bem.conductance import ConductanceMatrix, S_from_K
 
+from .conductance import conductance_array
 from .contact import electrode_areas_m2
 from .model import ModelError, PolySphericalModel
 from .potential_coefficients import isolated_conductance, potential_coefficients
@@ -166,6 +167,24 @@ def _check_reference(reference: ConductanceMatrix, symmetry_tolerance: float) ->
     return S
 
 
+def _tank_terms(tank_reference, reference: ConductanceMatrix, symmetry_tolerance: float):
+    """Tank, poses (Q, 4), symmetrised S (Q, m, m) and their Frobenius norms from a tank reference."""
+    try:
+        tank, poses, C = tank_reference
+    except (TypeError, ValueError):
+        raise CalibrationError("tank_reference must be (tank, poses (Q, 4), ConductanceMatrix of batch (Q,))") from None
+    poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+    if not isinstance(C, ConductanceMatrix) or C.batch_shape != (poses.shape[0],):
+        raise CalibrationError(f"tank_reference: need one conductance matrix per pose ({poses.shape[0]})")
+    if C.n != reference.n or C.emitter != reference.emitter:
+        raise CalibrationError("tank_reference: electrode count or emitter differs from the free-space reference")
+    if C.asymmetry > symmetry_tolerance:
+        raise CalibrationError(f"tank_reference: K is not symmetric (asymmetry {C.asymmetry:.3g} > {symmetry_tolerance:g})")
+    K = C.scaled_to(reference.sigma_S_per_m).K_S
+    S = S_from_K(0.5 * (K + np.swapaxes(K, -1, -2)), C.emitter)
+    return tank, poses, S, np.sqrt(np.einsum("qij,qji->q", S, S))
+
+
 def _model_S(layout: Layout, theta: np.ndarray, sigma: float, emitter: int) -> np.ndarray:
     radii, gaps = layout.expand(theta)
     x = np.concatenate([[0.0], -np.cumsum(gaps)])
@@ -177,7 +196,7 @@ def _model_S(layout: Layout, theta: np.ndarray, sigma: float, emitter: int) -> n
 
 def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_m: float | None = None, *,
               sensor=None, reference_uncertainty_S: float | None = None, symmetry_tolerance: float = 0.02,
-              initial_m: np.ndarray | None = None) -> Calibration:
+              initial_m: np.ndarray | None = None, tank_reference=None) -> Calibration:
     """Fit the PSM's radii and centre distances to ``reference`` on the criterion (17).
 
     Parameters
@@ -197,6 +216,14 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
         Largest accepted ``max|K - K^T| / max|K|`` of the reference.
     initial_m : array, optional
         Starting parameters (m), in the order of the layout's names.
+    tank_reference : (Tank, poses (Q, 4), ConductanceMatrix of batch (Q,)), optional
+        An extension beyond the paper: reference conductances of the real
+        sensor at a few poses in a tank (BEM). Their criterion (17), pose by
+        pose with the complete images, joins the free-space one in the least
+        squares; this fixes where the spheres sit along the axis (which the
+        free-space S of a 2-electrode sensor cannot) from the walls' effect.
+        ``gamma_criterion`` stays the free-space criterion; the tank one is in
+        ``model.info["fit"]["gamma_tank"]``.
 
     Raises
     ------
@@ -211,6 +238,10 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
     layout = Layout(n, bool(symmetric), None if fix_length_m is None else float(fix_length_m))
     m = n - 1
     n_data = m * (m + 1) // 2
+    tank_terms = None
+    if tank_reference is not None:
+        tank_terms = _tank_terms(tank_reference, reference, symmetry_tolerance)
+        n_data += tank_terms[2].shape[0] * (m * (m + 1) // 2)
     if layout.n_free > n_data:
         raise CalibrationError(
             f"the reference has {n_data} distinct conductance(s) but the {'symmetric' if symmetric else 'free'} "
@@ -221,8 +252,24 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
     weight = np.where(iu[0] == iu[1], 1.0, np.sqrt(2.0))
     norm = np.sqrt(np.trace(S_ref @ S_ref))
 
-    def residual(theta):
+    def free_residual(theta):
         return weight * (_model_S(layout, theta, sigma, emitter) - S_ref)[iu] / norm
+
+    def tank_residual(theta):
+        tank, poses, S_tank, norms = tank_terms
+        radii, gaps = layout.expand(theta)
+        try:
+            model = PolySphericalModel.collinear(radii, gaps, emitter)
+            K, _ = conductance_array(model, poses, sigma, tank, "complete", image_shells=4)
+        except ValueError:  # overlapping spheres or spheres out of the water on the way: a large residual
+            return np.ones(S_tank.shape[0] * len(iu[0]))
+        S = S_from_K(K, emitter)
+        return (weight * (S - S_tank)[:, iu[0], iu[1]] / norms[:, None]).ravel()
+
+    def residual(theta):
+        if tank_terms is None:
+            return free_residual(theta)
+        return np.concatenate([free_residual(theta), tank_residual(theta)])
 
     nr = len(layout.radius_groups)
     a0 = float(np.mean(np.diag(S_ref))) / (4 * np.pi * sigma)
@@ -255,7 +302,7 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
     except ModelError as exc:
         raise CalibrationError(f"the best fit is not a valid model: {exc}") from None
     r = residual(theta)
-    gamma = float(np.linalg.norm(r))
+    gamma = float(np.linalg.norm(free_residual(theta)))
     J = best.jac
     dof = n_data - layout.n_free
     if dof > 0:
@@ -285,6 +332,10 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
             "correlations": corr.tolist(), "uncertainty_basis": basis,
         }
     }
+    if tank_terms is not None:
+        info["fit"]["gamma_tank"] = float(np.sqrt(np.mean(tank_residual(theta).reshape(tank_terms[2].shape[0], -1) ** 2, axis=0).sum()))
+        info["fit"]["tank_poses"] = tank_terms[1].tolist()
+        info["fit"]["tank_size_m"] = list(tank_terms[0].size_m)
     if sensor is not None:
         info["sensor"] = sensor.name
     model = PolySphericalModel(model.radii_m, model.centres_m, emitter, gamma, reference.to_json_dict(),

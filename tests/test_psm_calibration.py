@@ -86,3 +86,18 @@ def test_cli_calibrate_paper_table_and_reference_file(tmp_path):
     assert json.loads(out2.read_text())["radii_m"] == pytest.approx(d["radii_m"], rel=1e-8)
     res = CliRunner().invoke(cmd, ["--reference", str(ref), "-o", str(out2)])
     assert res.exit_code != 0 and "symmetric" in res.output
+
+
+def test_tank_reference_places_the_spheres_from_the_wall_effect():
+    from meshes.tank import Tank
+
+    truth = PolySphericalModel.collinear([0.0072, 0.0072], [0.19])
+    tank = Tank((1.0, 1.0, 1.0))
+    poses = np.array([[-0.33, 0.0, 0.0, 0.0], [0.33, 0.0, 0.0, 0.0]])
+    free = conductance(truth, np.zeros((1, 4)), SIGMA)[0]
+    in_tank = conductance(truth, poses, SIGMA, tank, image_shells=4)
+    with pytest.raises(CalibrationError, match="2 parameters"):
+        calibrate(free, symmetric=True)  # free space alone cannot tell the length
+    cal = calibrate(free, symmetric=True, tank_reference=(tank, poses, in_tank))
+    np.testing.assert_allclose(cal.parameters, [0.0072, 0.19], rtol=1e-6)
+    assert cal.model.info["fit"]["gamma_tank"] < 1e-8
