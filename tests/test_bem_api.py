@@ -1,0 +1,117 @@
+"""The public API: conductance_matrix, surface solutions and fields, PoseSweep, the command."""
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+from bem import ConductanceMatrix, PoseSweep, conductance_matrix, solve_scene
+from meshes import Pose, Scene, Tank, preset
+
+H = 0.008  # coarse sensor meshes keep these tests fast
+
+
+@pytest.fixture(scope="module")
+def free_solution():
+    return solve_scene(Scene(preset("angels-2")), 1.0, edge_length_m=H)
+
+
+def test_conductance_matrix_invariants(free_solution):
+    g = free_solution.conductance
+    assert isinstance(g, ConductanceMatrix) and g.K_S.shape == (2, 2)
+    assert g.info["triangles"] > 0 and g.info["seconds"] > 0
+    assert g.asymmetry < 1e-3 and g.row_sum_residue < 1e-12
+    assert g.S_S[0, 0] > 0
+    assert g.K_S[0, 0] == pytest.approx(g.K_S[1, 1], rel=2e-3)   # head and tail are mirror images
+
+
+def test_conductance_is_proportional_to_sigma(free_solution):
+    g = conductance_matrix(Scene(preset("angels-2")), 0.0354, edge_length_m=H)
+    np.testing.assert_allclose(g.K_S, free_solution.K_S * 0.0354, rtol=1e-10)
+
+
+def test_potential_field(free_solution):
+    # emitter (2) at 1 V, receiver at 0 V, isolated: by symmetry the sensor floats to +-0.5 V
+    V = free_solution.isolated_potentials([0.0, 1.0])
+    np.testing.assert_allclose(V, [-0.5, 0.5], atol=2e-3)
+    u = free_solution.potential_at([[0.0, 0.05, 0.0], [0.0, 0.0, 0.3], [50.0, 0.0, 0.0]])
+    assert np.abs(u).max() < 2e-3                       # mid-plane and far away
+    # continuous up to the emitter's surface: 50 um beyond the tail tip, minus the ohmic drop J d / sigma
+    I = free_solution.electrode_currents_A([0.0, 1.0])[1]
+    drop = I / (2 * np.pi * 0.01**2) * 5e-5
+    near_tail = free_solution.potential_at([[-0.10005, 0.0, 0.0]])
+    assert 0.5 - 5 * drop < near_tail[0] < 0.5   # the tip collects a few times the mean current density
+    # the field points from the emitter (tail, -x) to the receiver (head, +x) on the mid-plane
+    J = free_solution.current_density_at([[0.0, 0.03, 0.0]])
+    assert J[0, 0] > 0 and abs(J[0, 1]) < 1e-3 * abs(J[0, 0])
+
+
+def test_surface_solution_as_vtk(free_solution):
+    poly = free_solution.to_pyvista()
+    n = free_solution.boundary.n_triangles
+    for name in ("potential_V", "current_density_A_per_m2", "electrode"):
+        assert poly.cell_data[name].shape == (n,)
+    on = poly.cell_data["electrode"] > 0
+    assert np.all(poly.cell_data["current_density_A_per_m2"][~on] == 0)
+    # the current density integrated over the emitter equals its current
+    areas = poly.compute_cell_sizes().cell_data["Area"]
+    J = poly.cell_data["current_density_A_per_m2"]
+    I_emitter = np.sum((areas * J)[poly.cell_data["electrode"] == 2])
+    assert I_emitter == pytest.approx(free_solution.electrode_currents_A([0.0, 1.0])[1], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def tank_sweep():
+    return PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), sigma_S_per_m=1.0, edge_length_m=H,
+                     tank_edge_length_m=0.03)
+
+
+def test_pose_sweep_matches_the_direct_solver(tank_sweep):
+    poses = np.array([[0.0, 0.0, 0.0, 0.0], [0.07, 0.03, -0.02, 0.4]])
+    g = tank_sweep.conductance(poses)
+    assert g.K_S.shape == (2, 2, 2)
+    for p, K in zip(poses, g.K_S):
+        direct = conductance_matrix(Scene(preset("angels-2"), Pose.from_array(p), Tank((0.4, 0.3, 0.3))), 1.0,
+                                    edge_length_m=H, tank_edge_length_m=0.03, tank_focus_m=tank_sweep.focus_m)
+        np.testing.assert_allclose(K, direct.K_S, rtol=1e-6)
+    assert g.row_sum_residue < 5e-3
+
+
+def test_pose_sweep_pickles(tank_sweep):
+    poses = np.array([[0.05, 0.0, 0.0, 0.0]])
+    clone = pickle.loads(pickle.dumps(tank_sweep))
+    np.testing.assert_allclose(clone.conductance(poses).K_S, tank_sweep.conductance(poses).K_S, rtol=1e-12)
+
+
+def test_unbounded_sweep_is_pose_independent(free_solution):
+    sweep = PoseSweep(preset("angels-2"), None, sigma_S_per_m=1.0, edge_length_m=H)
+    g = sweep.conductance(np.array([[0, 0, 0, 0], [1.0, -2.0, 0.3, 2.0]]))
+    np.testing.assert_allclose(g.K_S[0], free_solution.K_S, rtol=1e-12)
+    np.testing.assert_allclose(g.K_S[1], free_solution.K_S, rtol=1e-12)
+
+
+def test_conductance_command(tmp_path, free_solution):
+    from click.testing import CliRunner
+
+    from validation.cli import main
+
+    out = tmp_path / "g.json"
+    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--edge-length", str(H),
+                                       "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "R1 =" in result.output
+    d = json.loads(out.read_text())
+    for key in ("sigma_S_per_m", "emitter", "K_S", "S_S", "triangles", "seconds"):
+        assert key in d
+    np.testing.assert_allclose(d["K_S"], free_solution.K_S, rtol=1e-10)
+    assert ConductanceMatrix.from_json_dict(d).emitter == 2
+
+
+def test_conductance_command_refuses_a_sensor_out_of_the_tank():
+    from click.testing import CliRunner
+
+    from validation.cli import main
+
+    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--tank", "0.3,0.3,0.3",
+                                       "--pose", "0.1,0,0,0"])
+    assert result.exit_code != 0 and "sensor" in result.output

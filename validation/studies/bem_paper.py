@@ -1,0 +1,196 @@
+"""BEM against the paper: fit of the angels presets, the 1 m tank sweep, mesh convergence.
+
+1. ``angels-4``: the unknown dimensions (radius, cap extent, ring width, ring
+   centre; 20 cm length) are fitted by least squares so that the free-space
+   BEM ``S`` matches the paper's S_BEM table entry by entry.
+2. ``angels-2`` with the same body: its free-space conductance gives the
+   PSM equivalent radius ``a`` from ``S = 4 pi sigma / (2/a - 2/L)``, L = 20 cm
+   (paper: a ~ 0.71 cm).
+3. ``angels-2`` in the 1 m tank at 0.0354 S/m, wall to wall at y = 0: the
+   resistance U/I (paper: ~600 ohm mid-tank, rising towards the walls).
+4. Mesh convergence: the conductance at the default edge length against the
+   Richardson extrapolation of three meshes (h, h/1.5, h/2.25), mid-tank and
+   with the tip 1 cm from a wall.
+
+Run: ``python -m validation.studies.bem_paper [--fit] [--sweep] [--convergence]``
+(no flag: all three; ``--fit`` takes several minutes).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+#: the paper's free-space S_BEM of the 4-electrode sensor, in units of sigma x cm (gamma/100 x ...)
+PAPER_S_BEM_SIGMA_CM = np.array([[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [-2.2540, -2.6875, 7.6781]])
+PAPER_A2_RADIUS_M = 0.0071
+LENGTH_M = 0.20
+SIGMA_PAPER = 0.0354
+
+
+def angels(n: int, radius_m, cap_extent_m, ring_width_m, ring_centre_m):
+    """An angels-n sensor with the given dimensions (20 cm long)."""
+    from meshes.sensor import Electrode, SensorDescription
+
+    half = LENGTH_M / 2
+    electrodes = [Electrode("cap", half - cap_extent_m, half)]
+    if n == 4:
+        w, xc = ring_width_m, ring_centre_m
+        electrodes += [Electrode("ring", xc - w / 2, xc + w / 2), Electrode("ring", -xc - w / 2, -xc + w / 2)]
+    electrodes.append(Electrode("cap", -half, -half + cap_extent_m))
+    return SensorDescription(f"angels-{n}", radius_m, LENGTH_M, tuple(electrodes))
+
+
+def free_space_S_sigma_cm(sensor, edge_length_m=None) -> np.ndarray:
+    """Free-space S of a sensor in units of sigma x cm (sigma = 1 S/m, S in 1e-2 S)."""
+    from bem.solve import conductance_matrix
+    from meshes.scene import Scene
+
+    return conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m).S_S * 100.0
+
+
+def equivalent_radius_m(S_two_electrode: float, sigma=1.0, length_m=LENGTH_M) -> float:
+    """PSM radius a of two equal spheres L apart with the same conductance: S = 4 pi sigma / (2/a - 2/L)."""
+    return 2.0 / (4 * np.pi * sigma / S_two_electrode + 2.0 / length_m)
+
+
+def _entries(S):
+    iu = np.triu_indices(3)
+    return S[iu]
+
+
+def fit_angels4(x0=(0.010, 0.010, 0.010, 0.035), max_evaluations=40, verbose=True):
+    """Least-squares fit of (radius, cap extent, ring width, ring centre) to the paper's S_BEM."""
+    from scipy.optimize import least_squares
+
+    target = _entries(PAPER_S_BEM_SIGMA_CM)
+    history = []
+
+    def residual(p):
+        R, cap, w, xc = p
+        try:
+            S = free_space_S_sigma_cm(angels(4, R, cap, w, xc))
+        except ValueError:
+            return np.full(6, 1.0)
+        r = _entries(S) / target - 1
+        history.append((p.copy(), float(np.sqrt(np.mean(r**2)))))
+        if verbose:
+            print(f"  R={R*100:.4f} cap={cap*100:.4f} w={w*100:.4f} xc={xc*100:.4f} cm: "
+                  f"rms rel error {history[-1][1]*100:.3f} %", flush=True)
+        return r
+
+    lo = [0.004, 0.004, 0.002, 0.015]
+    hi = [0.016, 0.030, 0.030, 0.060]
+    result = least_squares(residual, np.array(x0), bounds=(lo, hi), x_scale=[0.001] * 4, diff_step=2e-2,
+                           max_nfev=max_evaluations)
+    return result.x, history
+
+
+def report_fit(p, edge_length_m=None):
+    R, cap, w, xc = p
+    S = free_space_S_sigma_cm(angels(4, R, cap, w, xc), edge_length_m)
+    print("angels-4 free-space S (sigma x cm): ours | paper | relative error")
+    for i in range(3):
+        for j in range(i, 3):
+            ours, ref = S[i, j], PAPER_S_BEM_SIGMA_CM[i, j]
+            print(f"  S[{i + 1},{j + 1}] {ours:9.4f} | {ref:9.4f} | {100 * (ours / ref - 1):+7.3f} %")
+    errors = S / PAPER_S_BEM_SIGMA_CM - 1
+    print(f"  mean |relative error| {100 * np.mean(np.abs(errors)):.3f} %, max {100 * np.max(np.abs(errors)):.3f} %")
+    S2 = free_space_S_sigma_cm(angels(2, R, cap, w, xc), edge_length_m)[0, 0]
+    a = equivalent_radius_m(S2 / 100.0)
+    print(f"angels-2 free-space S = {S2:.4f} sigma cm -> PSM equivalent radius a = {a * 100:.4f} cm (paper: 0.71 cm)")
+    return S, a
+
+
+def tank_sweep(sensor, n_poses=17, sigma=SIGMA_PAPER, edge_length_m=None):
+    """Resistance U/I wall to wall at y = 0 in the paper's 1 m tank."""
+    from bem.sweep import PoseSweep
+    from meshes.tank import Tank
+
+    tank = Tank((1.0, 1.0, 1.0))
+    half = tank.size_m[0] / 2 - sensor.length_m / 2 - 0.02
+    x = np.linspace(-half, half, n_poses)
+    poses = np.column_stack([x, np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)])
+    t0 = time.perf_counter()
+    sweep = PoseSweep(sensor, tank, sigma_S_per_m=sigma, edge_length_m=edge_length_m)
+    g = sweep.conductance(poses, progress=False)
+    seconds = time.perf_counter() - t0
+    print(f"{sensor.name} in the 1 m tank, sigma {sigma} S/m, y = 0 (tip 2 cm from the walls at the ends):")
+    R = np.atleast_2d(g.resistance_ohm)
+    for xi, r, it in zip(x, R, g.info["iterations"]):
+        print(f"  x = {xi:+.3f} m: " + "  ".join(f"R{k} = {v:7.2f} ohm" for k, v in zip(g.receivers, r))
+              + f"   ({it} GMRES blocks)")
+    print(f"  {len(x)} poses in {seconds:.1f} s (sensor block {sweep.timings['sensor_block_s']:.1f} s, "
+          f"tank block {sweep.timings.get('tank_block_s', 0):.1f} s); paper: ~600 ohm mid-tank, rising to the walls")
+    return x, R
+
+
+def richardson(values, ratio):
+    """Extrapolated limit and observed order from three values at h, h/ratio, h/ratio^2."""
+    v0, v1, v2 = values
+    d1, d2 = v1 - v0, v2 - v1
+    if d1 == 0 or d2 == 0 or np.sign(d1) != np.sign(d2):
+        return v2, np.nan
+    p = np.log(abs(d1 / d2)) / np.log(ratio)
+    limit = v2 + d2 / (ratio**p - 1)
+    return limit, p
+
+
+def convergence(sensor, sigma=SIGMA_PAPER, ratio=1.5):
+    """Default-mesh conductance against the Richardson limit, mid-tank and tip 1 cm from a wall."""
+    from bem.solve import conductance_matrix
+    from meshes.pose import Pose
+    from meshes.scene import Scene
+    from meshes.sensor_mesh import default_edge_length_m
+    from meshes.tank import Tank
+
+    tank = Tank((1.0, 1.0, 1.0))
+    h0 = default_edge_length_m(sensor)
+    near_x = tank.size_m[0] / 2 - sensor.length_m / 2 - 0.01
+    for label, scene in (("free space", Scene(sensor)),
+                         ("mid-tank", Scene(sensor, Pose(0, 0, 0, 0), tank)),
+                         ("tip 1 cm from a wall", Scene(sensor, Pose(near_x, 0, 0, 0), tank))):
+        values, seconds = [], []
+        for k in range(3):
+            h = h0 / ratio**k
+            t0 = time.perf_counter()
+            g = conductance_matrix(scene, sigma, edge_length_m=h, tank_edge_length_m=0.02 / ratio**k)
+            seconds.append(time.perf_counter() - t0)
+            values.append(g.receiver_currents_A(1.0)[0])
+        limit, p = richardson(values, ratio)
+        err = values[0] / limit - 1
+        print(f"{sensor.name} {label}: I1/U at h = {h0*1e3:.2f}, {h0/ratio*1e3:.2f}, {h0/ratio**2*1e3:.2f} mm: "
+              + ", ".join(f"{v:.6e}" for v in values)
+              + f" S; Richardson limit {limit:.6e} (order {p:.2f}); default mesh off by {100 * err:+.3f} % "
+              f"(target 0.3 %); {', '.join(f'{s:.1f}' for s in seconds)} s")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog="bem_paper", description=__doc__.splitlines()[0])
+    parser.add_argument("--fit", action="store_true", help="fit the angels-4 dimensions (minutes)")
+    parser.add_argument("--sweep", action="store_true", help="angels-2 wall-to-wall sweep in the 1 m tank")
+    parser.add_argument("--convergence", action="store_true", help="Richardson mesh convergence")
+    parser.add_argument("--poses", type=int, default=17, help="poses of the sweep")
+    args = parser.parse_args(argv)
+    everything = not (args.fit or args.sweep or args.convergence)
+    from meshes.sensor import _ANGELS_DIMENSIONS, preset
+
+    if args.fit or everything:
+        d = _ANGELS_DIMENSIONS
+        x0 = (d["radius_m"], d["cap_extent_m"], d["ring_width_m"], d["ring_centre_m"])
+        p, history = fit_angels4(x0)
+        print("fitted: radius %.4f cm, cap extent %.4f cm, ring width %.4f cm, ring centre +-%.4f cm"
+              % tuple(100 * np.asarray(p)))
+        report_fit(p)
+    else:
+        d = _ANGELS_DIMENSIONS
+        report_fit((d["radius_m"], d["cap_extent_m"], d["ring_width_m"], d["ring_centre_m"]))
+    if args.sweep or everything:
+        tank_sweep(preset("angels-2"), args.poses)
+    if args.convergence or everything:
+        convergence(preset("angels-2"))
+
+
+if __name__ == "__main__":
+    main()
