@@ -145,6 +145,8 @@ def conductance_array(model, poses, sigma_S_per_m, tank=None, images="complete",
     series = _series_ohm(model, contact_impedance_ohm_m2, sensor)
     kind = "none" if tank is None else images
     info = {"model": "psm", "images": kind, "objects": len(obj_coef)}
+    if X.shape[0] == 0:
+        return np.zeros((0, model.n, model.n), dtype=X.dtype), info
     if kind != "complete":
         K = _kernel_call(model, X, sigma, image_sources(tank, kind), obj_centres, obj_coef, series)
         return K, info

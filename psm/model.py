@@ -24,7 +24,7 @@ class ModelError(ValueError):
     """An impossible poly-spherical model (overlapping spheres, bad radii...)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class PolySphericalModel:
     """n spheres (radii, centres in the sensor frame) with an emitter.
 
@@ -86,6 +86,18 @@ class PolySphericalModel:
             if A.size != n or not np.all(A > 0):
                 raise ModelError(f"electrode_areas_m2 must be {n} positive areas, got {A.tolist()}")
             object.__setattr__(self, "electrode_areas_m2", A)
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, PolySphericalModel):
+            return NotImplemented
+        areas = (self.electrode_areas_m2 is None and other.electrode_areas_m2 is None) or (
+            self.electrode_areas_m2 is not None and other.electrode_areas_m2 is not None
+            and np.array_equal(self.electrode_areas_m2, other.electrode_areas_m2))
+        return (np.array_equal(self.radii_m, other.radii_m) and np.array_equal(self.centres_m, other.centres_m)
+                and self.emitter == other.emitter and self.gamma_criterion == other.gamma_criterion
+                and self.reference == other.reference and areas)
+
+    __hash__ = None
 
     # ----------------------------------------------------------------- derived
     @property

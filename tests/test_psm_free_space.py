@@ -75,6 +75,15 @@ def test_model_json_round_trip(tmp_path):
     np.testing.assert_array_equal(back.electrode_areas_m2, m.electrode_areas_m2)
     assert (back.emitter, back.gamma_criterion, back.reference) == (4, 1e-4, {"S_S": [[1.0]]})
     assert back.centres_m[0, 0] > 0  # electrode 1 at the head, +x
+    assert back == m and back != PolySphericalModel.collinear([0.0072] * 4, [0.0785, 0.0769, 0.0785])
+
+
+def test_an_empty_trajectory_gives_an_empty_batch():
+    m = PolySphericalModel.collinear([0.007, 0.007], [0.2])
+    from meshes.tank import Tank
+
+    C = conductance(m, np.zeros((0, 4)), SIGMA, Tank((1.0, 1.0, 1.0)))
+    assert C.K_S.shape == (0, 2, 2)
 
 
 def test_sphere_centres_follow_the_pose_convention_of_meshes():
