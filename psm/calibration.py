@@ -232,6 +232,11 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
         a fit whose spheres overlap.
     """
     S_ref = _check_reference(reference, symmetry_tolerance)
+    if reference.info.get("unbounded") is False or reference.info.get("tank_size_m") is not None:
+        raise CalibrationError(
+            f"the reference was computed in a tank ({reference.info.get('tank_size_m')} m): calibrate on the sensor "
+            "in unbounded water (esense conductance --unbounded); tank poses go in tank_reference"
+        )
     n, emitter, sigma = reference.n, reference.emitter, float(reference.sigma_S_per_m)
     if fix_length_m is not None and not fix_length_m > 0:
         raise CalibrationError(f"fix_length_m must be positive, got {fix_length_m}")
@@ -246,7 +251,7 @@ def calibrate(reference: ConductanceMatrix, symmetric: bool = False, fix_length_
         raise CalibrationError(
             f"the reference has {n_data} distinct conductance(s) but the {'symmetric' if symmetric else 'free'} "
             f"layout of {n} spheres has {layout.n_free} parameters ({', '.join(layout.names)}); "
-            "use symmetric=True and/or fix_length_m"
+            "use symmetric=True and/or fix_length_m (esense calibrate --symmetric / --fix-length)"
         )
     iu = np.triu_indices(m)
     weight = np.where(iu[0] == iu[1], 1.0, np.sqrt(2.0))

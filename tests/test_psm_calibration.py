@@ -85,7 +85,11 @@ def test_cli_calibrate_paper_table_and_reference_file(tmp_path):
     assert res.exit_code == 0, res.output
     assert json.loads(out2.read_text())["radii_m"] == pytest.approx(d["radii_m"], rel=1e-8)
     res = CliRunner().invoke(cmd, ["--reference", str(ref), "-o", str(out2)])
-    assert res.exit_code != 0 and "symmetric" in res.output
+    assert res.exit_code != 0 and "--symmetric" in res.output
+    d_tank = dict(paper_reference().to_json_dict(), unbounded=False, tank_size_m=[1.0, 1.0, 1.0])
+    ref.write_text(json.dumps(d_tank))
+    res = CliRunner().invoke(cmd, ["--reference", str(ref), "--symmetric", "-o", str(out2)])
+    assert res.exit_code != 0 and "unbounded water" in res.output
 
 
 def test_tank_reference_places_the_spheres_from_the_wall_effect():

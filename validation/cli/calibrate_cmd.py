@@ -28,7 +28,7 @@ def calibrate(reference_path, paper_table, output, symmetric, fix_length_m, sens
     import json
 
     from bem.conductance import ConductanceMatrix
-    from meshes.sensor import load_sensor
+    from meshes.sensor import SensorDescription, load_sensor
     from psm.calibration import CalibrationError
     from psm.calibration import calibrate as fit
     from psm.paper import SIGMA_MEASURED_S_PER_M, paper_reference
@@ -43,14 +43,20 @@ def calibrate(reference_path, paper_table, output, symmetric, fix_length_m, sens
                 ref = ConductanceMatrix.from_json_dict(json.load(fh))
         except (ValueError, OSError) as exc:
             raise click.ClickException(f"{reference_path}: {exc}") from None
-    sensor_spec = sensor or (ref.info.get("sensor") if isinstance(ref.info.get("sensor"), str) else None)
     sensor_desc = None
-    if sensor_spec:
+    if sensor:
         try:
-            sensor_desc = load_sensor(sensor_spec)
+            sensor_desc = load_sensor(sensor)
         except ValueError as exc:
-            if sensor:
-                raise click.BadParameter(str(exc), param_hint="--sensor") from None
+            raise click.BadParameter(str(exc), param_hint="--sensor") from None
+    else:  # the reference's own sensor: a preset name or a full description
+        own = ref.info.get("sensor")
+        try:
+            sensor_desc = load_sensor(own) if isinstance(own, str) else SensorDescription.from_dict(own) if isinstance(own, dict) else None
+        except ValueError:
+            sensor_desc = None
+        if sensor_desc is not None and sensor_desc.n_electrodes != ref.n:
+            sensor_desc = None
     try:
         cal = fit(ref, symmetric=symmetric, fix_length_m=fix_length_m, sensor=sensor_desc)
     except CalibrationError as exc:
