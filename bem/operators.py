@@ -10,9 +10,11 @@ P0), with the Laplace kernel ``G(x, y) = 1 / (4 pi |x - y|)``:
   When ``x_i`` is the centroid of its own triangle ``own[i] = j`` the
   principal value is 0.
 
-Integration: the double layer is always the exact solid angle (which makes
-the rows of ``1/2 I + D`` on a closed surface sum exactly to 0 or 1, the
-discrete statement of current conservation); the single layer is exact
+Integration: the double layer is the exact solid angle (which makes the
+rows of ``1/2 I + D`` on a closed surface sum exactly to 0 or 1, the
+discrete statement of current conservation), except beyond ``far``
+diameters in :func:`mixed_system` where the centroid rule costs a third as
+much (pass ``far=np.inf`` for exact row sums); the single layer is exact
 (Wilton 1984) for a point within ``near`` triangle diameters of the centroid,
 a 7-point degree-5 rule within ``mid`` diameters, the centroid rule beyond.
 
@@ -46,6 +48,10 @@ NEAR = 2.5
 #: distance (in triangle diameters) below which the 7-point rule is used
 MID = 6.0
 
+#: distance (in triangle diameters) beyond which the double layer uses the centroid rule in
+#: :func:`mixed_system` (``np.inf``: always the exact solid angle)
+FAR = 8.0
+
 FOUR_PI = 4.0 * math.pi
 
 
@@ -58,6 +64,8 @@ class TriangleSet:
         self.centroids = tri.mean(axis=1)
         self.areas = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         self.diameters = np.linalg.norm(tri[:, [1, 2, 0]] - tri, axis=2).max(axis=1)
+        cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        self.normals = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
         points, weights = rule_points(tri, DUNAVANT_5)
         self.rule_points = np.ascontiguousarray(points)
         self.rule_weights = np.ascontiguousarray(weights)
@@ -67,17 +75,19 @@ class TriangleSet:
 
 
 @njit(cache=True, inline="always")
-def _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, qp, qw, near2, mid2):
+def _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2):
     """(single layer, double layer) of triangle j at x."""
     t = tri[j]
-    if is_own:
-        dl = 0.0
-    else:
-        dl = -solid_angle(x0, x1, x2, t[0, 0], t[0, 1], t[0, 2], t[1, 0], t[1, 1], t[1, 2],
-                          t[2, 0], t[2, 1], t[2, 2]) / FOUR_PI
     d0, d1, d2 = x0 - cen[j, 0], x1 - cen[j, 1], x2 - cen[j, 2]
     r2 = d0 * d0 + d1 * d1 + d2 * d2
     h2 = diam[j] * diam[j]
+    if is_own:
+        dl = 0.0
+    elif r2 > far2 * h2:
+        dl = area[j] * (nrm[j, 0] * d0 + nrm[j, 1] * d1 + nrm[j, 2] * d2) / (FOUR_PI * r2 * math.sqrt(r2))
+    else:
+        dl = -solid_angle(x0, x1, x2, t[0, 0], t[0, 1], t[0, 2], t[1, 0], t[1, 1], t[1, 2],
+                          t[2, 0], t[2, 1], t[2, 2]) / FOUR_PI
     if r2 < near2 * h2:
         sl = inverse_distance_integral(x0, x1, x2, t[0, 0], t[0, 1], t[0, 2], t[1, 0], t[1, 1], t[1, 2],
                                        t[2, 0], t[2, 1], t[2, 2]) / FOUR_PI
@@ -93,24 +103,24 @@ def _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, qp, qw, near2, mid2):
 
 
 @njit(parallel=True, cache=True)
-def _layers_kernel(points, own, tri, cen, area, diam, qp, qw, near2, mid2, S, D):
+def _layers_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, S, D):
     n, m = points.shape[0], tri.shape[0]
     for i in prange(n):
         x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
         for j in range(m):
-            sl, dl = _pair(x0, x1, x2, j, own[i] == j, tri, cen, area, diam, qp, qw, near2, mid2)
+            sl, dl = _pair(x0, x1, x2, j, own[i] == j, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2)
             S[i, j] = sl
             D[i, j] = dl
 
 
 @njit(parallel=True, cache=True)
-def _mixed_kernel(points, own, tri, cen, area, diam, qp, qw, near2, mid2, c_single, c_double, group, A, B):
+def _mixed_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double, group, A, B):
     n, m = points.shape[0], tri.shape[0]
     for i in prange(n):
         x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
         for j in range(m):
             is_own = own[i] == j
-            sl, dl = _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, qp, qw, near2, mid2)
+            sl, dl = _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2)
             h = dl + 0.5 if is_own else dl
             A[i, j] = c_single[j] * sl + c_double[j] * h
             g = group[j]
@@ -127,7 +137,7 @@ def _prepare(points, triangles, own):
     return pts, tris, own
 
 
-def layer_matrices(points_m, triangles, own=None, near=NEAR, mid=MID) -> tuple[np.ndarray, np.ndarray]:
+def layer_matrices(points_m, triangles, own=None, near=NEAR, mid=MID, far=np.inf) -> tuple[np.ndarray, np.ndarray]:
     """Single- and double-layer matrices (P, T) at points (P, 3) for triangles (T, 3, 3) or a TriangleSet.
 
     ``own[i]`` is the triangle whose centroid point ``i`` is (-1: none).
@@ -135,8 +145,8 @@ def layer_matrices(points_m, triangles, own=None, near=NEAR, mid=MID) -> tuple[n
     pts, t, own = _prepare(points_m, triangles, own)
     S = np.empty((len(pts), len(t)))
     D = np.empty((len(pts), len(t)))
-    _layers_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.rule_points, t.rule_weights,
-                   near * near, mid * mid, S, D)
+    _layers_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
+                   t.rule_weights, near * near, mid * mid, far * far, S, D)
     return S, D
 
 
@@ -150,7 +160,8 @@ def double_layer(points_m, triangles, own=None) -> np.ndarray:
     return layer_matrices(points_m, triangles, own)[1]
 
 
-def mixed_system(points_m, triangles, own, c_single, c_double, group, n_groups, out=None, near=NEAR, mid=MID):
+def mixed_system(points_m, triangles, own, c_single, c_double, group, n_groups, out=None, near=NEAR, mid=MID,
+                 far=FAR):
     """Fused assembly of a mixed boundary-value system without storing S and D.
 
     Returns ``A`` (P, T) with ``A[i, j] = c_single[j] S[i, j] + c_double[j] H[i, j]``,
@@ -161,7 +172,7 @@ def mixed_system(points_m, triangles, own, c_single, c_double, group, n_groups, 
     pts, t, own = _prepare(points_m, triangles, own)
     A = np.empty((len(pts), len(t))) if out is None else out
     B = np.zeros((len(pts), max(int(n_groups), 1)))
-    _mixed_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.rule_points, t.rule_weights,
-                  near * near, mid * mid, np.ascontiguousarray(c_single, dtype=float),
+    _mixed_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
+                  t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
                   np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64), A, B)
     return A, B[:, : int(n_groups)]

@@ -59,6 +59,39 @@ def factorise(matrix: np.ndarray, what: str = "BEM system"):
     return lu, piv, float(rcond)
 
 
+def solve_dense(matrix: np.ndarray, rhs: np.ndarray, what: str = "BEM system", precision: str = "mixed",
+                refinement_tol: float = 1e-12, max_refinements: int = 6):
+    """Solve ``matrix @ X = rhs``; returns ``(X, rcond, refinements)``.
+
+    ``precision="mixed"``: LU in float32 (half the memory traffic and twice
+    the speed of float64), then iterative refinement with float64 residuals
+    until the relative residual is below ``refinement_tol`` (the answer has
+    float64 accuracy for any reasonably conditioned BEM system).
+    ``"double"``: LU in float64, factorising ``matrix`` in place.
+    """
+    if precision == "double":
+        lu, piv, rcond = factorise(matrix, what)
+        return scipy.linalg.lu_solve((lu, piv), rhs, check_finite=False), rcond, 0
+    if precision != "mixed":
+        raise ValueError(f"precision must be 'mixed' or 'double', got {precision!r}")
+    lu, piv, rcond = factorise(matrix.astype(np.float32), what)
+    if rcond < 1e-6:  # too ill-conditioned for a float32 factorisation to converge quickly
+        X, rcond, _ = solve_dense(matrix, rhs, what, "double")
+        return X, rcond, 0
+    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(np.float32), check_finite=False).astype(float)
+    norm_rhs = np.linalg.norm(rhs)
+    for k in range(1, max_refinements + 1):
+        R = rhs - matrix @ X
+        if np.linalg.norm(R) <= refinement_tol * norm_rhs:
+            return X, rcond, k - 1
+        X += scipy.linalg.lu_solve((lu, piv), R.astype(np.float32), check_finite=False)
+    R = rhs - matrix @ X
+    if np.linalg.norm(R) > 1e3 * refinement_tol * norm_rhs:
+        raise SingularSystemError(f"the {what} did not converge under iterative refinement "
+                                  f"(residual {np.linalg.norm(R) / norm_rhs:.1e}); it is close to singular")
+    return X, rcond, max_refinements
+
+
 @dataclass
 class BemSolution:
     """Unit solutions of a boundary (one per electrode), and what follows from them.
@@ -170,8 +203,9 @@ class BemSolution:
 
 
 def solve(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
-          emitter: int | None = None) -> BemSolution:
-    """Assemble, factorise and solve the BEM on ``boundary`` for every electrode at 1 V in turn."""
+          emitter: int | None = None, precision: str = "mixed") -> BemSolution:
+    """Assemble, factorise and solve the BEM on ``boundary`` for every electrode at 1 V in turn
+    (``precision``: see :func:`solve_dense`)."""
     t0 = time.perf_counter()
     n = boundary.n_electrodes
     emitter = n if emitter is None else int(emitter)
@@ -179,12 +213,10 @@ def solve(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m
         raise BoundaryError(f"emitter {emitter} is not an electrode (1..{n})")
     system = assemble_system(boundary, sigma_S_per_m, contact_impedance_ohm_m2)
     t1 = time.perf_counter()
-    rhs = system.rhs
-    lu, piv, rcond = factorise(system.matrix)
-    sol = scipy.linalg.lu_solve((lu, piv), rhs, check_finite=False)
+    sol, rcond, refinements = solve_dense(system.matrix, system.rhs, precision=precision)
     t2 = time.perf_counter()
     return _finish(boundary, sigma_S_per_m, system, sol, emitter,
-                   {"assembly_s": t1 - t0, "solve_s": t2 - t1, "rcond": rcond})
+                   {"assembly_s": t1 - t0, "solve_s": t2 - t1, "rcond": rcond, "refinements": refinements})
 
 
 def _finish(boundary, sigma, system: BemSystem, sol, emitter, timing) -> BemSolution:

@@ -189,7 +189,7 @@ class PoseSweep:
         check_memory(Ne + Ns, 1.3, what="the tank and sensor blocks")
         ng = self.n + self.n_conductors
         A, B = mixed_system(self.env_tris.centroids, self.env_tris, np.arange(Ne), self._cs_e, self._cd_e,
-                            self._grp_e, ng)
+                            self._grp_e, ng, far=np.inf)  # exact solid angles: A_ee z = 0 exactly
         nc = self.n_conductors
         if nc:
             M = np.zeros((Ne + nc, Ne + nc))
