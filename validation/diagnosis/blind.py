@@ -35,7 +35,7 @@ from meshes.tank import Tank
 from .forward import receiver_currents
 from .observations import Observations
 
-__all__ = ["BlindSetup", "blind_poses", "GEOMETRIC_TRUTH", "world_scene", "world_currents", "assemble",
+__all__ = ["BlindSetup", "blind_poses", "GEOMETRIC_TRUTH", "world_scene", "world_currents", "assemble", "write_log",
            "CURRENT_NOISE", "POSITION_NOISE_M"]
 
 CURRENT_NOISE = 5e-4  # relative, 1 sigma (the paper's 0.05 %)
@@ -137,3 +137,17 @@ def assemble(
         temp = 20.0 + drift_per_hour * (t_s - t_s.mean()) / 3600.0 / alpha_per_K + 0.01 * rng.standard_normal(len(t_s))
     return Observations(logged, I, setup.sensor, setup.tank, setup.sigma_S_per_m, U_V=np.full(len(poses), U_V),
                         t_s=t_s, passes=passes, temperature_C=temp, meta=meta, source="blind")
+
+
+def write_log(obs: Observations, path, overwrite: bool = True):
+    """Write blind observations as a bench log (format version 1), passes and temperature included."""
+    from validation.benchlog import write_bench_log
+
+    data = {"t_s": obs.t_s, "x_m": obs.poses[:, 0], "y_m": obs.poses[:, 1], "z_m": obs.poses[:, 2],
+            "yaw_rad": obs.poses[:, 3], "U_V": obs.U_V}
+    for j, k in enumerate(obs.sensor.receivers):
+        data[f"I{k}_A"] = obs.currents_A[:, j]
+    if obs.temperature_C is not None:
+        data["temp_C"] = obs.temperature_C
+    data["pass"] = obs.passes
+    return write_bench_log(path, dict(obs.meta), data, overwrite=overwrite)

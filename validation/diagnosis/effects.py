@@ -36,6 +36,7 @@ Example
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -114,6 +115,7 @@ class Problem:
         else:
             self.T_ref_C = None
         self.areas_m2 = electrode_areas_m2(obs.sensor)
+        self._memo = {}
         self.I_base = receiver_currents(self.K_base, obs.emitter) * obs.U_V[:, None]
         if np.any(np.abs(self.I_base) == 0):
             raise ValueError("the baseline simulation gives a zero receiver current: cannot form relative residuals")
@@ -130,12 +132,25 @@ class Problem:
         """Receiver currents (p, m) of ``scenario`` for the samples ``idx``."""
         K = self.K_base[idx]
         if scenario.geometry_changed:
-            K = K + (self.effect_model(scenario.poses, scenario.tank, scenario.objects) - self.K_effect0[idx])
+            K = K + (self._effect_K(scenario) - self.K_effect0[idx])
         K = K * scenario.sigma_scale[:, None, None]
         if scenario.contact_ohm_m2 is not None:
             K = series_contact(K, np.asarray(scenario.contact_ohm_m2) / self.areas_m2)
         I = receiver_currents(K, self.obs.emitter) * self.obs.U_V[idx, None]
         return I * scenario.gain[None, :]
+
+    def _effect_K(self, scenario: Scenario) -> np.ndarray:
+        """The effect model's K for a changed scene, memoised (finite differences along the other,
+        non-geometric parameters ask for the same scene again)."""
+        key = (hashlib.sha1(np.ascontiguousarray(scenario.poses).tobytes()).hexdigest(), scenario.tank,
+               tuple(scenario.objects))
+        K = self._memo.get(key)
+        if K is None:
+            K = self.effect_model(scenario.poses, scenario.tank, scenario.objects)
+            if len(self._memo) >= 256:
+                self._memo.pop(next(iter(self._memo)))
+            self._memo[key] = K
+        return K
 
     def relative_residual(self, I_pred: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """(bench - prediction) / |baseline| for the samples ``idx``: (p, m)."""

@@ -239,8 +239,9 @@ def cross_validate(problem: Problem, effects, folds, full: FitResult | None = No
     """Pooled held-out residual (P, m): each fold predicted after a refit on the other samples.
 
     The refit is the Gauss-Newton step from the full-data optimum ``full``
-    (its Jacobian, rows of the training samples), within the bounds; the
-    held-out residual is then evaluated exactly. Returns ``(residual, thetas)``.
+    (its Jacobian, rows of the training samples), within the bounds, halved
+    until it does not worsen the training fit; the held-out residual is then
+    evaluated exactly. Returns ``(residual, thetas)``.
     """
     effects = tuple(effects)
     P, m = problem.obs.n_poses, problem.obs.n_receivers
@@ -263,7 +264,16 @@ def cross_validate(problem: Problem, effects, folds, full: FitResult | None = No
         train = np.setdiff1d(everything, held)
         Jt = J[train].reshape(-1, k)
         ft = f_full[train].ravel()
-        du = _bounded_step(Jt, ft, lower, upper, u_full, 1e-9 * float(np.mean(np.sum(Jt**2, axis=0))) + 1e-30)
+        cost0 = float(ft @ ft)
+        du = _bounded_step(Jt, ft, lower, upper, u_full, 1e-6 * float(np.mean(np.sum(Jt**2, axis=0))) + 1e-30)
+        # backtrack: the step must not make the training fit worse (nonlinear effects, refused scenes)
+        for _ in range(6):
+            rt = _residual(problem, effects, (u_full + du) * scales, train)
+            if float(rt @ rt) <= cost0:
+                break
+            du = du / 2
+        else:
+            du = np.zeros(k)
         theta = (u_full + du) * scales
         thetas.append(theta)
         out[held] = _residual(problem, effects, theta, held).reshape(len(held), m)

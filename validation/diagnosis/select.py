@@ -11,19 +11,25 @@ the data::
 time (at most three), taking the effect that lowers the score most; it stops
 when
 
-* the held-out gap is already within the noise (RMS <= ``at_noise`` x s), or
+* the gap before any effect is within the noise (RMS <= ``start_noise`` x s), or
 * no effect lowers the score, or
 * the best one removes less than ``min_gain`` of the remaining excess
-  (held-out mean square above s^2): what is left is not worth a cause.
+  (held-out mean square above s^2): what is left is not worth a cause, or
+* after an effect, the held-out gap is within the noise (RMS <= ``at_noise`` x s).
 
-``none`` is answered when the gap before any effect is within the noise:
-nothing is invented. When the gap is above the noise and no candidate removes
-it, nothing is chosen and the verdict says "unexplained".
+After two or more effects, each is offered a replacement by a simpler or
+equally simple candidate (a gain per receiver may have soaked up part of
+another effect's signature before that effect was in).
+
+``none`` is answered when no effect is accepted and the gap is within the
+noise (RMS <= ``none_ceiling`` x s): nothing is invented. When the gap is
+above the noise and no candidate removes it, nothing is chosen and the
+verdict says "unexplained".
 
 Example
 -------
->>> SelectionRules().at_noise
-1.25
+>>> SelectionRules().none_ceiling
+1.5
 """
 from __future__ import annotations
 
@@ -32,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effects import Effect, Problem
-from .fitting import FitResult, cross_validate, fit, object_starts, subspace_angle_deg
+from .fitting import FitResult, cross_validate, fit, object_starts, predict, subspace_angle_deg
 
 __all__ = ["SelectionRules", "CandidateScore", "Selection", "score_candidate", "rank_candidates", "forward_selection",
            "confusable_pairs"]
@@ -42,7 +48,9 @@ __all__ = ["SelectionRules", "CandidateScore", "Selection", "score_candidate", "
 class SelectionRules:
     """Thresholds of the selection, in units of the estimated noise."""
 
-    at_noise: float = 1.25  # held-out RMS <= at_noise * s: the gap is noise
+    start_noise: float = 1.2  # before any effect: held-out RMS <= start_noise * s is noise, nothing is tried
+    at_noise: float = 1.1  # after an effect: held-out RMS <= at_noise * s, nothing more to explain
+    none_ceiling: float = 1.5  # nothing accepted and gap <= none_ceiling * s: the gap is noise
     min_gain: float = 0.10  # an added effect must remove >= this share of the excess mean square
     max_effects: int = 3
     confusable_deg: float = 15.0  # sensitivity subspaces closer than this: cannot be told apart
@@ -101,6 +109,17 @@ def _starts(problem: Problem, effect: Effect, r0: np.ndarray):
     return [None]
 
 
+def _combo_starts(problem: Problem, current: CandidateScore, single: CandidateScore) -> list:
+    """Starts for the new effect's parameters in a combination: its own fit, and for the object a fresh
+    scan of what the current combination leaves unexplained."""
+    starts = [single.fit.theta]
+    if single.effects[0].name == "unmodelled_object":
+        everything = np.arange(problem.obs.n_poses)
+        r = problem.relative_residual(predict(problem, current.effects, current.fit.theta, everything), everything)
+        starts += object_starts(problem, everything, r, n_best=2)
+    return starts
+
+
 def score_candidate(problem: Problem, forms, folds, noise: float, r0: np.ndarray, region_mask=None) -> CandidateScore:
     """The best form of one candidate (lowest penalised held-out score)."""
     best = None
@@ -137,10 +156,10 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
     in_current = lambda c: [e.name for e in c.effects if e.name != "none"]  # noqa: E731
     path: list[CandidateScore] = []
     steps = []
-    if current.heldout_gap <= rules.at_noise * noise:
+    if baseline.heldout_gap <= rules.start_noise * noise:
         return Selection([], "none", [{"stop": "the gap before any effect is within the noise"}])
     while len(path) < rules.max_effects:
-        if current.heldout_gap <= rules.at_noise * noise:
+        if path and current.heldout_gap <= rules.at_noise * noise:
             steps.append({"stop": "the held-out gap is within the noise"})
             break
         tried = []
@@ -151,8 +170,8 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
                 tried.append(single)
                 continue
             effects = list(current.effects) + [single.effects[0]]
-            theta0 = np.concatenate([current.fit.theta, single.fit.theta])
-            tried.append(_evaluate(problem, effects, folds, noise, [theta0], region_mask))
+            starts = [np.concatenate([current.fit.theta, s]) for s in _combo_starts(problem, current, single)]
+            tried.append(_evaluate(problem, effects, folds, noise, starts, region_mask))
         if not tried:
             break
         best = min(tried, key=lambda c: c.score)
@@ -170,10 +189,51 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         steps.append(step)
         path.append(best)
         current = best
-    verdict = "explained" if path else "unexplained"
-    if path and path[-1].heldout_gap > 2 * rules.at_noise * noise:
+    if len(path) >= 2:
+        current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps)
+        path[-1] = current
+    if not path:
+        verdict = "none" if baseline.heldout_gap <= rules.none_ceiling * noise else "unexplained"
+    elif path[-1].heldout_gap > rules.none_ceiling * noise:
         verdict = "partly explained"
+    else:
+        verdict = "explained"
     return Selection(path, verdict, steps)
+
+
+def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, region_mask, steps) -> CandidateScore:
+    """Try replacing each chosen effect by each other candidate; keep a replacement that lowers the score.
+
+    Greedy selection can take a broad effect first (a gain per receiver soaks
+    up part of an object's signature as well as a conductivity change); once
+    the rest is in the combination, the simpler, physical one may do better.
+    """
+    for i in range(len(current.effects)):
+        best = current
+        for name, single in singles.items():
+            names = [e.name for e in current.effects]
+            if name in names or single.n_params > current.effects[i].n_params:
+                continue
+            effects = list(current.effects)
+            parts = _split_theta(current)
+            effects[i] = single.effects[0]
+            parts[i] = single.fit.theta
+            cand = _evaluate(problem, effects, folds, noise, [np.concatenate(parts)], region_mask)
+            if cand.score < best.score:
+                best = cand
+        if best is not current:
+            steps.append({"swap": f"{current.effects[i].name} -> {best.effects[i].name}", "score": best.score,
+                          "heldout_gap": best.heldout_gap})
+            current = best
+    return current
+
+
+def _split_theta(c: CandidateScore) -> list:
+    out, i = [], 0
+    for e in c.effects:
+        out.append(c.fit.theta[i:i + e.n_params])
+        i += e.n_params
+    return out
 
 
 # ------------------------------------------------------------------ confusability

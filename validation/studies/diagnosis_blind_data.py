@@ -1,6 +1,6 @@
 """Generate the BEM blind-test data of the gap diagnosis (tests/data/diagnosis/bem_worlds.npz).
 
-The BEM is run at the two passes of :func:`validation.diagnosis.blind.blind_poses`
+The BEM (:class:`bem.PoseSweep`) is run at the two passes of :func:`validation.diagnosis.blind.blind_poses`
 for the nominal scene and for each geometric effect built into the scene
 (contact impedance as the BEM's boundary condition, the sphere as a mesh, the
 other water depth and tank size as the tank mesh, the robot offset as the true
@@ -11,7 +11,7 @@ The output-side effects and the noise are added at test time
 (:func:`validation.diagnosis.blind.assemble`).
 
 Run: ``python -m validation.studies.diagnosis_blind_data [OUT.npz] [--per-pass N]``
-(about 3 s per BEM solve here; 6 runs x 2 passes).
+(a few minutes on 2 cores).
 """
 from __future__ import annotations
 
@@ -27,22 +27,19 @@ TANK_EDGE_LENGTH_M = 0.04
 
 
 def bem_world(setup, focus_m, edge_length_m=EDGE_LENGTH_M, tank_edge_length_m=TANK_EDGE_LENGTH_M, progress=True):
-    """``world(poses, tank, objects, z_c) -> K`` by the BEM, one scene per pose, fixed mesh settings."""
-    from bem import conductance_matrix
-    from meshes.pose import Pose
-    from meshes.scene import Scene
+    """``world(poses, tank, objects, z_c) -> K`` by the BEM pose sweep, fixed mesh settings.
+
+    Each scene (tank, objects, contact impedance) gets its own
+    :class:`bem.PoseSweep`, with the tank mesh graded towards ``focus_m`` (the
+    whole trajectory, for every scene alike).
+    """
+    from bem import PoseSweep
 
     def world(poses, tank, objects, z_c):
-        out = []
-        for i, p in enumerate(poses):
-            scene = Scene(setup.sensor, Pose.from_array(p), tank, tuple(objects))
-            C = conductance_matrix(scene, setup.sigma_S_per_m, contact_impedance_ohm_m2=z_c,
-                                   edge_length_m=edge_length_m, tank_edge_length_m=tank_edge_length_m,
-                                   tank_focus_m=focus_m)
-            out.append(C.K_S)
-            if progress and i % 10 == 0:
-                print(f"    pose {i + 1}/{len(poses)}", flush=True)
-        return np.array(out)
+        sweep = PoseSweep(setup.sensor, tank, tuple(objects), sigma_S_per_m=setup.sigma_S_per_m,
+                          contact_impedance_ohm_m2=z_c, edge_length_m=edge_length_m,
+                          tank_edge_length_m=tank_edge_length_m, focus_m=focus_m)
+        return sweep.conductance(poses, progress=progress).K_S
 
     return world
 

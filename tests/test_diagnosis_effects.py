@@ -1,0 +1,170 @@
+"""The diagnosis machinery on a stand-in forward model: effects, fits, noise, folds, confusability."""
+import numpy as np
+import pytest
+
+from meshes.sensor import preset
+from meshes.tank import Tank
+from validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
+from validation.diagnosis.effects import EFFECT_NAMES, Problem, library, object_sphere
+from validation.diagnosis.fitting import (cross_validate, fit, make_folds, noise_level, predict,
+                                          subspace_angle_deg)
+from validation.diagnosis.forward import (PointElectrodeSimulator, electrode_areas_m2, receiver_currents,
+                                          series_contact, sphere_dipole_m3)
+from validation.diagnosis.observations import DiagnosisInputError, Observations
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return BlindSetup()
+
+
+@pytest.fixture(scope="module")
+def sim(setup):
+    return PointElectrodeSimulator(setup.sensor, setup.sigma_S_per_m)
+
+
+@pytest.fixture(scope="module")
+def trajectory():
+    return blind_poses(24)
+
+
+def _problem(setup, sim, trajectory, I_world, rng, **kw):
+    poses, t, passes = trajectory
+    obs = assemble(setup, poses, t, passes, I_world, rng, **kw)
+    return Problem(obs, sim(obs.poses, obs.tank, ()), sim)
+
+
+def test_library_has_exactly_the_issue_names(setup):
+    lib = library(Observations(np.zeros((8, 4)), np.ones((8, 3)), setup.sensor, setup.tank, 0.0354))
+    assert tuple(lib) == EFFECT_NAMES
+    unbounded = library(Observations(np.zeros((8, 4)), np.ones((8, 3)), setup.sensor, None, 0.0354))
+    assert "water_depth" not in unbounded and "tank_size" not in unbounded
+
+
+def test_series_contact_two_electrodes_adds_resistances():
+    g = 0.01  # S between two electrodes
+    K = np.array([[g, -g], [-g, g]])
+    Z = np.array([30.0, 70.0])
+    Kc = series_contact(K, Z)
+    assert np.allclose(Kc, Kc.T) and np.allclose(Kc.sum(axis=1), 0)
+    assert Kc[0, 0] == pytest.approx(1 / (1 / g + Z.sum()))
+    assert np.allclose(series_contact(K, np.zeros(2)), K)
+
+
+def test_electrode_areas_match_the_geometry():
+    s = preset("angels-4")
+    A = electrode_areas_m2(s)
+    r = s.radius_m
+    assert A[0] == pytest.approx(2 * np.pi * r**2)
+    e = s.electrodes[1]
+    assert A[1] == pytest.approx(2 * np.pi * r * (e.x_max_m - e.x_min_m))
+
+
+def test_stand_in_is_a_conductance_and_walls_raise_resistance(sim, setup):
+    poses = np.array([[0.0, 0, 0, 0], [0.35, 0, 0, 0]])
+    K = sim(poses, setup.tank, ())
+    assert np.allclose(K, np.swapaxes(K, 1, 2)) and np.allclose(K.sum(axis=-1), 0, atol=1e-15)
+    I = receiver_currents(K, setup.sensor.emitter)
+    assert np.all(I > 0)
+    free = receiver_currents(sim(poses[:1], None, ()), setup.sensor.emitter)
+    # Rayleigh: insulating walls take conductance away from the emitter-to-receivers path (receivers shorted)
+    assert I[0].sum() < free[0].sum()
+    assert I[1].sum() < I[0].sum()  # more so near a wall
+
+
+def test_sphere_dipole_strength_matches_its_parameter():
+    for m in (2e-6, -3e-6):
+        sphere = object_sphere((0.1, 0.0, 0.0, m), 0.0354)
+        assert sphere_dipole_m3(sphere, 0.0354) == pytest.approx(m)
+    assert object_sphere((0, 0, 0, 0.0), 0.0354) is None
+
+
+def test_output_effects_are_exact_scalings(setup, sim, trajectory):
+    rng = np.random.default_rng(0)
+    I0 = world_currents(sim, setup, trajectory[0], None)
+    pb = _problem(setup, sim, trajectory, I0, rng)
+    lib = library(pb.obs)
+    idx = np.arange(pb.obs.n_poses)
+    base = pb.I_base
+    assert np.allclose(predict(pb, lib["conductivity"], [0.03], idx), 1.03 * base)
+    g = np.array([0.01, -0.02, 0.005])
+    assert np.allclose(predict(pb, lib["channel_gain"], g, idx), base * (1 + g))
+    drift = predict(pb, lib["temperature_drift"][:1], [0.036], idx)
+    t_h = (pb.obs.t_s - pb.obs.t_s.mean()) / 3600
+    assert np.allclose(drift, base * (1 + 0.036 * t_h)[:, None])
+    # a contact impedance in series can only lower every current
+    assert np.all(predict(pb, lib["contact_impedance"][:1], [0.01], idx) < base)
+
+
+def test_pose_offset_and_water_depth_change_the_scene_as_stated(setup, sim, trajectory):
+    rng = np.random.default_rng(1)
+    pb = _problem(setup, sim, trajectory, world_currents(sim, setup, trajectory[0], None), rng)
+    lib = library(pb.obs)
+    idx = np.arange(5)
+    sc = lib["pose_offset"][0].apply(np.array([0.01, -0.02, 0.1]), pb.nominal(idx), pb, idx)
+    p0 = pb.obs.poses[idx]
+    c, s = np.cos(0.1), np.sin(0.1)
+    assert np.allclose(sc.poses[:, 0], c * p0[:, 0] - s * p0[:, 1] + 0.01)
+    assert np.allclose(sc.poses[:, 3], p0[:, 3] + 0.1)
+    sc = lib["water_depth"][0].apply(np.array([-0.2]), pb.nominal(idx), pb, idx)
+    assert sc.tank.water_depth_m == pytest.approx(0.8)
+    # height above the floor unchanged
+    assert np.allclose(sc.poses[:, 2] - sc.tank.floor_z_m, p0[:, 2] - setup.tank.floor_z_m)
+    sc = lib["water_depth"][1].apply(np.array([0.1]), pb.nominal(idx), pb, idx)
+    assert np.allclose(sc.poses[:, 2] - sc.tank.floor_z_m, p0[:, 2] - setup.tank.floor_z_m - 0.1)
+
+
+def test_noise_level_recovers_white_noise_under_a_smooth_gap():
+    rng = np.random.default_rng(2)
+    x = np.linspace(-1, 1, 300)
+    r = 0.01 * x[:, None] ** 2 + 5e-4 * rng.standard_normal((300, 3))
+    assert noise_level(r, [np.arange(300)]) == pytest.approx(5e-4, rel=0.15)
+
+
+def test_folds_partition_the_samples(setup, trajectory):
+    poses, t, passes = trajectory
+    obs = Observations(poses, np.ones((len(poses), 3)), setup.sensor, setup.tank, 0.0354, t_s=t, passes=passes)
+    folds = make_folds(obs)
+    allidx = np.concatenate(folds)
+    assert len(allidx) == obs.n_poses and len(np.unique(allidx)) == obs.n_poses
+    assert all(len(np.intersect1d(f, np.flatnonzero(passes == p))) > 0 for f in folds for p in (0, 1))
+    three = Observations(np.vstack([poses, poses[:10]]), np.ones((len(poses) + 10, 3)), setup.sensor, setup.tank,
+                         0.0354, passes=np.concatenate([passes, np.full(10, 2)]))
+    folds = make_folds(three)
+    assert len(folds) == 3 and all(len(np.unique(three.passes[f])) == 1 for f in folds)
+
+
+def test_fit_recovers_a_geometric_effect_with_honest_uncertainty(setup, sim, trajectory):
+    rng = np.random.default_rng(3)
+    truth = {"Lx_m": 0.97}
+    I = world_currents(sim, setup, trajectory[0], "tank_size", truth)
+    pb = _problem(setup, sim, trajectory, I, rng)
+    lib = library(pb.obs)
+    f = fit(pb, lib["tank_size"], np.arange(pb.obs.n_poses), noise=5e-4)
+    est, sd = f.params()["tank_size"]["dLx_m"], f.uncertainty()["tank_size"]["dLx_m"]
+    assert abs(est - (-0.03)) < max(4 * sd, 1e-4)
+    assert f.train_rms < 1.3 * 5e-4
+    heldout, thetas = cross_validate(pb, lib["tank_size"], make_folds(pb.obs), full=f)
+    assert np.sqrt(np.mean(heldout**2)) < 1.5 * 5e-4
+    assert len(thetas) == len(make_folds(pb.obs))
+
+
+def test_common_gain_and_conductivity_are_parallel(setup, sim, trajectory):
+    rng = np.random.default_rng(4)
+    pb = _problem(setup, sim, trajectory, world_currents(sim, setup, trajectory[0], None), rng, conductivity=0.02)
+    lib = library(pb.obs)
+    idx = np.arange(pb.obs.n_poses)
+    a = fit(pb, lib["conductivity"], idx)
+    b = fit(pb, lib["channel_gain"], idx)
+    c = fit(pb, lib["pose_offset"], idx)
+    assert subspace_angle_deg(a.jac, b.jac) < 1.0
+    assert subspace_angle_deg(a.jac, c.jac) > 20.0
+
+
+def test_observations_refuse_bad_input(setup):
+    with pytest.raises(DiagnosisInputError, match="receivers"):
+        Observations(np.zeros((10, 4)), np.ones((10, 2)), setup.sensor, setup.tank, 0.0354)
+    with pytest.raises(DiagnosisInputError, match="non-finite"):
+        Observations(np.zeros((10, 4)), np.full((10, 3), np.nan), setup.sensor, setup.tank, 0.0354)
+    with pytest.raises(DiagnosisInputError, match="too few"):
+        Observations(np.zeros((3, 4)), np.ones((3, 3)), setup.sensor, setup.tank, 0.0354)
