@@ -10,6 +10,13 @@ The area is that of the real electrode (meshes.sensor geometry):
   (``e`` = how far the cap's extent reaches inwards beyond the hemisphere);
 * ring: ``2 pi r w``.
 
+Accuracy: to first order in z_c the extra resistance of a real electrode is
+``z_c * integral(j^2 dA) / I^2``, which exceeds ``z_c / A`` where the current
+crowds at the electrode's edges; for large z_c the current becomes uniform
+and ``z_c / A`` is exact. Against the BEM, for the presets in free space,
+the series term is 10-15 % below the BEM's extra resistance at
+z_c = 1e-3..1e-2 ohm m^2 and within 2-4 % at 0.1 ohm m^2.
+
 Example
 -------
 >>> from meshes.sensor import preset
