@@ -15,6 +15,7 @@ single_layer, double_layer
 from .conductance import ConductanceMatrix, K_from_S, S_from_K, isolate
 from .boundary_conditions import BoundaryError, WaterBoundary
 from .memory import MemoryRefusal
+from .fields import current_density_at, plane_points, potential_at
 from .operators import double_layer, single_layer
 from .solve import BemSolution, SingularSystemError, conductance_matrix, solve, solve_scene
 
@@ -22,6 +23,7 @@ __all__ = [
     "ConductanceMatrix", "K_from_S", "S_from_K", "isolate",
     "BoundaryError", "WaterBoundary", "MemoryRefusal", "single_layer", "double_layer",
     "BemSolution", "SingularSystemError", "conductance_matrix", "solve", "solve_scene",
+    "potential_at", "current_density_at", "plane_points",
 ]
 
 try:  # the pose sweep lands after the single-scene solver

@@ -60,7 +60,7 @@ def _entries(S):
     return S[iu]
 
 
-def fit_angels4(x0=(0.010, 0.010, 0.010, 0.035), max_evaluations=40, verbose=True):
+def fit_angels4(x0=(0.010, 0.010, 0.010, 0.035), max_evaluations=6, verbose=True):
     """Least-squares fit of (radius, cap extent, ring width, ring centre) to the paper's S_BEM."""
     from scipy.optimize import least_squares
 
@@ -87,7 +87,8 @@ def fit_angels4(x0=(0.010, 0.010, 0.010, 0.035), max_evaluations=40, verbose=Tru
     return result.x, history
 
 
-def report_fit(p, edge_length_m=None):
+def report_fit(p, cap_2_m=None, edge_length_m=None):
+    """Entry-by-entry comparison with the paper; angels-2 with cap extent ``cap_2_m`` (default: angels-4's)."""
     R, cap, w, xc = p
     S = free_space_S_sigma_cm(angels(4, R, cap, w, xc), edge_length_m)
     print("angels-4 free-space S (sigma x cm): ours | paper | relative error")
@@ -97,7 +98,7 @@ def report_fit(p, edge_length_m=None):
             print(f"  S[{i + 1},{j + 1}] {ours:9.4f} | {ref:9.4f} | {100 * (ours / ref - 1):+7.3f} %")
     errors = S / PAPER_S_BEM_SIGMA_CM - 1
     print(f"  mean |relative error| {100 * np.mean(np.abs(errors)):.3f} %, max {100 * np.max(np.abs(errors)):.3f} %")
-    S2 = free_space_S_sigma_cm(angels(2, R, cap, w, xc), edge_length_m)[0, 0]
+    S2 = free_space_S_sigma_cm(angels(2, R, cap if cap_2_m is None else cap_2_m, w, xc), edge_length_m)[0, 0]
     a = equivalent_radius_m(S2 / 100.0)
     print(f"angels-2 free-space S = {S2:.4f} sigma cm -> PSM equivalent radius a = {a * 100:.4f} cm (paper: 0.71 cm)")
     return S, a
@@ -185,7 +186,7 @@ def main(argv=None):
         report_fit(p)
     else:
         d = _ANGELS_DIMENSIONS
-        report_fit((d["radius_m"], d["cap_extent_m"], d["ring_width_m"], d["ring_centre_m"]))
+        report_fit((d["radius_m"], d["cap_extent_m"], d["ring_width_m"], d["ring_centre_m"]), d.get("cap_extent_2_m"))
     if args.sweep or everything:
         tank_sweep(preset("angels-2"), args.poses)
     if args.convergence or everything:
