@@ -2,6 +2,7 @@
 import json
 
 import numpy as np
+import pytest
 from click.testing import CliRunner
 
 from meshes.tank import Tank
@@ -54,3 +55,17 @@ def test_bundled_logs_are_found():
 def test_demo_refuses_empty_data(tmp_path):
     r = CliRunner().invoke(demo, ["--data", str(tmp_path), "-o", str(tmp_path / "o"), "--quiet"])
     assert r.exit_code != 0 and "no bench logs" in r.output
+
+
+@pytest.mark.slow
+def test_demo_quick_with_diagnosis(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    _angels2_log(data / "angels-2_line.csv", n=41)
+    out = tmp_path / "demo"
+    r = CliRunner().invoke(demo, ["--quick", "--data", str(data), "-o", str(out), "--quiet"])
+    assert r.exit_code == 0, r.output
+    html = (out / "index.html").read_text()
+    assert "Gap diagnosis" in html
+    assert (out / "diagnosis" / "angels-2_line" / "diagnosis.json").exists()
+    assert "diagnosis/angels-2_line/index.html" in html

@@ -117,13 +117,15 @@ def _format_params(params: dict, uncertainty: dict | None) -> str:
     return "; ".join(parts)
 
 
-def _diagnosis_section(logs, log_paths, folder: Path, echo):
+def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None):
     """Run ``esense diagnose`` on each log into folder/diagnosis/<log>; a summary Section with its figures.
 
     The diagnosis uses the PSM calibrated by the demo (``psm_<sensor>.json``). When the diagnosis is
     not installed the section says so.
     """
+    import contextlib
     import importlib
+    import io
     import json
 
     from validation.report.html import Figure, Section, Table
@@ -140,12 +142,17 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo):
         psm_file = folder / f"psm_{log.sensor.name}.json"
         if psm_file.exists():
             args += ["--psm-model", str(psm_file)]
+        chatter = io.StringIO()  # the command's own step-by-step output; the demo prints a summary line
         try:
-            command.main(args, standalone_mode=False)
+            with contextlib.redirect_stdout(chatter):
+                command.main(args, standalone_mode=False)
             d = json.loads((sub / "diagnosis.json").read_text())
         except Exception as exc:  # the report still stands without it; say why
             sections.append(Section(stem, notes=[f"diagnosis failed: {type(exc).__name__}: {exc}"]))
             continue
+        finally:
+            if bar is not None:
+                bar.update(1)
         rows = [[c.get("effect"), _format_params(c.get("params"), c.get("uncertainty")),
                  100 * c["heldout_gap"] if isinstance(c.get("heldout_gap"), (int, float)) else None,
                  100 * c["shrink"] if isinstance(c.get("shrink"), (int, float)) else None]
@@ -211,12 +218,12 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
     echo = click.echo
     echo(f"esense demo: {len(logs)} bundled log(s) ({', '.join(p.name for p in paths)}), "
          f"sensors {', '.join(s.name for s in sensors)}; report in {outdir}")
-    steps = 3 * len(sensors) + 3 * len(logs) + (0 if no_diagnosis else 1)
+    steps = 3 * len(sensors) + 3 * len(logs) + (0 if no_diagnosis else len(logs))
     with tqdm(total=steps, desc="demo", unit="step", disable=quiet) as bar:
         bar.set_description("sensors: mesh, BEM, PSM")
         sensor_sections, psms = [], {}
         for sensor in sensors:
-            section, psms[sensor.name] = _sensor_section(sensor, outdir, settings["edge_length_m"], bar, echo)
+            section, psms[sensor.name] = _sensor_section(sensor, outdir, settings["edge_length_m"], bar, bar.write)
             sensor_sections.append(section)
         bar.set_description("validate (BEM, PSM)")
         strides = [max(1, len(log) // max(settings["bem_poses"] - 1, 1)) for log in logs]
@@ -228,8 +235,7 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
         extra = []
         if not no_diagnosis:
             bar.set_description("gap diagnosis")
-            extra.append(_diagnosis_section(logs, paths, outdir, echo))
-            bar.update(1)
+            extra.append(_diagnosis_section(logs, paths, outdir, bar.write, bar))
         bar.set_description("figures and report")
         intro = [
             "This report is made by `esense demo` from the example bench logs bundled with electrosense: "
