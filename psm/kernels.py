@@ -132,3 +132,117 @@ def conductance_kernel(X, R0, signs, offsets, weights, obj_pos, obj_coef, series
             K[ip, emitter, ra] = -row
             tot += row
         K[ip, emitter, emitter] = tot
+
+
+@njit(cache=True)
+def pose_derivative_kernel(X, positions, K, signs, offsets, weights, obj_pos, obj_coef, inv_4pi_sigma, dK):
+    """Fill dK (P, 3, n, n) = dK / d(x, y, yaw) for every pose, analytically.
+
+    With V = M I and K = P (P^T M P)^-1 P^T, ``dK = -K dM K``. Only the tank
+    images and the objects make M depend on the pose (the free-space R and
+    the contact term do not). A sphere centre moves with the pose as
+    ``dX/dx = e_x``, ``dX/dy = e_y``, ``dX/dyaw = e_z x (X - position)``;
+    an image ``sigma * X + o`` moves with ``sigma * dX``.
+
+    Parameters
+    ----------
+    X : (P, n, 3) float
+        Sphere centres (tank frame) at each pose.
+    positions : (P, 3) float
+        Sensor centre of each pose.
+    K : (P, n, n) float
+        The conductance matrices at those poses (:func:`conductance_kernel`).
+    signs, offsets, weights, obj_pos, obj_coef, inv_4pi_sigma
+        As for :func:`conductance_kernel`.
+    dK : (P, 3, n, n) float
+        Output.
+    """
+    n_pose, n, _ = X.shape
+    n_img = signs.shape[0]
+    n_obj = obj_pos.shape[0]
+    dX = np.zeros((3, n, 3))  # d X_p / d theta for theta = x, y, yaw
+    dM = np.zeros((3, n, n))
+    G = np.zeros((n, 3))
+    dG = np.zeros((3, n, 3))
+    tmp = np.zeros((n, n))
+    for ip in range(n_pose):
+        for p in range(n):
+            dX[0, p, 0] = 1.0
+            dX[1, p, 1] = 1.0
+            dX[2, p, 0] = -(X[ip, p, 1] - positions[ip, 1])
+            dX[2, p, 1] = X[ip, p, 0] - positions[ip, 0]
+        dM[:] = 0.0
+        # images: d/dtheta of w / |X_p - (s X_q + o)|
+        for p in range(n):
+            for q in range(p, n):
+                a0 = 0.0
+                a1 = 0.0
+                a2 = 0.0
+                for k in range(n_img):
+                    d0 = X[ip, p, 0] - (signs[k, 0] * X[ip, q, 0] + offsets[k, 0])
+                    d1 = X[ip, p, 1] - (signs[k, 1] * X[ip, q, 1] + offsets[k, 1])
+                    d2 = X[ip, p, 2] - (signs[k, 2] * X[ip, q, 2] + offsets[k, 2])
+                    r2 = d0 * d0 + d1 * d1 + d2 * d2
+                    w = -weights[k] / (r2 * np.sqrt(r2))
+                    a0 += w * d0 * (1.0 - signs[k, 0])
+                    a1 += w * d1 * (1.0 - signs[k, 1])
+                    a2 += w * (d0 * (dX[2, p, 0] - signs[k, 0] * dX[2, q, 0])
+                               + d1 * (dX[2, p, 1] - signs[k, 1] * dX[2, q, 1]))
+                dM[0, p, q] = a0
+                dM[1, p, q] = a1
+                dM[2, p, q] = a2
+                dM[0, q, p] = a0
+                dM[1, q, p] = a1
+                dM[2, q, p] = a2
+        # objects: c g_p . g_q, g_p = sum_k -(y - img_k X_p) / |y - img_k X_p|^3 (identity included)
+        for o in range(n_obj):
+            G[:] = 0.0
+            dG[:] = 0.0
+            for p in range(n):
+                for k in range(-1, n_img):
+                    s0 = 1.0 if k < 0 else signs[k, 0]
+                    s1 = 1.0 if k < 0 else signs[k, 1]
+                    s2 = 1.0 if k < 0 else signs[k, 2]
+                    o0 = 0.0 if k < 0 else offsets[k, 0]
+                    o1 = 0.0 if k < 0 else offsets[k, 1]
+                    o2 = 0.0 if k < 0 else offsets[k, 2]
+                    wk = 1.0 if k < 0 else weights[k]
+                    e0 = obj_pos[o, 0] - (s0 * X[ip, p, 0] + o0)
+                    e1 = obj_pos[o, 1] - (s1 * X[ip, p, 1] + o1)
+                    e2 = obj_pos[o, 2] - (s2 * X[ip, p, 2] + o2)
+                    r2 = e0 * e0 + e1 * e1 + e2 * e2
+                    r = np.sqrt(r2)
+                    inv3 = wk / (r2 * r)
+                    inv5 = 3.0 * wk / (r2 * r2 * r)
+                    G[p, 0] -= e0 * inv3
+                    G[p, 1] -= e1 * inv3
+                    G[p, 2] -= e2 * inv3
+                    for t in range(3):
+                        # d g / d theta = (I / r^3 - 3 e e^T / r^5) (s * dX_p/dtheta)
+                        v0 = s0 * dX[t, p, 0]
+                        v1 = s1 * dX[t, p, 1]
+                        v2 = s2 * dX[t, p, 2]
+                        ev = e0 * v0 + e1 * v1 + e2 * v2
+                        dG[t, p, 0] += v0 * inv3 - e0 * ev * inv5
+                        dG[t, p, 1] += v1 * inv3 - e1 * ev * inv5
+                        dG[t, p, 2] += v2 * inv3 - e2 * ev * inv5
+            for t in range(3):
+                for p in range(n):
+                    for q in range(n):
+                        dM[t, p, q] += obj_coef[o] * (
+                            dG[t, p, 0] * G[q, 0] + dG[t, p, 1] * G[q, 1] + dG[t, p, 2] * G[q, 2]
+                            + G[p, 0] * dG[t, q, 0] + G[p, 1] * dG[t, q, 1] + G[p, 2] * dG[t, q, 2])
+        # dK = -K dM K (dM in ohm)
+        for t in range(3):
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for l in range(n):
+                        acc += dM[t, i, l] * K[ip, l, j]
+                    tmp[i, j] = acc * inv_4pi_sigma
+            for i in range(n):
+                for j in range(n):
+                    acc = 0.0
+                    for l in range(n):
+                        acc += K[ip, i, l] * tmp[l, j]
+                    dK[ip, t, i, j] = -acc

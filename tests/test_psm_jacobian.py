@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from meshes.objects import Sphere
+from meshes.sensor import preset
 from meshes.tank import Tank
 from psm import PolySphericalModel, conductance, receiver_current_jacobian
 
@@ -16,9 +17,10 @@ TANK = Tank((1.0, 1.0, 1.0), water_depth_m=0.8)
     ("complete", ()),
     ("complete", (Sphere((0.1, 0.12, -0.1), "conducting", radius_m=0.02),)),
 ])
-def test_jacobian_matches_central_differences(images, objects):
+@pytest.mark.parametrize("method", ["analytic", "complex-step"])
+def test_jacobian_matches_central_differences(images, objects, method):
     poses = np.array([[0.2, -0.1, -0.1, 0.4], [-0.3, 0.25, -0.1, 2.0]])
-    J = receiver_current_jacobian(MODEL4, poses, SIGMA, TANK, images, objects, image_shells=8)
+    J = receiver_current_jacobian(MODEL4, poses, SIGMA, TANK, images, objects, image_shells=8, method=method)
     h = 1e-5
     for j, col in enumerate((0, 1, 3)):
         dp = np.zeros(4)
@@ -33,3 +35,13 @@ def test_jacobian_vanishes_in_unbounded_water_and_has_the_contract_shape():
     J = receiver_current_jacobian(MODEL4, np.array([[0.1, 0.2, 0.0, 1.0]] * 3), SIGMA)
     assert J.shape == (3, 3, 3)
     assert np.abs(J).max() < 1e-15
+
+
+def test_analytic_and_complex_step_agree_to_round_off():
+    poses = np.array([[0.25, 0.1, 0.0, 0.3], [-0.2, -0.3, 0.1, -1.0]])
+    objs = (Sphere((0.0, 0.0, 0.2), 0.0, radius_m=0.03),)
+    a = receiver_current_jacobian(MODEL4, poses, SIGMA, TANK, "complete", objs, contact_impedance_ohm_m2=0.01,
+                                  sensor=preset("angels-4"))
+    c = receiver_current_jacobian(MODEL4, poses, SIGMA, TANK, "complete", objs, contact_impedance_ohm_m2=0.01,
+                                  sensor=preset("angels-4"), method="complex-step")
+    np.testing.assert_allclose(a, c, rtol=1e-8, atol=1e-10 * np.abs(c).max())

@@ -72,10 +72,13 @@ def main(argv=None):
          len(Pc), ">= 10,000"),
         ("poses/s, complete series (shells fixed)",
          lambda: conductance(model, Pc, sigma, tank, images="complete", image_shells=info["image_shells"]), len(Pc), ">= 10,000"),
-        ("Jacobian poses/s, paper8 (complex step)", lambda: receiver_current_jacobian(model, Pj, sigma, tank, "paper8"),
+        ("Jacobian poses/s, paper8 (analytic)", lambda: receiver_current_jacobian(model, Pj, sigma, tank, "paper8"),
          len(Pj), "-"),
-        ("Jacobian poses/s, complete (complex step)",
+        ("Jacobian poses/s, complete (analytic)",
          lambda: receiver_current_jacobian(model, Pj, sigma, tank, "complete", image_shells=info["image_shells"]), len(Pj), "-"),
+        ("Jacobian poses/s, complete (complex step)",
+         lambda: receiver_current_jacobian(model, Pj, sigma, tank, "complete", image_shells=info["image_shells"],
+                                           method="complex-step"), len(Pj), "-"),
     ]
     print("PSM speed, angels-4 (calibrated on the paper's table), 1 m tank, one core (numba kernel, one thread)")
     print(f"{'what':44s} {'wall clock':>12s} {'CPU time':>12s} {'target':>12s}")
