@@ -7,7 +7,9 @@ real electrode of area A_k this is, to the model's accuracy, a resistance
 The area is that of the real electrode (meshes.sensor geometry):
 
 * end cap: the hemisphere ``2 pi r^2`` plus its cylindrical collar ``2 pi r e``
-  (``e`` = how far the cap's extent reaches inwards beyond the hemisphere);
+  (``e`` = how far the cap's extent reaches inwards beyond the hemisphere),
+  or, for an extent h shorter than r, the spherical cap ``2 pi r h``
+  (Archimedes); both are ``2 pi r h`` with h the axial extent;
 * ring: ``2 pi r w``.
 
 Accuracy: to first order in z_c the extra resistance of a real electrode is
@@ -20,8 +22,9 @@ z_c = 1e-3..1e-2 ohm m^2 and within 2-4 % at 0.1 ohm m^2.
 Example
 -------
 >>> from meshes.sensor import preset
->>> A = electrode_areas_m2(preset("angels-2"))
->>> bool(np.allclose(A, 2 * np.pi * 0.01**2))
+>>> s = preset("angels-2")
+>>> A = electrode_areas_m2(s)
+>>> bool(np.allclose(A, 2 * np.pi * s.radius_m * (s.electrodes[0].x_max_m - s.electrodes[0].x_min_m)))
 True
 """
 from __future__ import annotations
@@ -38,12 +41,13 @@ def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
     r = sensor.radius_m
     areas = []
     for e in sensor.electrodes:
-        width = e.x_max_m - e.x_min_m
+        h = e.x_max_m - e.x_min_m
         if e.kind == "cap":
-            collar = max(width - r, 0.0)
-            areas.append(2 * np.pi * r**2 + 2 * np.pi * r * collar)
+            cap = min(h, r)  # spherical cap of height h (a hemisphere when h >= r) ...
+            collar = max(h - r, 0.0)  # ... plus the cylindrical collar beyond it
+            areas.append(2 * np.pi * r * cap + 2 * np.pi * r * collar)
         else:
-            areas.append(2 * np.pi * r * width)
+            areas.append(2 * np.pi * r * h)
     return np.array(areas)
 
 

@@ -63,13 +63,17 @@ def test_bad_objects_are_refused():
         conductance(MODEL4, np.zeros((1, 4)), SIGMA, Tank((1.0, 1.0, 1.0)), objects=[Sphere((0.49, 0.3, 0.0), radius_m=0.02)])
 
 
-def test_electrode_areas_of_the_presets():
-    s = preset("angels-4")
-    r = s.radius_m
+def test_electrode_areas_hemisphere_collar_partial_cap_and_ring():
+    from meshes.sensor import Electrode, SensorDescription
+
+    r = 0.01
+    s = SensorDescription("t", r, 0.2, (Electrode("cap", 0.085, 0.1), Electrode("ring", 0.0, 0.02),
+                                        Electrode("cap", -0.1, -0.095)))
     A = electrode_areas_m2(s)
-    rings = [e.x_max_m - e.x_min_m for e in s.electrodes[1:3]]
-    np.testing.assert_allclose(A[1:3], 2 * np.pi * r * np.array(rings))
-    np.testing.assert_allclose(A[[0, 3]], 2 * np.pi * r**2 + 2 * np.pi * r * max(s.electrodes[0].x_max_m - s.electrodes[0].x_min_m - r, 0))
+    np.testing.assert_allclose(A, [2 * np.pi * r**2 + 2 * np.pi * r * 0.005,  # hemisphere + 5 mm collar
+                                   2 * np.pi * r * 0.02,  # ring
+                                   2 * np.pi * r * 0.005])  # spherical cap of height 5 mm (Archimedes)
+    assert electrode_areas_m2(preset("angels-4")).shape == (4,)
 
 
 def test_contact_impedance_is_a_series_resistance():
