@@ -18,7 +18,7 @@ import pytest
 
 from bem.conductance import ConductanceMatrix, isolate
 from meshes.pose import sensor_to_tank
-from validation.sweep import SchedulerError, SweepStore, dask_client, line_poses, parse_grid, run_sweep
+from validation.sweep import SchedulerError, SweepStore, dask_client, line_poses, map_tasks, parse_grid, run_sweep
 
 WALL_X = 0.5
 
@@ -63,6 +63,11 @@ def _serial(evaluator, poses):
     return evaluator.conductance(poses).K_S
 
 
+def _resistance_at_x(x_m, evaluator):
+    """A study task: the receivers' resistances with the sensor at (x_m, 0, 0), yaw 0."""
+    return evaluator.conductance(np.array([[x_m, 0.0, 0.0, 0.0]])).resistance_ohm[0]
+
+
 def test_in_process_sweep_equals_the_direct_call(grid_poses):
     ev = WallImageEvaluator()
     result = run_sweep(ev, grid_poses, workers=1, chunk_poses=7, progress=False)
@@ -84,6 +89,12 @@ def test_local_cluster_of_two_processes_equals_serial(grid_poses, tmp_path):
         assert result.workers == 2
         # the same run through --scheduler ADDRESS
         by_address = run_sweep(WallImageEvaluator(), grid_poses, scheduler=cluster.scheduler_address, progress=False)
+        # a study's tasks through the same machinery, the shared model scattered once
+        xs = [-0.2, 0.0, 0.2, 0.3]
+        study = map_tasks(_resistance_at_x, xs, shared=WallImageEvaluator(), client=client, progress=False)
+    local = map_tasks(_resistance_at_x, xs, shared=WallImageEvaluator(), workers=1, progress=False)
+    np.testing.assert_array_equal(np.array(study), np.array(local))
+    assert np.all(np.diff(np.array(local)[:, 0]) > 0)  # nearer the insulating wall at x = 0.5: larger R
     np.testing.assert_array_equal(result.conductance.K_S, serial)
     np.testing.assert_array_equal(by_address.conductance.K_S, serial)
     ds = store.dataset()
@@ -174,3 +185,13 @@ def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path)
     R = result.conductance.resistance_ohm[:, 0]
     assert np.all(np.isfinite(R)) and np.all(R > 0)
     assert '"triangles"' in store.attrs["mesh"]
+
+
+def test_a_worker_with_other_model_code_refuses():
+    from validation.sweep.runner import _evaluate_block
+
+    with pytest.raises(RuntimeError, match="install the same electrosense on every worker"):
+        _evaluate_block(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 2), "electrosense 0.0 src 000000000000")
+    K, seconds, meta = _evaluate_block(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 2),
+                                       __import__("validation.models", fromlist=["x"]).code_version())
+    assert K.shape == (2, 4, 4) and meta["emitter"] == 4 and meta["info"]["triangles"] == 0

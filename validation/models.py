@@ -67,14 +67,21 @@ class ModelError(ValueError):
 
 
 # --------------------------------------------------------------------------- version
-@functools.lru_cache(maxsize=1)
-def code_version() -> str:
+def code_version(refresh: bool = False) -> str:
     """``"electrosense <version> src <hash>"``: the package version and a hash of the model sources.
 
     The hash covers every ``.py`` file of :mod:`meshes`, :mod:`bem` and
     :mod:`psm`, so that an edited solver (an editable install keeps its version
     number) is told apart from the one that filled a cache or a sweep store.
+    It is computed once per process; ``refresh=True`` reads the files again.
     """
+    if refresh:
+        _code_version.cache_clear()
+    return _code_version()
+
+
+@functools.lru_cache(maxsize=1)
+def _code_version() -> str:
     try:
         from importlib.metadata import version
 

@@ -141,8 +141,20 @@ def default_chunk_poses(n_poses: int, workers: int) -> int:
     return int(max(1, min(4096, math.ceil(n_poses / (16 * max(1, workers))))))
 
 
-def _evaluate_block(evaluator, poses: np.ndarray):
-    """Worker side: the conductance matrices of a block of poses, the seconds it took, and the model's info."""
+def _evaluate_block(evaluator, poses: np.ndarray, expected_version: str | None = None):
+    """Worker side: the conductance matrices of a block of poses, the seconds it took, and the model's info.
+
+    ``expected_version`` is the client's :func:`validation.models.code_version`: a worker running other
+    model code (another install, or files edited since the run started) refuses rather than mixing results.
+    """
+    if expected_version is not None:
+        from validation.models import code_version
+
+        if code_version() != expected_version:
+            raise RuntimeError(
+                f"this dask worker runs {code_version()} but the sweep was started with {expected_version}: "
+                "install the same electrosense on every worker (and do not edit it during a run)"
+            )
     t0 = time.perf_counter()
     C = evaluator.conductance(poses)
     meta = {"emitter": C.emitter, "sigma_S_per_m": C.sigma_S_per_m, "info": _plain_info(C.info)}
@@ -282,6 +294,9 @@ def _run_on_dask(client, evaluator, poses, pending, n_workers, target_task_s, la
 
     if not pending:
         return
+    from validation.models import code_version
+
+    version = code_version(refresh=True)  # the sources as they are now, when the workers load them
     shared = client.scatter(evaluator, broadcast=True, hash=False)
     queue = deque(pending)
     in_flight = {}
@@ -299,7 +314,7 @@ def _run_on_dask(client, evaluator, poses, pending, n_workers, target_task_s, la
     def submit_next(ac):
         chunks = [queue.popleft() for _ in range(min(batch_size(), len(queue)))]
         block = np.concatenate([poses[a:b] for a, b in chunks])
-        future = client.submit(_evaluate_block, shared, block, pure=False)
+        future = client.submit(_evaluate_block, shared, block, version, pure=False)
         in_flight[future] = chunks
         ac.add(future)
 
@@ -345,7 +360,7 @@ def map_tasks(function, items, shared=None, *, scheduler=None, workers=None, cli
         shared_future = c.scatter(shared, broadcast=True, hash=False) if shared is not None else None
         futures = [c.submit(function, item, shared_future, pure=False) for item in items]
         with tqdm(total=len(futures), disable=not progress, unit="task") as bar:
-            for _ in as_completed(futures):
+            for _ in as_completed(futures, loop=c.loop):
                 bar.update(1)
         return c.gather(futures)
 
