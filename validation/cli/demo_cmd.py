@@ -23,7 +23,7 @@ import click
 PAPER_S_BEM_ANGELS4 = [[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [-2.2540, -2.6875, 7.6781]]
 
 #: Reduced and full settings: BEM sensor mesh edge length (m), BEM poses per log, potential figure grid
-#: (0: none; drawn for the first log only), how many logs. The full demo is sized to run in under 5 minutes
+#: (0: none; drawn for the first log of each sensor), how many logs. The full demo is sized to run in under 5 minutes
 #: on 2 cores: the BEM solves pose by pose, so it sees a subset of each log.
 SETTINGS = {
     "full": {"edge_length_m": 0.008, "bem_poses": 13, "potential_n": 61, "max_logs": None},
@@ -250,7 +250,8 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
             results, outdir, title="electrosense demo: BEM and PSM against the bench",
             leading_sections=sensor_sections, extra_sections=extra, intro=intro,
             footer=f"esense demo{' --quick' if quick else ''}; {time.perf_counter() - t_start:.0f} s",
-            potential=settings["potential_n"] > 0, potential_n=settings["potential_n"] or 81, potential_logs=1,
+            potential=settings["potential_n"] > 0, potential_n=settings["potential_n"] or 81,
+            potential_logs=list({r.log.sensor.name: r.label for r in reversed(results)}.values()),
             edge_length_m=settings["edge_length_m"], progress=bar,
             extra_metrics={"demo": {"settings": settings, "logs": [p.name for p in paths],
                                     "psm_files": [f"psm_{s.name}.json" for s in sensors]}})

@@ -1,9 +1,17 @@
 """Reports: pyvista figures (:mod:`.figures`) and a static offline HTML page (:mod:`.html`).
 
-The figure functions take plain arrays and write PNGs; :func:`.html.write_html`
-assembles :class:`.html.Section` objects (text, tables, figures) into one page.
-The validation report (:mod:`.validation_report`) and the gap diagnosis build
-on both.
+Reusable pieces (plain arrays in, PNG or HTML out):
+
+* :func:`.figures.curves_figure` with :class:`.figures.Panel` / :class:`.figures.Series`: a grid of
+  2D charts (lines, markers, dashed styles, legends, axis labels with units);
+* :func:`.figures.bar_figure`: grouped bars over named categories (e.g. regions of a path);
+* :func:`.figures.scene_figure`: tank, sensor mesh with its electrodes coloured, a path coloured by a value;
+* :func:`.figures.potential_figure`: a potential map with equipotentials and current lines;
+* :func:`.figures.png_is_blank`: for tests;
+* :func:`.html.write_html` with :class:`.html.Section`, :class:`.html.Table`, :class:`.html.Figure`.
+
+The validation report (:mod:`.validation_report`) assembles them for ``esense validate`` and
+``esense demo``; the gap diagnosis can use the same pieces.
 """
 from .html import Figure, Section, Table, format_number, write_html
 

@@ -196,10 +196,11 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
 
 
 def validation_sections(results: Sequence, folder, potential: bool = True, potential_n: int = 81,
-                        edge_length_m=None, progress=None, potential_logs: int | None = None) -> list[Section]:
+                        edge_length_m=None, progress=None, potential_logs=None) -> list[Section]:
     """Sections of the page: a summary, then one per log (tables and figures).
 
-    ``potential_logs``: draw the BEM potential figure (one BEM solve each) for the first N logs only.
+    ``potential_logs``: draw the BEM potential figure (one BEM solve each) only for the first N logs (an
+    int) or for the logs of these labels (a collection of str); ``None``: every log.
     """
     sections = [Section(
         "Summary",
@@ -209,7 +210,12 @@ def validation_sections(results: Sequence, folder, potential: bool = True, poten
         tables=[_summary_table(results)],
     )]
     for i, r in enumerate(results):
-        draw = potential and (potential_logs is None or i < potential_logs)
+        if potential_logs is None:
+            draw = potential
+        elif isinstance(potential_logs, int):
+            draw = potential and i < potential_logs
+        else:
+            draw = potential and r.label in set(potential_logs)
         figures, notes = log_figures(r, folder, potential=draw, potential_n=potential_n,
                                      edge_length_m=edge_length_m)
         if progress is not None:
@@ -264,7 +270,7 @@ def write_validation_report(results: Sequence, outdir, title: str = "electrosens
                             intro: str | Sequence[str] = "",
                             footer: str = "", potential: bool = True, potential_n: int = 81,
                             edge_length_m=None, extra_metrics: dict | None = None, progress=None,
-                            potential_logs: int | None = None) -> dict:
+                            potential_logs=None) -> dict:
     """Write metrics.json, the PNGs and index.html into ``outdir``; return their paths.
 
     ``leading_sections`` go before the validation's sections, ``extra_sections`` after.
