@@ -127,3 +127,19 @@ def test_potential_figure_of_a_dipole(tmp_path):
     assert p.exists() and not png_is_blank(p)
     with pytest.raises(ValueError, match="expected \\(ny, nx\\)"):
         potential_figure(tmp_path / "bad.png", x, y, phi.T)
+
+
+def test_field_helpers_geometry():
+    from validation.report.field import electrode_seeds_xy, inside_sensor, sensor_outline_xy, tank_walls_xy
+
+    sensor = preset("angels-4")
+    pose = Pose(-0.38, 0.0, 0.0, 0.0)
+    walls = tank_walls_xy(Tank((1.0, 1.0, 1.0)), (-0.495, -0.23), (-0.1, 0.1), tolerance_m=0.0075)
+    assert len(walls) == 1 and np.allclose(walls[0][:, 0], -0.5)
+    assert tank_walls_xy(None, (0, 1), (0, 1)) == []
+    outline = sensor_outline_xy(sensor, pose)
+    assert np.isclose(outline[:, 0].max(), -0.38 + 0.1) and np.isclose(outline[:, 0].min(), -0.38 - 0.1)
+    seeds = electrode_seeds_xy(sensor, pose, sensor.emitter, offset_m=0.005)
+    pts = pose.to_sensor(np.column_stack([seeds, np.zeros(len(seeds))]))
+    assert not inside_sensor(sensor, pts).any()  # seeds lie in the water
+    assert inside_sensor(sensor, np.zeros((1, 3))).all()

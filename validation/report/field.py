@@ -140,16 +140,17 @@ def electrode_seeds_xy(sensor, pose, electrode: int, offset_m: float, n: int = 2
     return pose.to_tank(np.column_stack([pts, np.zeros(len(pts))]))[:, :2]
 
 
-def tank_walls_xy(tank, x_range, y_range) -> list:
-    """The tank's vertical walls that cross the picture, as (2, 2) segments in the plane."""
+def tank_walls_xy(tank, x_range, y_range, tolerance_m: float = 0.0) -> list:
+    """The tank's vertical walls within ``tolerance_m`` of the picture, as (2, 2) segments in the plane."""
     if tank is None:
         return []
     (x0, y0, _), (x1, y1, _) = tank.water_bounds_m
+    tol = tolerance_m + 1e-9
     out = []
     for x in (x0, x1):
-        if x_range[0] - 1e-9 <= x <= x_range[1] + 1e-9:
+        if x_range[0] - tol <= x <= x_range[1] + tol:
             out.append(np.array([[x, max(y0, y_range[0])], [x, min(y1, y_range[1])]]))
     for y in (y0, y1):
-        if y_range[0] - 1e-9 <= y <= y_range[1] + 1e-9:
+        if y_range[0] - tol <= y <= y_range[1] + tol:
             out.append(np.array([[max(x0, x_range[0]), y], [min(x1, x_range[1]), y]]))
     return out

@@ -59,6 +59,7 @@ COLOURS = {
     "bem": "#1f5fbf",
     "psm": "#d9541a",
     "bem-psm": "#6a3d9a",
+    "psm vs bem": "#6a3d9a",
 }
 _CYCLE = ["#1f5fbf", "#d9541a", "#2ca02c", "#6a3d9a", "#b8860b", "#17becf", "#e377c2", "#7f7f7f"]
 
@@ -226,7 +227,9 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
             raise ValueError(f"bar series {label!r} has {v.size} values for {len(categories)} categories")
         arrays.append(v)
         labels.append(str(label))
-        colours.append(_colour(str(label), k))
+        colour = _colour(str(label), k)
+        spare = (c for c in _CYCLE if c not in colours)
+        colours.append(colour if colour not in colours else next(spare, colour))  # every bar series distinct
     chart = _chart(Panel(title, "", y_label, []))
     for v, label, colour in zip(arrays, labels, colours):
         chart.bar(x, v, color=colour, label=label)  # VTK places the bar plots of one chart side by side

@@ -180,7 +180,8 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
             sensor = log.sensor
             spacing = float(np.diff(plane.x_m).max())
             seeds = electrode_seeds_xy(sensor, pose, sensor.emitter, offset_m=0.002 + 2.5 * spacing)
-            walls = tank_walls_xy(log.tank, (plane.x_m[0], plane.x_m[-1]), (plane.y_m[0], plane.y_m[-1]))
+            walls = tank_walls_xy(log.tank, (plane.x_m[0], plane.x_m[-1]), (plane.y_m[0], plane.y_m[-1]),
+                                  tolerance_m=1.5 * spacing)
             p = potential_figure(folder / f"potential_{slug}.png", plane.x_m, plane.y_m, plane.potential_V,
                                  sensor_outline_xy(sensor, pose), electrode_segments_xy(sensor, pose), seeds_m=seeds,
                                  walls_m=walls,
