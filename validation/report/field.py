@@ -42,7 +42,7 @@ def inside_sensor(sensor, points_sensor_m: np.ndarray, margin_m: float = 0.0) ->
     return d <= sensor.radius_m + margin_m
 
 
-def sensor_outline_xy(sensor, pose, n: int = 64) -> np.ndarray:
+def sensor_outline_xy(sensor, pose, n: int = 65) -> np.ndarray:
     """Closed outline (k, 2) of the sensor's cut by its mid-plane, in the tank frame (m)."""
     r, half = sensor.radius_m, 0.5 * sensor.length_m - sensor.radius_m
     t = np.linspace(-np.pi / 2, np.pi / 2, n)
