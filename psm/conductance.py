@@ -198,7 +198,7 @@ def conductance(model: PolySphericalModel, poses, sigma_S_per_m: float, tank: Ta
     sensor : meshes.sensor.SensorDescription, optional
         The real sensor, for the electrode areas.
     image_shells : int, optional
-        Fix the (even) outer shell of the complete series instead of adapting it.
+        Fix the outer shell (a multiple of 4) of the complete series instead of adapting it.
     image_tolerance : float
         Relative error (of max |K|) allowed to the complete series: shells
         N = 4, 8, 12, ... (Richardson-extrapolated) are tried on probe poses

@@ -4,7 +4,7 @@ Every boundary of the water (walls, floor, free surface) is insulating: the
 normal current vanishes there, so each current source gets an image of the
 SAME sign mirrored across the boundary, and the images get images in turn.
 An image is the affine map ``x -> signs * x + offsets`` (component-wise), so
-a set of images is two (K, 3) arrays.
+a set of images is two (K, 3) arrays, with a weight per image.
 
 Two sets are offered:
 
@@ -21,10 +21,14 @@ Two sets are offered:
     terms that make it so depend on one electrode alone (the constant, the
     linear and the quadratic terms of each image's Taylor expansion, summed
     over a symmetric shell), and those cancel in ``P^T dR P`` because the
-    currents sum to zero. What remains converges like ``1/N^2`` when the
-    outermost layer gets half weight (trapezoid); two partial sums N and 2N
-    are combined by Richardson extrapolation, and :func:`psm.conductance`
-    doubles N until K stops changing to a stated tolerance.
+    currents sum to zero. With equal weights the cube holds, along each
+    axis, one more translated than mirrored image (or the reverse), a net
+    dipole per source, and the partial sums drift like ``1/N``; giving the
+    outermost layer half weight (trapezoid) balances them, and what remains
+    converges like ``1/N^2``. Two partial sums N/2 and N (N a multiple of 4,
+    so that both have the same parity) are combined by Richardson
+    extrapolation, and :func:`psm.conductance` takes N = 4, 8, 12, ... until
+    K stops changing to a stated tolerance.
 ``"none"``
     Unbounded water.
 
@@ -100,17 +104,18 @@ def box_images(tank: Tank, shells: int, *, horizontal_only: bool = False, trapez
     axis the weight 1/2 (per axis, so 1/8 at the corners of the shell):
     then every truncated series holds as many mirrored as translated images
     along each axis, symmetrically, so it has no net dipole per source and
-    ``P^T dR P`` converges like ``1/shells^2``. ``extrapolate`` (even
-    ``shells`` = 2N) returns the Richardson combination
+    ``P^T dR P`` converges like ``1/shells^2``. ``extrapolate``
+    (``shells`` = 2N) returns the Richardson combination
     ``(4 S_2N - S_N) / 3`` of the two partial sums as one weighted set,
-    which removes that leading error term.
+    which removes that leading error term (``shells`` a multiple of 4:
+    partial sums of opposite parity do not share the error constant).
     """
     if shells < 1:
         raise ValueError(f"the image series needs at least 1 shell, got {shells}")
     J, S, T, W = _cube_images(tank, shells, horizontal_only, trapezoid)
     if extrapolate:
-        if shells % 2:
-            raise ValueError(f"Richardson extrapolation of the image series needs an even shell count, got {shells}")
+        if shells % 4:
+            raise ValueError(f"the extrapolated image series needs a shell count that is a multiple of 4, got {shells}")
         half = shells // 2
         Jh, _, _, Wh = _cube_images(tank, half, horizontal_only, trapezoid)
         inner = np.abs(J).max(axis=1) <= half
@@ -131,7 +136,7 @@ def paper8_images(tank: Tank) -> ImageSet:
 def image_sources(tank: Tank | None, kind: str = "complete", shells: int = 4) -> ImageSet:
     """Image set of ``kind`` ("complete", "paper8", "none") for ``tank`` (None: no images).
 
-    For "complete", ``shells`` (even) is the outer shell of the Richardson-extrapolated
+    For "complete", ``shells`` (a multiple of 4) is the outer shell of the Richardson-extrapolated
     pair (``shells/2``, ``shells``); see :func:`box_images`.
     """
     if kind not in IMAGE_KINDS:
