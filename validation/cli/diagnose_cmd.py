@@ -23,8 +23,12 @@ from validation.diagnosis.effects import EFFECT_NAMES
                    "and the physics the BEM lacks (0: skip).")
 @click.option("--max-effects", type=click.IntRange(1, 3), default=3, show_default=True,
               help="Largest number of effects combined by the forward selection.")
+@click.option("--model-error", type=float, default=0.1, show_default=True,
+              help="Relative error of the effect model on what the tank does; samples where the tank matters most "
+                   "(close to the walls) are weighted down accordingly (0: equal weights).")
 @click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")
-def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, max_effects, no_figures):
+def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, max_effects, model_error,
+             no_figures):
     """Diagnose the gap between bench LOG(s) and the simulation.
 
     Fits every candidate effect (conductivity, temperature_drift,
@@ -57,6 +61,7 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
                       rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
+                      model_error=model_error,
                       progress=lambda s: click.echo(f"  {s}"))
     page = write_report(d, outdir, figures=not no_figures)
     click.echo(f"noise {100 * d.noise:.3f} %, gap {100 * d.gap_before:.3f} % -> {100 * d.gap_after:.3f} % (held-out)")

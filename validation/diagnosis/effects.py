@@ -48,7 +48,7 @@ from meshes.tank import Tank
 from .forward import electrode_areas_m2, receiver_currents, series_contact, sphere_dipole_m3
 from .observations import Observations
 
-__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales"]
+__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]
 
 #: Candidate names, in the order they are reported.
 EFFECT_NAMES = (
@@ -91,6 +91,9 @@ class Problem:
         The fast model used for geometric changes.
     K_effect0 : (P, n, n), optional
         ``effect_model`` at the logged poses, nominal scene (computed if absent).
+    weight : (P, m), optional
+        Weights of the relative residuals in the fits and scores (default 1):
+        s / sqrt(s^2 + model error^2), see :func:`model_trust_weights`.
     """
 
     obs: Observations
@@ -98,6 +101,7 @@ class Problem:
     effect_model: Callable
     K_effect0: np.ndarray | None = None
     baseline_name: str = ""
+    weight: np.ndarray | None = None
     t_ref_s: float = field(init=False)
     T_ref_C: float | None = field(init=False)
     areas_m2: np.ndarray = field(init=False)
@@ -117,6 +121,8 @@ class Problem:
         self.areas_m2 = electrode_areas_m2(obs.sensor)
         self._memo = {}
         self.I_base = receiver_currents(self.K_base, obs.emitter) * obs.U_V[:, None]
+        if self.weight is None:
+            self.weight = np.ones_like(self.I_base)
         if np.any(np.abs(self.I_base) == 0):
             raise ValueError("the baseline simulation gives a zero receiver current: cannot form relative residuals")
 
@@ -155,6 +161,25 @@ class Problem:
     def relative_residual(self, I_pred: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """(bench - prediction) / |baseline| for the samples ``idx``: (p, m)."""
         return (self.obs.currents_A[idx] - I_pred) / np.abs(self.I_base[idx])
+
+
+def model_trust_weights(problem: Problem, noise: float, model_error: float = 0.1) -> np.ndarray:
+    """Weights (P, m) that trust each sample as far as the effect model can be trusted there.
+
+    Models agree least where the tank matters most (a sensor tip a few
+    centimetres from a wall: the PSM and the BEM differ by several percent
+    there, and so do their sensitivities to the tank and the pose). The
+    sample's standard deviation is taken as sqrt(s^2 + (model_error * D)^2)
+    with D the relative change of the receiver current that the tank causes
+    (effect model, tank vs unbounded water); the weight is s over that.
+    """
+    obs = problem.obs
+    if obs.tank is None or model_error <= 0:
+        return np.ones_like(problem.I_base)
+    free = receiver_currents(problem.effect_model(obs.poses, None, tuple(obs.objects)), obs.emitter)
+    tank = receiver_currents(problem.K_effect0, obs.emitter)
+    D = np.abs(tank / free - 1.0)
+    return noise / np.sqrt(noise**2 + (model_error * D) ** 2)
 
 
 # -------------------------------------------------------------------------- effects

@@ -54,7 +54,14 @@ _REFUSED = 1.0
 
 
 def noise_level(r: np.ndarray, groups) -> float:
-    """Relative noise (1 sigma) from the second differences of ``r`` (P, m) along each group (time-ordered indices)."""
+    """Relative noise (1 sigma) from the second differences of ``r`` (P, m) along each group (time-ordered indices).
+
+    White noise of spread s gives second differences of spread sqrt(6) s; a
+    smooth gap gives almost none. A robust first estimate (median absolute
+    deviation) sets a 3-sigma cut against the few large differences where the
+    gap bends sharply; the RMS of the rest, corrected for the cut, is the
+    estimate (more precise than the MAD alone on Gaussian noise).
+    """
     d = []
     for g in groups:
         if len(g) >= 3:
@@ -63,7 +70,12 @@ def noise_level(r: np.ndarray, groups) -> float:
     if not d:
         raise ValueError("need at least 3 samples in a pass to estimate the noise")
     d = np.concatenate(d)
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6.0))
+    spread = 1.4826 * np.median(np.abs(d - np.median(d)))
+    if spread == 0:
+        return 0.0
+    kept = d[np.abs(d - np.median(d)) < 3 * spread]
+    # variance of a unit Gaussian truncated at +-3: 1 - 6 phi(3) / (2 Phi(3) - 1) = 0.97334
+    return float(np.sqrt(np.mean((kept - np.median(d)) ** 2) / 0.97334) / np.sqrt(6.0))
 
 
 def make_folds(obs, n_blocks: int = 8, max_folds: int = 5, min_passes: int = 3) -> list[np.ndarray]:
@@ -107,11 +119,12 @@ def predict(problem: Problem, effects, theta, idx) -> np.ndarray:
 
 
 def _residual(problem, effects, theta, idx) -> np.ndarray:
+    """Weighted relative residual (p * m,) of ``effects`` at ``theta`` for the samples ``idx``."""
     try:
         I = predict(problem, effects, theta, idx)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError):
         return np.full(len(idx) * problem.obs.n_receivers, _REFUSED)
-    r = problem.relative_residual(I, idx).ravel()
+    r = (problem.relative_residual(I, idx) * problem.weight[idx]).ravel()
     if not np.all(np.isfinite(r)):
         return np.full(r.size, _REFUSED)
     return r
@@ -236,7 +249,7 @@ def fit(problem: Problem, effects, idx, theta0=None, noise: float | None = None,
 
 
 def cross_validate(problem: Problem, effects, folds, full: FitResult | None = None, noise=None):
-    """Pooled held-out residual (P, m): each fold predicted after a refit on the other samples.
+    """Pooled held-out residual (P, m), weighted: each fold predicted after a refit on the other samples.
 
     The refit is the Gauss-Newton step from the full-data optimum ``full``
     (its Jacobian, rows of the training samples), within the bounds, halved

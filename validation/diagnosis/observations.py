@@ -59,6 +59,8 @@ class Observations:
         The meta line, kept as read.
     objects : tuple
         Objects known to be in the tank.
+    sigma_logged_S_per_m : (P,) array, optional
+        Conductimeter readings logged with the samples (reported, not used).
     """
 
     poses: np.ndarray
@@ -73,6 +75,7 @@ class Observations:
     meta: dict = field(default_factory=dict)
     objects: tuple = ()
     source: str = ""
+    sigma_logged_S_per_m: np.ndarray | None = None
 
     def __post_init__(self):
         self.poses = np.asarray(self.poses, dtype=float).reshape(-1, 4)
@@ -123,7 +126,9 @@ class Observations:
 
 def _one(log, pass_offset: int) -> dict:
     data = getattr(log, "data", None)
-    temp = None
+    temp, sig = None, None
+    if data is not None and "sigma_S_per_m" in getattr(data, "columns", ()):
+        sig = np.asarray(data["sigma_S_per_m"], dtype=float)
     if data is not None and "temp_C" in getattr(data, "columns", ()):
         temp = np.asarray(data["temp_C"], dtype=float)
         if not np.all(np.isfinite(temp)):
@@ -135,7 +140,7 @@ def _one(log, pass_offset: int) -> dict:
     _, passes = np.unique(passes, return_inverse=True)
     return dict(
         poses=np.asarray(log.poses, float), currents=np.asarray(log.currents_A, float), U=np.asarray(log.U_V, float),
-        t=np.asarray(log.t_s, float), passes=passes.reshape(-1) + pass_offset, temp=temp,
+        t=np.asarray(log.t_s, float), passes=passes.reshape(-1) + pass_offset, temp=temp, sigma=sig,
     )
 
 
@@ -168,6 +173,8 @@ def from_bench_logs(logs) -> Observations:
         parts.append(part)
     temps = [p["temp"] for p in parts]
     temperature = np.concatenate(temps) if all(t is not None for t in temps) else None
+    sigmas = [p["sigma"] for p in parts]
+    sigma_logged = np.concatenate(sigmas) if all(s is not None for s in sigmas) else None
     meta = dict(getattr(first, "meta", {}) or {})
     return Observations(
         poses=np.concatenate([p["poses"] for p in parts]),
@@ -181,4 +188,5 @@ def from_bench_logs(logs) -> Observations:
         temperature_C=temperature,
         meta=meta,
         source=", ".join(str(getattr(log, "path", "") or "") for log in logs),
+        sigma_logged_S_per_m=sigma_logged,
     )

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .effects import EFFECT_NAMES, Problem, library
+from .effects import EFFECT_NAMES, Problem, library, model_trust_weights
 from .fitting import make_folds, noise_level
 from .forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
 from .observations import Observations
@@ -146,6 +146,7 @@ def diagnose(
     model_options: dict | None = None,
     split_with_bem: int = 0,
     psm_model=None,
+    model_error: float = 0.1,
     progress=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.
@@ -170,6 +171,9 @@ def diagnose(
     split_with_bem : int
         With ``model="psm"``: run the BEM on this many poses to split the gap
         into the PSM's approximation and the missing physics (0: skip).
+    model_error : float
+        Relative error of the effect model on what the tank does (weights the
+        samples near the walls down, where models disagree; 0: equal weights).
     progress : callable(str), optional
     """
     t0 = time.perf_counter()
@@ -191,6 +195,11 @@ def diagnose(
         effect_name = getattr(effect_model, "name", type(effect_model).__name__)
     if effect_name == "point-electrodes":
         notes.append("geometric effects evaluated with the point-electrode stand-in (the PSM was not usable)")
+    if obs.sigma_logged_S_per_m is not None:
+        logged = float(np.nanmean(obs.sigma_logged_S_per_m))
+        notes.append(f"the log holds conductimeter readings: mean {logged:.5g} S/m against {obs.sigma_S_per_m:.5g} S/m "
+                     f"in the meta line ({100 * (logged / obs.sigma_S_per_m - 1):+.2f} %); the simulation uses the "
+                     "meta line's value, compare with the conductivity candidate")
     problem = Problem(obs, K_base, effect_model, baseline_name=model)
     everything = np.arange(obs.n_poses)
     r0 = problem.relative_residual(problem.I_base, everything)
@@ -198,6 +207,7 @@ def diagnose(
     if not noise > 0:
         noise = max(1e-6, 1e-3 * float(np.sqrt(np.mean(r0**2))))
         notes.append("the noise estimate was zero (noise-free data?); a floor of 1e-6 relative is used")
+    problem.weight = model_trust_weights(problem, noise, model_error)
     where = breakdown(obs, r0)
     mask = region_mask(where)
     folds = make_folds(obs)

@@ -55,6 +55,14 @@ def _clean(x):
     return x
 
 
+def _excess_shrink(before: float, after: float, noise: float) -> float | None:
+    """1 - (gap above the noise after) / (gap above the noise before), gaps combined in quadrature."""
+    excess = before**2 - noise**2
+    if excess <= 0:
+        return None
+    return 1 - math.sqrt(max(after**2 - noise**2, 0.0) / excess)
+
+
 def _derived(name: str, params: dict, d: Diagnosis) -> dict:
     """Readable consequences of the parameters (the true conductivity, the sphere's radius...)."""
     out = {}
@@ -120,6 +128,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "gap_before": d.gap_before,
         "gap_after": d.gap_after,
         "shrink": 1 - d.gap_after / d.gap_before if d.gap_before > 0 else 0.0,
+        "shrink_above_noise": _excess_shrink(d.gap_before, d.gap_after, d.noise),
         "gap_before_region": before_r,
         "gap_after_region": after_r,
         "region": {"axis": d.where["concentration"]["axis"], "group": d.where["concentration"]["group"]},
@@ -136,6 +145,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "definitions": {
             "gap": "RMS over held-out samples and receivers of (bench - simulation) / |simulation|",
             "shrink": "1 - heldout_gap / gap_before",
+            "shrink_above_noise": "1 - sqrt(gap_after^2 - noise^2) / sqrt(gap_before^2 - noise^2)",
             "score": "SSE_heldout / noise^2 + n_params ln(N) (lower is better)",
             "noise": "robust spread of second differences of the residual along each pass / sqrt(6)",
         },

@@ -7,7 +7,9 @@ the data::
 
     score = SSE_heldout / s^2 + k ln N
 
-(k parameters, N held-out residuals). A combination grows one effect at a
+(k parameters, N held-out residuals; the residuals weighted by how far the
+effect model can be trusted at each sample, see
+:func:`validation.diagnosis.effects.model_trust_weights`). A combination grows one effect at a
 time (at most three), taking the effect that lowers the score most; it stops
 when
 
@@ -96,9 +98,10 @@ def _evaluate(problem, effects, folds, noise, starts, region_mask) -> CandidateS
         f = fit(problem, effects, everything, theta0=s, noise=noise)
         if best is None or f.train_rms < best.train_rms:
             best = f
-    heldout, thetas = cross_validate(problem, effects, folds, full=best, noise=noise)
+    weighted, thetas = cross_validate(problem, effects, folds, full=best, noise=noise)
+    heldout = weighted / problem.weight
     return CandidateScore(
-        tuple(effects), best, heldout, _score(heldout, best.n_params, noise), _rms(heldout),
+        tuple(effects), best, heldout, _score(weighted, best.n_params, noise), _rms(heldout),
         _rms(heldout, region_mask) if region_mask is not None else None, thetas,
     )
 

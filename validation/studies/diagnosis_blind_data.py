@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 EDGE_LENGTH_M = 0.012
-TANK_EDGE_LENGTH_M = 0.04
+TANK_EDGE_LENGTH_M = 0.02
 
 
 def bem_world(setup, focus_m, edge_length_m=EDGE_LENGTH_M, tank_edge_length_m=TANK_EDGE_LENGTH_M, progress=True):
