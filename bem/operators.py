@@ -44,9 +44,9 @@ from .triangle_integrals import inverse_distance_integral, solid_angle
 __all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "TriangleSet", "NEAR", "MID"]
 
 #: distance (in triangle diameters) below which the single layer is integrated exactly
-NEAR = 2.5
+NEAR = 2.0
 #: distance (in triangle diameters) below which the 7-point rule is used
-MID = 6.0
+MID = 5.0
 
 #: distance (in triangle diameters) beyond which the double layer uses the centroid rule in
 #: :func:`mixed_system` (``np.inf``: always the exact solid angle)

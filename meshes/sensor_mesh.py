@@ -170,10 +170,10 @@ def _zip(ring_a: np.ndarray, angles_a: np.ndarray, ring_b: np.ndarray, angles_b:
 def mesh_sensor(
     sensor: SensorDescription,
     edge_length_m: float | None = None,
-    grading: float = 1.2,
+    grading: float = 1.15,
     edge_refinement: float = 30.0,
     max_aspect: float = 3.0,
-    azimuthal_refinement: float = 1.5,
+    azimuthal_refinement: float = 2.5,
     ring_radius: str = "area",
     uniform_cylinder: bool = True,
 ) -> LabelledMesh:

@@ -73,7 +73,7 @@ def test_pose_sweep_matches_the_direct_solver(tank_sweep):
     for p, K in zip(poses, g.K_S):
         direct = conductance_matrix(Scene(preset("angels-2"), Pose.from_array(p), Tank((0.4, 0.3, 0.3))), 1.0,
                                     edge_length_m=H, tank_edge_length_m=0.03, tank_focus_m=tank_sweep.focus_m)
-        np.testing.assert_allclose(K, direct.K_S, rtol=1e-6)
+        np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)   # the sweep integrates the tank block exactly
     assert g.row_sum_residue < 5e-3
 
 
