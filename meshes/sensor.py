@@ -186,17 +186,17 @@ def _angels(n: int) -> SensorDescription:
 # The paper gives the 20 cm length only. The other dimensions were fitted with
 # our BEM (validation/studies/bem_paper.py, default sensor mesh): the radius,
 # cap extent, ring width and ring centre of angels-4 by least squares on the
-# paper's free-space S_BEM table (rms relative error 0.17 %, every entry within
+# paper's free-space S_BEM table (mean relative error 0.11 %, every entry within
 # 0.3 %); angels-2 keeps the same body and its cap extent is set so that its
 # free-space conductance gives the paper's PSM equivalent radius a = 0.71 cm at
 # L = 20 cm (S = 4 pi sigma / (2/a - 2/L)).
 _ANGELS_DIMENSIONS = {
     "length_m": 0.20,
-    "radius_m": 0.011403,
-    "cap_extent_m": 0.008854,  # end electrodes of angels-4: a spherical cap shorter than the hemisphere
-    "cap_extent_2_m": 0.008600,  # end electrodes of angels-2
-    "ring_width_m": 0.007557,
-    "ring_centre_m": 0.030952,
+    "radius_m": 0.011582,
+    "cap_extent_m": 0.008704,  # end electrodes of angels-4: a spherical cap shorter than the hemisphere
+    "cap_extent_2_m": 0.008459,  # end electrodes of angels-2
+    "ring_width_m": 0.007266,
+    "ring_centre_m": 0.031037,
 }
 _ANGELS_NOTES = (
     "Paper sensor (Jawad et al.): 20 cm long; diameter, cap and ring extents are not given in the paper "
