@@ -68,9 +68,9 @@ def expected_missing(truth):
 
 @pytest.mark.parametrize("kind", ["pty", "socket"])
 def test_every_fault_kind_every_good_record_exactly_once(tmp_path, kind):
-    run = simulated_run()
+    run = simulated_run(n=360)  # 1.5 s: the line comes back with time to spare for the faults after it
     transport = PtyTransport(tmp_path / "bench") if kind == "pty" else SocketTransport()
-    plan = FaultPlan.parse("corrupt=3,drop=3,garbage=4,disconnect=1,restart=1", disconnect_s=0.3)
+    plan = FaultPlan.parse("corrupt=3,drop=3,garbage=4,disconnect=1,restart=1", disconnect_s=0.2)
     device = BenchDevice(run, transport, rate_hz=240.0, faults=plan, seed=7, truth_path=tmp_path / "truth.csv",
                          truth_meta=META)
     thread, stop_device = serve_in_thread(device)
@@ -180,3 +180,37 @@ def test_ctrl_c_on_the_command_stops_cleanly_with_a_summary(tmp_path):
     log = read_bench_log(log_path)
     assert log.warnings == [] and f"{len(log)} records written" in err and "stopped by interrupt (Ctrl-C)" in err
     assert "0 records  0.0/s  rejected 0" in err  # the live status line was shown
+
+
+def test_a_streaming_device_with_fields_given_and_a_device_that_does_not_fit_the_meta(tmp_path):
+    run = simulated_run(n=120, rate=240.0)
+    transport = SocketTransport()
+    thread, stop_device = serve_in_thread(BenchDevice(run, transport, rate_hz=240.0, seed=3))
+    try:
+        with pytest.raises(ValueError, match=r"do not fit the log's meta \(sensor angels-2, emitter 2\): "
+                                             r"receiver column count 3"):
+            Logger(transport.url, tmp_path / "wrong.csv", dict(META, sensor="angels-2", emitter=2), quiet=True,
+                   identify_timeout_s=5.0, seconds=5.0).run()
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    assert not (tmp_path / "wrong.csv").exists()
+
+    transport = SocketTransport()
+    device = BenchDevice(run, transport, rate_hz=240.0, seed=3, autostart=True, truth_path=tmp_path / "truth.csv",
+                         truth_meta=META)
+    thread, stop_device = serve_in_thread(device, linger_s=5.0)
+    logger = Logger(transport.url, tmp_path / "run.csv", META, quiet=True, fields=run.columns, start_device=False)
+    watcher = threading.Thread(target=stop_when_done, args=(device, thread, logger, len(run)), daemon=True)
+    watcher.start()
+    try:
+        logger.run()
+    finally:
+        stop_device.set()
+        thread.join(5)
+        transport.close()
+    log, truth = read_bench_log(tmp_path / "run.csv"), read_bench_log(tmp_path / "truth.csv")
+    sent = truth.data[truth.data.fate == "sent"]
+    assert len(sent) > 0 and set(zip(log.data.boot, log.data.seq)) == set(zip(sent.boot, sent.seq))
+    assert log.meta["device"].startswith("unknown (fields given by the user)")

@@ -264,7 +264,12 @@ class Logger:
     # ---------------------------------------------------------------- writing
     def _create_writer(self, fields: tuple[str, ...]) -> None:
         columns = tuple(fields) + tuple(c for c in EXTRA_COLUMNS if c not in fields)
-        check_columns(list(columns), self.header, self.log_path, 3)
+        try:
+            check_columns(list(columns), self.header, self.log_path, 3)
+        except ValueError as exc:
+            reason = getattr(exc, "reason", str(exc))
+            raise ValueError(f"the device's record fields ({';'.join(fields)}) do not fit the log's meta "
+                             f"(sensor {self.meta['sensor']}, emitter {self.header.emitter}): {reason}") from None
         meta = dict(self.meta)
         meta.setdefault("source", f"esense acquire from {self.port_url}; device: {self.device}")
         meta["device"] = self.device
@@ -461,11 +466,14 @@ class Logger:
             if self._port is not None:
                 self._send("STOP")
             self._close_port()
-            if self._writer is None:  # nothing arrived: still leave a valid, empty log
+            if self._writer is None and self._pending:  # records came, but no hello: log them as the spec says
                 try:
                     self._create_writer(self.fields or standard_columns(self.header.sensor))
-                except (OSError, ValueError):
-                    pass
+                except (OSError, ValueError) as exc:
+                    for record in self._pending:  # never lost: kept aside with the reason
+                        self._reject("refused", f"refused: no log could be opened ({exc})",
+                                     f"(record boot {record.boot} seq {record.seq}) {','.join(record.values)}".encode())
+                    self._pending = []
             if self._writer is not None:
                 self._writer.close()
             if not self.quiet:

@@ -230,6 +230,9 @@ class BenchDevice:
                     continue
                 if "disconnect" in faults:
                     self.report.faults["disconnect"] += 1
+                    # the cable is pulled between two records, once the host has the last one:
+                    # then "sent" in the truth file means received
+                    self.transport.drain()
                     self.transport.disconnect()
                     self.host_ready = False
                     down_until = now + self.faults.disconnect_s

@@ -72,15 +72,17 @@ class FaultPlan:
     def schedule(self, n_samples: int, seed=None) -> dict[int, list[str]]:
         """Sample index -> faults at that sample, on distinct samples.
 
-        Disconnections and restarts fall in the middle half of the run (so
-        that the host sees the line come back and the records go on); line
-        faults anywhere but the first and last two samples.
+        Restarts fall in the second quarter of the run and disconnections in
+        the third (so that the host sees the line come back and the records go
+        on, and a restart does not hide the records lost while the line was
+        down); line faults anywhere but the first and last two samples.
         """
         if self.total == 0:
             return {}
         rng = np.random.default_rng(seed)
         taken: dict[int, list[str]] = {}
-        for kinds, lo, hi in ((("disconnect", "restart"), n_samples // 4, (3 * n_samples) // 4),
+        q = n_samples // 4
+        for kinds, lo, hi in ((("restart",), q, 2 * q), (("disconnect",), 2 * q, 3 * q),
                               (("corrupt", "drop", "garbage"), 2, n_samples - 2)):
             wanted = [k for k in kinds for _ in range(self.counts.get(k, 0))]
             slots = np.setdiff1d(np.arange(lo, hi), list(taken))

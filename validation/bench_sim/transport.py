@@ -16,7 +16,10 @@ Example
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
+import struct
+import termios
 import select
 import socket
 import tempfile
@@ -28,6 +31,19 @@ __all__ = ["PtyTransport", "SocketTransport", "NoHost"]
 
 class NoHost(OSError):
     """Nothing on the other side to take the bytes (no connection, or it stopped reading)."""
+
+
+def _wait_until_empty(pending, timeout_s: float, settle_s: float = 0.02) -> bool:
+    """Wait until ``pending()`` has read 0 twice, ``settle_s`` apart (the kernel moves bytes
+    to the reading side asynchronously, so one 0 may come before bytes still in flight)."""
+    deadline = time.monotonic() + timeout_s
+    zeros = 0
+    while zeros < 2:
+        time.sleep(settle_s)
+        zeros = zeros + 1 if pending() == 0 else 0
+        if time.monotonic() > deadline:
+            return False
+    return True
 
 
 class PtyTransport:
@@ -94,6 +110,16 @@ class PtyTransport:
             if exc.errno == errno.EIO:
                 return b""
             raise
+
+    def pending(self) -> int:
+        """Bytes written that the host has not read yet."""
+        if self.slave is None:
+            return 0
+        return struct.unpack("i", fcntl.ioctl(self.slave, termios.FIONREAD, b"\0\0\0\0"))[0]
+
+    def drain(self, timeout_s: float = 2.0) -> bool:
+        """Wait until the host has read everything written; False on timeout."""
+        return _wait_until_empty(self.pending, timeout_s)
 
     def disconnect(self) -> None:
         """The port disappears: the link and the terminal are gone."""
@@ -187,6 +213,16 @@ class SocketTransport:
             self.conn.close()
             self.conn = None
         return data
+
+    def pending(self) -> int:
+        """Bytes sent that the host has not acknowledged yet."""
+        if self.conn is None:
+            return 0
+        return struct.unpack("i", fcntl.ioctl(self.conn, termios.TIOCOUTQ, b"\0\0\0\0"))[0]
+
+    def drain(self, timeout_s: float = 2.0) -> bool:
+        """Wait until the host has received everything sent; False on timeout."""
+        return _wait_until_empty(self.pending, timeout_s)
 
     def disconnect(self) -> None:
         for s in (self.conn, self.server):

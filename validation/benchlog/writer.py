@@ -197,6 +197,9 @@ class BenchLogWriter:
             missing = [c for c in self.columns if c not in row]
             if missing:
                 raise ValueError(f"record lacks the column{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+            unknown = [str(c) for c in row if c not in self.columns]
+            if unknown:
+                raise ValueError(f"record has values for columns the log does not have: {', '.join(unknown)}")
             row = [row[c] for c in self.columns]
         row = list(row)
         if len(row) != len(self.columns):
