@@ -57,7 +57,8 @@ def _table(g) -> str:
 @click.option("--sigma", "sigma", type=float, default=None, help="Water conductivity in S/m (default 1, or the scene file's).")
 @click.option("--contact-impedance", "z_c", type=float, default=None, help="Electrode contact impedance in ohm m^2.")
 @click.option("--edge-length", "edge_length", type=float, default=None,
-              help="Sensor mesh edge length far from electrode edges, in metres (default: 0.6 x radius).")
+              help="Sensor mesh edge length far from electrode edges, in metres "
+                   "(default: 0.6 x radius, at most length/30).")
 @click.option("--emitter", type=int, default=None, help="Emitting electrode number (default: the sensor's, the last).")
 @click.option("--json", "json_out", default=None, type=click.Path(dir_okay=False),
               help="Write the result (K_S, S_S, sigma_S_per_m, emitter, triangles, seconds...) to this JSON file.")
@@ -144,5 +145,9 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
             json.dump(d, fh, indent=2)
         click.echo(f"wrote {json_out}")
     if vtp_out:
-        solution.to_pyvista().save(vtp_out)
+        import numpy as np
+
+        V = np.zeros(g.n)
+        V[g.emitter - 1] = 1.0
+        solution.to_pyvista(V).save(vtp_out)
         click.echo(f"wrote {vtp_out}")
