@@ -310,6 +310,7 @@ def pose_evaluator(
     """
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    code_version()  # pin the model code's version now, as it is loaded; dask workers must run the same
     objects = tuple(objects)
     if model == "bem":
         if psm_model is not None:

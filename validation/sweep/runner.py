@@ -296,7 +296,7 @@ def _run_on_dask(client, evaluator, poses, pending, n_workers, target_task_s, la
         return
     from validation.models import code_version
 
-    version = code_version(refresh=True)  # the sources as they are now, when the workers load them
+    version = code_version()  # pinned when the model was built (validation.models.pose_evaluator)
     shared = client.scatter(evaluator, broadcast=True, hash=False)
     queue = deque(pending)
     in_flight = {}
