@@ -115,3 +115,17 @@ def test_conductance_command_refuses_a_sensor_out_of_the_tank():
     result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--tank", "0.3,0.3,0.3",
                                        "--pose", "0.1,0,0,0"])
     assert result.exit_code != 0 and "sensor" in result.output
+
+
+def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
+    from meshes import Sphere
+
+    tank = Tank((0.4, 0.3, 0.3))
+    ball = (Sphere(centre_m=(0.0, 0.08, 0.0), radius_m=0.02, conductivity_S_per_m=float("inf")),)
+    sweep = PoseSweep(preset("angels-2"), tank, ball, sigma_S_per_m=1.0, contact_impedance_ohm_m2=1e-3,
+                      edge_length_m=H, tank_edge_length_m=0.04)
+    pose = np.array([[0.03, 0.0, 0.0, 0.2]])
+    K = sweep.conductance(pose).K_S[0]
+    direct = conductance_matrix(Scene(preset("angels-2"), Pose.from_array(pose[0]), tank, ball), 1.0, 1e-3,
+                                edge_length_m=H, tank_edge_length_m=0.04, tank_focus_m=sweep.focus_m)
+    np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)

@@ -53,7 +53,8 @@ def test_observed_order_of_convergence():
     exact = two_sphere_resistance_ohm(0.01, 0.10)
     errors = [abs(1 / two_spheres(0.10, s).K_S[0, 0] - exact) for s in (1, 2, 3)]
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))   # h halves per subdivision
-    assert np.all(orders > 1.6) and np.all(orders < 2.6), orders     # P0 on flat facets: O(h^2)
+    # P0 collocation on flat facets: O(h^2), reached on the finer pair (the coarsest mesh has 80 faces a sphere)
+    assert 1.8 < orders[-1] < 2.4 and orders[0] > 1.4, orders
 
 
 def test_single_sphere_capacitance():

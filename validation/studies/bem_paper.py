@@ -9,7 +9,7 @@
 3. ``angels-2`` in the 1 m tank at 0.0354 S/m, wall to wall at y = 0: the
    resistance U/I (paper: ~600 ohm mid-tank, rising towards the walls).
 4. Mesh convergence: the conductance at the default edge length against the
-   Richardson extrapolation of three meshes (h, h/1.5, h/2.25), mid-tank and
+   Richardson extrapolation of three meshes (h, h/1.25, h/1.5625), mid-tank and
    with the tip 1 cm from a wall.
 
 Run: ``python -m validation.studies.bem_paper [--fit] [--sweep] [--convergence]``
@@ -149,7 +149,7 @@ def richardson(values, ratio):
     return limit, p
 
 
-def convergence(sensor, sigma=SIGMA_PAPER, ratio=1.5):
+def convergence(sensor, sigma=SIGMA_PAPER, ratio=1.25):
     """Default-mesh conductance against the Richardson limit, mid-tank and tip 1 cm from a wall."""
     from bem.solve import conductance_matrix
     from meshes.pose import Pose
