@@ -23,7 +23,7 @@ from validation.diagnosis.effects import EFFECT_NAMES
                    "and the physics the BEM lacks (0: skip).")
 @click.option("--max-effects", type=click.IntRange(1, 3), default=3, show_default=True,
               help="Largest number of effects combined by the forward selection.")
-@click.option("--model-error", type=float, default=0.1, show_default=True,
+@click.option("--model-error", type=float, default=0.0, show_default=True,
               help="Relative error of the effect model on what the tank does; samples where the tank matters most "
                    "(close to the walls) are weighted down accordingly (0: equal weights).")
 @click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")

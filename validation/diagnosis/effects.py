@@ -19,9 +19,10 @@ name                   what changes (parameters)                    how it is ev
 ``none``               nothing: the gap is noise                    --
 =====================  ===========================================  ==========================
 
-Geometric effects are evaluated with an *effect model* (the calibrated PSM,
-fast and vectorised) as a change of K added to the baseline (the BEM or the
-PSM at the logged poses): ``K = K_base + (K_eff(changed) - K_eff(nominal))``.
+Geometric effects are evaluated with an *effect model* (the PSM with its
+spheres at the electrodes' centres, fast and vectorised) as a relative change
+of each entry of the baseline's K (the BEM or the PSM at the logged poses):
+``K = K_base * K_eff(changed) / K_eff(nominal)`` (zero row sums restored).
 When the baseline *is* the effect model this is the effect model itself.
 Then the water's conductivity scales K, the contact impedance is put in series,
 and the channel gains scale the receivers' readings: the order of the physics.
@@ -138,7 +139,11 @@ class Problem:
         """Receiver currents (p, m) of ``scenario`` for the samples ``idx``."""
         K = self.K_base[idx]
         if scenario.geometry_changed:
-            K = K + (self._effect_K(scenario) - self.K_effect0[idx])
+            # relative change of every entry of K, as the effect model sees it; zero row sums restored
+            K = K * (self._effect_K(scenario) / self.K_effect0[idx])
+            n = K.shape[-1]
+            off = K * (1 - np.eye(n))
+            K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
         K = K * scenario.sigma_scale[:, None, None]
         if scenario.contact_ohm_m2 is not None:
             K = series_contact(K, np.asarray(scenario.contact_ohm_m2) / self.areas_m2)

@@ -40,7 +40,7 @@ from meshes.pose import sensor_to_tank
 from meshes.sensor import SensorDescription
 from meshes.tank import Tank
 
-__all__ = ["ModelSimulator", "PSMEffectModel", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
+__all__ = ["ModelSimulator", "PSMEffectModel", "geometric_psm", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -137,9 +137,36 @@ class ModelSimulator:
         return self._memo[key]
 
 
+def geometric_psm(sensor: SensorDescription, calibrated=None):
+    """A PSM with its spheres at the electrodes' geometric centres and the calibrated radii.
+
+    The calibrated PSM places its spheres where they best reproduce the
+    free-space conductance, which for end caps is well beyond the real
+    electrode (angels-4: 10.8 cm from the middle for a cap centred at
+    9.5 cm). Far from the walls that does not matter; within a few
+    centimetres of a wall, or of an object, the images see the sphere where
+    it is, and the model's *sensitivity* to the wall or the object is off by
+    a factor of two or more. With the spheres where the electrodes are, the
+    changes of K caused by a moved wall, a shifted pose or another depth
+    follow the BEM within about 10 % (see studies/diagnosis_blind.py); the
+    absolute level is off by a few percent, which a relative change does not
+    see.
+    """
+    from psm import PolySphericalModel
+
+    if calibrated is None:
+        from validation.models import calibrated_psm
+
+        calibrated = calibrated_psm(sensor)
+    return PolySphericalModel(
+        radii_m=np.asarray(calibrated.radii_m, float), centres_m=sensor.electrode_centres_m,
+        emitter=sensor.emitter, electrode_areas_m2=electrode_areas_m2(sensor),
+    )
+
+
 @dataclass
 class PSMEffectModel:
-    """The calibrated PSM as effect model: :func:`psm.conductance` with a fixed image series.
+    """The PSM as effect model: :func:`psm.conductance` with a fixed image series.
 
     The number of image shells is chosen once, adaptively, on the nominal
     scene, then kept fixed so that K varies smoothly with the tank's size
@@ -150,7 +177,8 @@ class PSMEffectModel:
     sensor : SensorDescription
     sigma_S_per_m : float
     model : psm.PolySphericalModel, optional
-        Default: :func:`validation.models.calibrated_psm` of ``sensor`` (cached).
+        Default: :func:`geometric_psm` of ``sensor`` (the calibrated radii,
+        the spheres at the electrodes' centres).
     """
 
     sensor: SensorDescription
@@ -161,9 +189,7 @@ class PSMEffectModel:
 
     def __post_init__(self):
         if self.model is None:
-            from validation.models import calibrated_psm
-
-            self.model = calibrated_psm(self.sensor)
+            self.model = geometric_psm(self.sensor)
 
     @property
     def name(self) -> str:

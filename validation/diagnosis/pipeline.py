@@ -11,8 +11,10 @@
 4. greedy forward selection (:mod:`.select`), or ``none`` when the gap is
    noise; the pairs that cannot be told apart on these poses.
 
-Geometric effects are evaluated by an *effect model*: the calibrated PSM
-(vectorised) when it can be imported, as a change added to the baseline.
+Geometric effects are evaluated by an *effect model*: the PSM (vectorised),
+its radii calibrated and its spheres at the electrodes' centres
+(:func:`validation.diagnosis.forward.geometric_psm`), as a relative change
+of the baseline.
 
 Example
 -------
@@ -56,11 +58,14 @@ def parse_effects(spec: str | None) -> list[str]:
 def default_effect_model(obs: Observations, psm_model=None):
     """The calibrated PSM (or ``psm_model``) as effect model, or the point-electrode stand-in if the PSM cannot be used."""
     try:
+        from .forward import geometric_psm
+
+        calibrated = None
         if psm_model is not None:
             from validation.models import _load_psm
 
-            psm_model = _load_psm(psm_model)
-        sim = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, psm_model)
+            calibrated = _load_psm(psm_model)
+        sim = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, geometric_psm(obs.sensor, calibrated))
         sim(obs.poses, obs.tank, tuple(obs.objects))  # fails early if the PSM is not usable; fixes the image shells
         return sim, "psm"
     except Exception as exc:  # the PSM is missing or broken: say so and go on with the stand-in
@@ -146,7 +151,7 @@ def diagnose(
     model_options: dict | None = None,
     split_with_bem: int = 0,
     psm_model=None,
-    model_error: float = 0.1,
+    model_error: float = 0.0,
     progress=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.

@@ -19,9 +19,9 @@ when
   (held-out mean square above s^2): what is left is not worth a cause, or
 * after an effect, the held-out gap is within the noise (RMS <= ``at_noise`` x s).
 
-After two or more effects, each is offered a replacement by a simpler or
-equally simple candidate (a gain per receiver may have soaked up part of
-another effect's signature before that effect was in).
+After two or more effects, each is offered a replacement by every other
+candidate (a gain per receiver may have soaked up part of another effect's
+signature before that effect was in); the penalised score decides.
 
 ``none`` is answered when no effect is accepted and the gap is within the
 noise (RMS <= ``none_ceiling`` x s): nothing is invented. When the gap is
@@ -53,7 +53,7 @@ class SelectionRules:
     start_noise: float = 1.2  # before any effect: held-out RMS <= start_noise * s is noise, nothing is tried
     at_noise: float = 1.1  # after an effect: held-out RMS <= at_noise * s, nothing more to explain
     none_ceiling: float = 1.5  # nothing accepted and gap <= none_ceiling * s: the gap is noise
-    min_gain: float = 0.10  # an added effect must remove >= this share of the excess mean square
+    min_gain: float = 0.30  # an added effect must remove >= this share of the excess mean square
     max_effects: int = 3
     confusable_deg: float = 15.0  # sensitivity subspaces closer than this: cannot be told apart
 
@@ -215,7 +215,7 @@ def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, re
         best = current
         for name, single in singles.items():
             names = [e.name for e in current.effects]
-            if name in names or single.n_params > current.effects[i].n_params:
+            if name in names:
                 continue
             effects = list(current.effects)
             parts = _split_theta(current)
