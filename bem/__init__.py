@@ -11,24 +11,35 @@ PoseSweep(sensor, tank=None, objects=(), sigma_S_per_m=...)
     Many poses of one sensor in one tank, reusing the pose-invariant blocks.
 single_layer, double_layer
     Dense collocation matrices of the Laplace layer potentials on flat triangles.
+
+The numba kernels (:mod:`bem.operators`) load on first use, so
+``import bem.conductance`` stays light for the PSM.
 """
 from .conductance import ConductanceMatrix, K_from_S, S_from_K, isolate
 from .boundary_conditions import BoundaryError, WaterBoundary
 from .memory import MemoryRefusal
-from .fields import current_density_at, plane_points, potential_at
-from .operators import double_layer, single_layer
 from .solve import BemSolution, SingularSystemError, conductance_matrix, solve, solve_scene
 
-__all__ = [
-    "ConductanceMatrix", "K_from_S", "S_from_K", "isolate",
-    "BoundaryError", "WaterBoundary", "MemoryRefusal", "single_layer", "double_layer",
-    "BemSolution", "SingularSystemError", "conductance_matrix", "solve", "solve_scene",
-    "potential_at", "current_density_at", "plane_points",
-]
+_LAZY = {
+    "single_layer": "operators", "double_layer": "operators",
+    "potential_at": "fields", "current_density_at": "fields", "plane_points": "fields",
+    "PoseSweep": "sweep",
+}
 
-try:  # the pose sweep lands after the single-scene solver
-    from .sweep import PoseSweep  # noqa: F401
+__all__ = ["ConductanceMatrix", "K_from_S", "S_from_K", "isolate", "BoundaryError", "WaterBoundary",
+           "MemoryRefusal", "BemSolution", "SingularSystemError", "conductance_matrix", "solve", "solve_scene",
+           *_LAZY]
 
-    __all__.append("PoseSweep")
-except ImportError:  # pragma: no cover
-    pass
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'bem' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

@@ -43,7 +43,6 @@ import numpy as np
 
 from .boundary_conditions import BoundaryError, WaterBoundary
 from .memory import check_memory
-from .operators import TriangleSet, mixed_system
 
 __all__ = ["BemSystem", "assemble_system", "contact_impedances", "column_coefficients"]
 
@@ -92,8 +91,10 @@ class BemSystem:
 
 
 def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
-                    triangles: TriangleSet | None = None) -> BemSystem:
+                    triangles=None) -> BemSystem:
     """Assemble the dense mixed system on ``boundary`` (refusing what does not fit in memory)."""
+    from .operators import TriangleSet, mixed_system  # numba kernels, loaded on first use
+
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
     n = boundary.n_electrodes
