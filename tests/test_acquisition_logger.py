@@ -115,7 +115,7 @@ def test_refuses_to_overwrite_and_appends_on_request(tmp_path):
         Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=20).run()
         with pytest.raises(FileExistsError, match="refusing to overwrite"):
             Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=10)
-        Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=10, append=True).run()
+        Logger(transport.path, tmp_path / "run.csv", META, quiet=True, samples=10, append=True, voltage_V=2.0).run()
     finally:
         stop_device.set()
         thread.join(5)
@@ -123,6 +123,10 @@ def test_refuses_to_overwrite_and_appends_on_request(tmp_path):
     log = read_bench_log(tmp_path / "run.csv")
     assert len(log) == 30 and len(set(zip(log.data.boot, log.data.seq))) == 30
     assert np.all(np.diff(log.t_s) >= 0)
+    # VOLT: the device doubled its voltage and the currents followed (linear in U)
+    np.testing.assert_array_equal(log.U_V, [1.0] * 20 + [2.0] * 10)
+    R = log.resistance_ohm
+    np.testing.assert_allclose(R[20:], np.broadcast_to(R[19], (10, 3)), rtol=0.02)
 
 
 def test_kill_minus_nine_leaves_a_readable_log(tmp_path):

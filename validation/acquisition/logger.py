@@ -78,6 +78,7 @@ class AcquisitionCounters:
     incomplete: int = 0   #: lines cut short by a lost port or the end of the acquisition
     restarts: int = 0     #: device restarts (new boot number)
     reconnects: int = 0   #: times the port was lost and opened again
+    after_stop: int = 0   #: complete lines read with the last chunk after the stop condition (side file only)
 
     @property
     def rejected(self) -> int:
@@ -109,7 +110,9 @@ class AcquisitionSummary:
             f"sequence: {c.gaps} gaps ({c.missing} records missing), {c.restarts} device restarts, "
             f"{c.reconnects} reconnects",
         ]
-        if c.rejected or c.gaps or c.restarts or c.reconnects:
+        if c.after_stop:
+            lines.append(f"{c.after_stop} lines received after the stop condition kept in the side file, not logged")
+        if c.rejected or c.gaps or c.restarts or c.reconnects or c.after_stop:
             lines.append(f"details: {self.rejected_path}")
         return "\n".join(lines)
 
@@ -153,13 +156,15 @@ class Logger:
         Set it to stop the loop (from another thread).
     start_device : bool
         Send ``START`` after the identification (and after a restart).
+    voltage_V : float, optional
+        Ask the device for this emitter voltage (``VOLT``) before each ``START``.
     """
 
     def __init__(self, port: str, log_path, meta: dict, baudrate: int = 115200, samples: int | None = None,
                  seconds: float | None = None, append: bool = False, quiet: bool = False, status=None,
                  fields=None, identify_timeout_s: float = 2.0, reconnect_interval_s: float = 0.5,
                  read_timeout_s: float = 0.05, sync_interval_s: float = 0.5, stop: threading.Event | None = None,
-                 start_device: bool = True):
+                 start_device: bool = True, voltage_V: float | None = None):
         self.port_url = str(port)
         self.log_path = Path(log_path)
         self.rejected_path = rejected_path(self.log_path)
@@ -178,6 +183,9 @@ class Logger:
         self.sync_interval_s = sync_interval_s
         self.stop = stop or threading.Event()
         self.start_device = start_device
+        self.voltage_V = voltage_V
+        if voltage_V is not None:
+            self.meta.setdefault("voltage_V", float(voltage_V))
         self.counters = AcquisitionCounters()
         self.device = "unknown (no hello received)"
         self.last_currents: tuple[str, ...] = ()
@@ -224,9 +232,17 @@ class Logger:
                                      write_timeout=1.0)
         self._port = port
         self._send("ID")
-        if self.start_device and self._writer is not None:
-            self._send("START")
+        if self._writer is not None:
+            self._start()
         return port
+
+    def _start(self) -> None:
+        """Set the voltage if asked, then start the device's stream."""
+        if not self.start_device:
+            return
+        if self.voltage_V is not None:
+            self._send("VOLT", f"{self.voltage_V:.6f}")
+        self._send("START")
 
     def _send(self, name: str, *args) -> None:
         try:
@@ -281,14 +297,10 @@ class Logger:
         if self._writer.recovered_tail is not None:
             self._side_write("cut-short last line removed from the log before appending",
                              self._writer.recovered_tail.encode("utf-8", "backslashreplace"))
-        if self.start_device:
-            self._send("START")
+        self._start()
         pending, self._pending = self._pending, []
         for record in pending:
             self._take_record(record, raw=None)
-
-    def _device_time(self, value: str) -> float:
-        return float(value)
 
     def _shifted(self, text: str, offset: float) -> str:
         """``text`` (a time in s) plus ``offset``, with as many decimals as the device wrote."""
@@ -357,19 +369,16 @@ class Logger:
         if noise:
             self._reject("garbage", "noise before the start marker (the record after it was kept)", noise)
         if isinstance(message, Hello):
-            first = self.device.startswith("unknown")
             self.device = message.device
             if self._tracker.note_hello(message.boot):
                 self.counters.restarts += 1
                 self._event(f"device restarted: hello with boot {message.boot}")
-                if self.start_device and self._writer is not None:
-                    self._send("START")
+                if self._writer is not None:
+                    self._start()
             if self._writer is None:
                 self._create_writer(self.fields or message.fields)
-            elif tuple(message.fields) != tuple(self._columns[:self._n_fields]) and self.fields is None:
+            elif tuple(message.fields) != tuple(self._columns[:self._n_fields]):
                 self._event(f"device announces other fields ({';'.join(message.fields)}) than the log's columns")
-            elif first:
-                pass
         elif isinstance(message, Ack):
             if not message.ok:
                 self._event(f"device refused {message.command}: {message.text}")
@@ -415,7 +424,7 @@ class Logger:
         import serial
 
         t0 = time.monotonic()
-        stopped_by = "stop"
+        stopped_by = "error"
         try:
             self._open()
         except (serial.SerialException, OSError, ValueError) as exc:
@@ -440,10 +449,13 @@ class Logger:
                 if chunk:
                     buffer += chunk
                     *lines, buffer = buffer.split(b"\n")
-                    for line in lines:
-                        self._handle_line(line + b"\n")
-                        if self._should_stop(t0):
+                    for k, line in enumerate(lines):
+                        if self._should_stop(t0):  # complete lines already read: kept aside, not lost
+                            for rest in lines[k:]:
+                                self.counters.after_stop += 1
+                                self._side_write("received after the stop condition, not logged", rest + b"\n")
                             break
+                        self._handle_line(line + b"\n")
                     if len(buffer) > MAX_LINE_BYTES:
                         self._reject("framing", f"no line end within {MAX_LINE_BYTES} bytes", buffer)
                         buffer = b""
@@ -454,10 +466,7 @@ class Logger:
                 if self._writer is not None:
                     self._writer.sync_if_due()
                 self._show_status(t0)
-            else:
-                stopped_by = self._stop_reason(t0)
-            if stopped_by == "stop":
-                stopped_by = self._stop_reason(t0)
+            stopped_by = self._stop_reason(t0)
         except KeyboardInterrupt:
             stopped_by = "interrupt (Ctrl-C)"
         finally:

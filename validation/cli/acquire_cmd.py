@@ -21,9 +21,12 @@ import click
 @click.option("--fields", default=None, metavar="NAME,NAME,...",
               help="Field names of a record, for a device that does not answer ID (default: from its hello line).")
 @click.option("--no-start", is_flag=True, help="Do not send START to the device (it streams by itself).")
+@click.option("--voltage", type=float, default=None,
+              help="Ask the device for this emitter voltage U in V (command VOLT) before starting it.")
 @click.option("--reconnect-interval", default=0.5, show_default=True, type=click.FloatRange(min=0.01),
               help="Seconds between attempts to reopen a lost port.")
-def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fields, no_start, reconnect_interval):
+def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fields, no_start, voltage,
+            reconnect_interval):
     """Record the bench's serial line into a bench log.
 
     Every checked record is appended to OUTPUT as it arrives (flushed at each
@@ -50,7 +53,8 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
     try:
         logger = Logger(port, output, meta, baudrate=baud, samples=samples, seconds=seconds, append=append,
                         quiet=quiet, fields=fields.split(",") if fields else None,
-                        reconnect_interval_s=reconnect_interval, start_device=not no_start)
+                        reconnect_interval_s=reconnect_interval, start_device=not no_start,
+                        voltage_V=voltage)
         # Ctrl-C and SIGTERM stop the loop at its next turn: the record in hand is finished, the file closed
         signal.signal(signal.SIGINT, lambda signum, frame: logger.request_stop("interrupt (Ctrl-C)"))
         signal.signal(signal.SIGTERM, lambda signum, frame: logger.request_stop("SIGTERM"))
