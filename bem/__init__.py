@@ -12,6 +12,9 @@ PoseSweep(sensor, tank=None, objects=(), sigma_S_per_m=...)
 single_layer, double_layer
     Dense collocation matrices of the Laplace layer potentials on flat triangles.
 
+A sensor alone in unbounded water is solved by the axisymmetric reduction
+(:mod:`bem.axisymmetric`, within 1e-4 of the full collocation).
+
 The numba kernels (:mod:`bem.operators`) load on first use, so
 ``import bem.conductance`` stays light for the PSM.
 """

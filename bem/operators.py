@@ -41,7 +41,8 @@ from numba import njit, prange
 from .quadrature import DUNAVANT_5, rule_points
 from .triangle_integrals import inverse_distance_integral, solid_angle
 
-__all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "TriangleSet", "NEAR", "MID"]
+__all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "mixed_system_reduced", "TriangleSet",
+           "NEAR", "MID", "FAR"]
 
 #: distance (in triangle diameters) below which the single layer is integrated exactly
 NEAR = 2.0
@@ -128,6 +129,22 @@ def _mixed_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, f
                 B[i, g] += h
 
 
+@njit(parallel=True, cache=True)
+def _mixed_reduced_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double,
+                          group, column_class, A, B):
+    n, m = points.shape[0], tri.shape[0]
+    for i in prange(n):
+        x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
+        for j in range(m):
+            is_own = own[i] == j
+            sl, dl = _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2)
+            h = dl + 0.5 if is_own else dl
+            A[i, column_class[j]] += c_single[j] * sl + c_double[j] * h
+            g = group[j]
+            if g >= 0:
+                B[i, g] += h
+
+
 def _prepare(points, triangles, own):
     tris = triangles if isinstance(triangles, TriangleSet) else TriangleSet(triangles)
     pts = np.ascontiguousarray(points, dtype=float).reshape(-1, 3)
@@ -175,4 +192,21 @@ def mixed_system(points_m, triangles, own, c_single, c_double, group, n_groups, 
     _mixed_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
                   t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
                   np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64), A, B)
+    return A, B[:, : int(n_groups)]
+
+
+def mixed_system_reduced(points_m, triangles, own, c_single, c_double, group, n_groups, column_class, n_classes,
+                         near=NEAR, mid=MID, far=FAR):
+    """:func:`mixed_system` with the columns summed by class: ``A[i, c] = sum over j in class c``.
+
+    For unknowns that are constant over each class of triangles (a reduced
+    basis), without ever storing the full matrix.
+    """
+    pts, t, own = _prepare(points_m, triangles, own)
+    A = np.zeros((len(pts), int(n_classes)))
+    B = np.zeros((len(pts), max(int(n_groups), 1)))
+    _mixed_reduced_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
+                          t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
+                          np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64),
+                          np.ascontiguousarray(column_class, dtype=np.int64), A, B)
     return A, B[:, : int(n_groups)]

@@ -244,8 +244,13 @@ def check_object_materials(objects) -> None:
 
 
 def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge_length_m=None,
-                **mesh_options) -> BemSolution:
-    """Mesh a :class:`meshes.scene.Scene` (or take a sensor ``LabelledMesh`` in unbounded water) and solve it."""
+                axisymmetric: bool | None = None, **mesh_options) -> BemSolution:
+    """Mesh a :class:`meshes.scene.Scene` (or take a sensor ``LabelledMesh`` in unbounded water) and solve it.
+
+    ``axisymmetric``: use the axisymmetric reduction (:mod:`bem.axisymmetric`);
+    default: for a scene whose sensor is alone in unbounded water (meshed by
+    ``mesh_sensor``), not for a user's mesh.
+    """
     from meshes.labelled_mesh import LabelledMesh
 
     t0 = time.perf_counter()
@@ -263,7 +268,14 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
             emitter=scene.sensor.emitter)
         emitter = scene.sensor.emitter
         t_mesh = time.perf_counter() - t0
-    solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+    from .axisymmetric import is_axisymmetric_sensor, solve_axisymmetric
+
+    if axisymmetric is None:
+        axisymmetric = not isinstance(scene, LabelledMesh) and not scene.objects and scene.tank is None
+    if axisymmetric and is_axisymmetric_sensor(boundary):
+        solution = solve_axisymmetric(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+    else:
+        solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
     solution.info["mesh_s"] = t_mesh
     solution.info["seconds"] = time.perf_counter() - t0
     if contact_impedance_ohm_m2 is not None:
