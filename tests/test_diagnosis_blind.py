@@ -8,7 +8,9 @@ the other water depth and tank size as the tank mesh, the robot's offset as
 the true poses. Output-side effects (conductivity, drift, channel gains) and
 the bench noise (0.05 % on currents, 0.1 mm on positions) are added here. The
 diagnosis gets the observations and the BEM baseline of the *believed* scene,
-never the truth; its geometric effects are evaluated by the calibrated PSM.
+never the truth; its geometric effects are evaluated by the PSM (spheres at
+the electrodes' centres) with Kelvin images for the sphere: other code and
+other physics than the BEM that made the data.
 """
 from pathlib import Path
 
@@ -16,8 +18,8 @@ import numpy as np
 import pytest
 
 from validation.diagnosis.blind import BlindSetup, assemble
-from validation.diagnosis.forward import PSMEffectModel
-from validation.diagnosis.pipeline import diagnose
+from validation.diagnosis.forward import geometric_psm
+from validation.diagnosis.pipeline import default_effect_model_from, diagnose
 
 DATA = Path(__file__).parent / "data" / "diagnosis" / "bem_worlds.npz"
 
@@ -45,7 +47,8 @@ GEOMETRIC = ("contact_impedance", "pose_offset", "water_depth", "tank_size", "un
 def bem():
     data = np.load(DATA)
     setup = BlindSetup()
-    return setup, data, PSMEffectModel(setup.sensor, setup.sigma_S_per_m)
+    effect_model = default_effect_model_from(setup.sensor, setup.sigma_S_per_m, geometric_psm(setup.sensor))
+    return setup, data, effect_model
 
 
 @pytest.mark.parametrize("case", list(CASES))

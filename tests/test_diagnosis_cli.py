@@ -12,8 +12,10 @@ from validation.diagnosis.forward import PSMEffectModel
 
 @pytest.fixture(scope="module")
 def psm_world():
-    setup = BlindSetup()
-    return setup, PSMEffectModel(setup.sensor, setup.sigma_S_per_m)
+    from validation.models import calibrated_psm
+
+    setup = BlindSetup()  # the world: the same calibrated PSM as the command's baseline (--model psm)
+    return setup, PSMEffectModel(setup.sensor, setup.sigma_S_per_m, calibrated_psm(setup.sensor))
 
 
 def _log(tmp_path, psm_world, name, seed, **output):

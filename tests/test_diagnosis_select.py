@@ -37,10 +37,10 @@ def test_noise_only_gives_none(world):
 
 def test_conductivity_is_named_and_warned_against_a_common_gain(world):
     d = _run(world, 11, conductivity=0.02)
-    assert d.chosen[0] == "conductivity"
+    assert d.chosen == ["conductivity"]
     assert d.gap_after < 0.2 * d.gap_before
-    pairs = [set(p["pair"]) for p in d.confusable]
-    assert {"conductivity", "channel_gain"} in pairs
+    pair = next(p for p in d.confusable if set(p["pair"]) == {"conductivity", "channel_gain"})
+    assert pair["angle_deg"] < 1 and "conductimeter" in pair["separate_by"]
     best = d.ranking[0]
     est = best.fit.params()["conductivity"]["sigma_rel_change"]
     sd = best.fit.uncertainty()["conductivity"]["sigma_rel_change"]

@@ -240,7 +240,7 @@ def _drift_temperature(theta, sc, pb, idx):
 
 
 def _gain(theta, sc, pb, idx):
-    sc.gain = sc.gain * (1.0 + np.asarray(theta))
+    sc.gain = sc.gain * (1.0 + np.asarray(theta, float))
     return sc
 
 
@@ -348,7 +348,9 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
     receivers = obs.sensor.receivers if obs is not None else tuple(range(1, m + 1))
     lib["channel_gain"] = [
         Effect("channel_gain", "", tuple(f"gain_rel_change_I{k}" for k in receivers), ("1",) * m, (0.01,) * m,
-               (-0.5,) * m, (0.5,) * m, _gain, describe="receiver k reads (1 + g_k) times its current")
+               (-0.5,) * m, (0.5,) * m, _gain,
+               describe="receiver k reads (1 + g_k) times its current (a gain common to all receivers cannot be "
+                        "told from a conductivity change: see the confusable pairs)")
     ]
     lib["pose_offset"] = [
         Effect("pose_offset", "", ("dx_m", "dy_m", "dyaw_rad"), ("m", "m", "rad"), (0.005, 0.005, 0.01),

@@ -65,12 +65,22 @@ def default_effect_model(obs: Observations, psm_model=None):
             from validation.models import _load_psm
 
             calibrated = _load_psm(psm_model)
-        sim = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, geometric_psm(obs.sensor, calibrated))
-        sim(obs.poses, obs.tank, tuple(obs.objects))  # fails early if the PSM is not usable; fixes the image shells
-        return sim, "psm"
+        return default_effect_model_from(obs.sensor, obs.sigma_S_per_m, geometric_psm(obs.sensor, calibrated),
+                                         obs), "psm+kelvin"
     except Exception as exc:  # the PSM is missing or broken: say so and go on with the stand-in
         warnings.warn(f"PSM unavailable as effect model ({exc}); using the point-electrode stand-in")
         return PointElectrodeSimulator(obs.sensor, obs.sigma_S_per_m), "point-electrodes"
+
+
+def default_effect_model_from(sensor, sigma_S_per_m, psm_model, obs=None):
+    """The geometric PSM with Kelvin spheres (:class:`CompositeEffectModel`)."""
+    from .forward import CompositeEffectModel
+
+    psm = PSMEffectModel(sensor, sigma_S_per_m, psm_model)
+    if obs is not None:
+        psm(obs.poses, obs.tank, tuple(obs.objects))  # fails early if the PSM is not usable; fixes the image shells
+    points = PointElectrodeSimulator(sensor, sigma_S_per_m, radii_m=np.asarray(psm.model.radii_m), kelvin=True)
+    return CompositeEffectModel(psm, points)
 
 
 @dataclass

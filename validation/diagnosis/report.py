@@ -101,6 +101,7 @@ def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
         "heldout_gap_region": c.region_gap,
         "shrink_region": (1 - c.region_gap / before_r) if (before_r and c.region_gap is not None) else None,
         "train_gap": c.fit.train_rms,
+        "at_bound": c.at_bound,
         "score": c.score,
         "delta_score_vs_none": c.score - d.baseline.score,
         "fit": c.fit.message,

@@ -14,7 +14,9 @@ time (at most three), taking the effect that lowers the score most; it stops
 when
 
 * the gap before any effect is within the noise (RMS <= ``start_noise`` x s), or
-* no effect lowers the score, or
+* no effect lowers the score (an effect whose fit pins a parameter at its
+  plausibility bound is not taken: it is bending itself to mimic something
+  else), or
 * the best one removes less than ``min_gain`` of the remaining excess
   (held-out mean square above s^2): what is left is not worth a cause, or
 * after an effect, the held-out gap is within the noise (RMS <= ``at_noise`` x s).
@@ -51,7 +53,7 @@ class SelectionRules:
     """Thresholds of the selection, in units of the estimated noise."""
 
     start_noise: float = 1.2  # before any effect: held-out RMS <= start_noise * s is noise, nothing is tried
-    at_noise: float = 1.1  # after an effect: held-out RMS <= at_noise * s, nothing more to explain
+    at_noise: float = 1.5  # after an effect: held-out RMS <= at_noise * s, nothing more to explain
     none_ceiling: float = 1.5  # nothing accepted and gap <= none_ceiling * s: the gap is noise
     min_gain: float = 0.30  # an added effect must remove >= this share of the excess mean square
     max_effects: int = 3
@@ -84,6 +86,28 @@ class CandidateScore:
     @property
     def n_params(self) -> int:
         return self.fit.n_params
+
+    @property
+    def at_bound(self) -> list[str]:
+        """Well-determined parameters pinned at a plausibility bound (the effect is then bending itself
+        to mimic something else).
+
+        A parameter counts when the bound lies more than 3 standard deviations from zero (a poorly
+        determined parameter wandering to its bound says nothing); the zero lower bound of a contact
+        impedance is physical, not a plausibility limit.
+        """
+        out, i = [], 0
+        sd = np.sqrt(np.clip(np.diag(self.fit.cov), 0, None)) if self.fit.cov.size else np.zeros(0)
+        for e in self.effects:
+            for j, name in enumerate(e.param_names):
+                lo, hi, v = e.lower[j], e.upper[j], self.fit.theta[i + j]
+                tol = 1e-3 * (hi - lo)
+                at_lo = v - lo < tol and not (e.name == "contact_impedance" and lo == 0.0)
+                at_hi = hi - v < tol
+                if (at_lo or at_hi) and abs(v) > 3 * sd[i + j]:
+                    out.append(f"{e.name}.{name}")
+            i += e.n_params
+        return out
 
 
 def _score(heldout: np.ndarray, k: int, noise: float) -> float:
@@ -175,12 +199,15 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
             effects = list(current.effects) + [single.effects[0]]
             starts = [np.concatenate([current.fit.theta, s]) for s in _combo_starts(problem, current, single)]
             tried.append(_evaluate(problem, effects, folds, noise, starts, region_mask))
+        pinned = {c.name: c.at_bound for c in tried if c.at_bound}
+        tried = [c for c in tried if not c.at_bound]
         if not tried:
             break
         best = min(tried, key=lambda c: c.score)
         excess = current.heldout_gap**2 - noise**2
         gain = current.heldout_gap**2 - best.heldout_gap**2
-        step = {"tried": {c.name: {"score": c.score, "heldout_gap": c.heldout_gap} for c in tried}, "best": best.name}
+        step = {"tried": {c.name: {"score": c.score, "heldout_gap": c.heldout_gap} for c in tried}, "best": best.name,
+                "refused_at_bounds": pinned}
         if best.score >= current.score:
             step["stop"] = "no effect lowers the penalised held-out score"
             steps.append(step)
@@ -222,7 +249,7 @@ def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, re
             effects[i] = single.effects[0]
             parts[i] = single.fit.theta
             cand = _evaluate(problem, effects, folds, noise, [np.concatenate(parts)], region_mask)
-            if cand.score < best.score:
+            if cand.score < best.score and not cand.at_bound:
                 best = cand
         if best is not current:
             steps.append({"swap": f"{current.effects[i].name} -> {best.effects[i].name}", "score": best.score,
