@@ -19,11 +19,12 @@ built ring by ring:
    the edge, where the current density is singular (~ r^-1/2).
 2. **Vertices around each ring.** Ring ``i`` of radius ``r_i`` gets
    ``M_i = ceil(2 pi r_i / h_phi)`` vertices with
-   ``h_phi = min(edge_length_m, max_aspect * h(s_i))``: triangles are close
-   to equilateral where the axial spacing allows, and near the edges they
-   are at most ``max_aspect`` times longer around than along the axis, which
-   caps the number of triangles (the solution is nearly axisymmetric there,
-   the azimuthal direction needs little resolution).
+   ``h_phi = clip(max_aspect * h(s_i), edge_length_m / azimuthal_refinement,
+   edge_length_m)``: triangles are close to equilateral where the axial
+   spacing allows; near the electrode edges they are longer around than
+   along the axis (the solution varies along the axis there, hardly around
+   it), but the rings there are still ``azimuthal_refinement`` times finer
+   around than far away, which the conductances need.
 3. **Zipping.** Neighbouring rings of different counts are joined by the
    classic advancing-front zip (always advance the ring whose next vertex
    comes first in angle); the tips are fans.
