@@ -203,14 +203,20 @@ def cost(sensor_name: str, budget_s: float, start_edge_m: float, ratio: float) -
     mem = np.array([r["peak_rss_MB"] for r in rows])
     big = N >= 1000
     bt, at = np.polyfit(np.log(N[big]), np.log(t[big]), 1) if big.sum() >= 2 else np.polyfit(np.log(N), np.log(t), 1)
-    bm = np.polyfit(np.log(N[-3:]), np.log(mem[-3:] - mem.min() + 1.0), 1)[0]
-    n_fit = int(max(big.sum(), 2)) if big.sum() >= 2 else len(N)
+    b_top = np.polyfit(np.log(N[-3:]), np.log(t[-3:]), 1)[0]
+    bm = np.polyfit(np.log(N[-3:]), np.log(mem[-3:]), 1)[0]
+    n_fit = int(big.sum()) if big.sum() >= 2 else len(N)
     have = available_bytes()
-    n_max = int(np.sqrt(0.8 * have / 8.0))  # one dense N x N float64 matrix in 80 % of the free memory
-    t_max = float(np.exp(at) * n_max**bt)
-    print(f"   fitted time ~ N^{bt:.2f} (over {n_fit} sizes with N >= 1000); peak memory grows ~ N^{bm:.2f} at the top")
-    print(f"   the dense path stops at about N = {n_max} triangles ({0.8 * have / 1e9:.1f} GB for one dense matrix, "
-          f"8 N^2 bytes), where one solve would take about {t_max / 60:.0f} min by the fit")
+    bytes_per_N2 = mem[-1] * 1e6 / N[-1] ** 2  # measured at the largest size: dense matrices and their copies
+    n_max = int(np.sqrt(0.8 * have / bytes_per_N2))
+    t_top = float(t[-1] * (n_max / N[-1]) ** b_top)
+    t_lu = float(t[-1] * (n_max / N[-1]) ** 3)
+    print(f"   fitted time ~ N^{bt:.2f} over {n_fit} sizes with N >= 1000; N^{b_top:.2f} over the largest 3 "
+          f"(assembly, O(N^2), gives way to the O(N^3) factorisation as N grows); peak memory ~ N^{bm:.2f}, "
+          f"{bytes_per_N2:.1f} bytes per N^2 at N = {int(N[-1])}")
+    print(f"   the dense path stops at about N = {n_max} triangles ({0.8 * have / 1e9:.1f} GB = 80 % of the free memory "
+          f"at {bytes_per_N2:.1f} N^2 bytes); one solve there: about {t_top / 60:.0f} min by the top exponent, "
+          f"{t_lu / 60:.0f} min if the factorisation's N^3 already dominates")
     print("   next step past that: a compressed operator (H-matrix/ACA or FMM, O(N log N) memory) with an "
           "iterative solver (GMRES, preconditioned by the sensor's own near-field blocks)")
 
@@ -223,8 +229,8 @@ def main(argv=None) -> None:
     parser.add_argument("--edge-length", type=float, default=None, help="BEM sensor edge length (m) for the scaling grid")
     parser.add_argument("--psm-poses", type=int, default=100_000, help="poses of the PSM grid (overhead)")
     parser.add_argument("--cost-budget-s", type=float, default=120.0, help="largest predicted time of one solve (cost)")
-    parser.add_argument("--cost-start-edge", type=float, default=0.012, help="coarsest edge length (m) (cost)")
-    parser.add_argument("--cost-ratio", type=float, default=0.8, help="edge length ratio between sizes (cost)")
+    parser.add_argument("--cost-start-edge", type=float, default=0.02, help="coarsest edge length (m) (cost)")
+    parser.add_argument("--cost-ratio", type=float, default=0.75, help="edge length ratio between sizes (cost)")
     args = parser.parse_args(argv)
     parts = [p.strip() for p in args.parts.split(",") if p.strip()]
     print(f"sweep_scaling on {os.cpu_count()} cores ({_load()}); timings on a shared machine are inflated")
