@@ -3,7 +3,6 @@ import numpy as np
 import pytest
 
 from meshes.sensor import preset
-from meshes.tank import Tank
 from validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
 from validation.diagnosis.effects import EFFECT_NAMES, Problem, library, object_sphere
 from validation.diagnosis.fitting import (cross_validate, fit, make_folds, noise_level, predict,

@@ -46,7 +46,7 @@ import numpy as np
 from meshes.objects import Sphere
 from meshes.tank import Tank
 
-from .forward import electrode_areas_m2, receiver_currents, series_contact, sphere_dipole_m3
+from .forward import electrode_areas_m2, receiver_currents, series_contact
 from .observations import Observations
 
 __all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]

@@ -4,7 +4,9 @@ Each trial builds bench data from a *world* with one effect (or a pair) at a
 strength drawn log-uniformly across a realistic range, adds the bench noise
 (0.05 % on currents, 0.1 mm on positions), and runs the diagnosis (effects
 evaluated with the calibrated PSM; baseline = the world without effect, as a
-perfect simulation of the believed set-up would be). Printed:
+perfect simulation of the believed set-up would be; the effect model is the
+diagnosis's default: the PSM with spheres at the electrodes plus Kelvin
+images for spheres). Printed:
 
 * the confusion matrix: injected effect (rows; for pairs, the stronger one)
   against the first effect chosen (columns);
@@ -118,7 +120,8 @@ def speed(setup, effect_model, world, rng) -> float:
 
 def main(argv=None):
     from validation.diagnosis.blind import BlindSetup, blind_poses
-    from validation.diagnosis.forward import PointElectrodeSimulator, PSMEffectModel
+    from validation.diagnosis.forward import PointElectrodeSimulator, geometric_psm
+    from validation.diagnosis.pipeline import default_effect_model_from
 
     ap = argparse.ArgumentParser(description="blind suite of the gap diagnosis")
     ap.add_argument("--trials", type=int, default=60, help="number of datasets")
@@ -130,7 +133,7 @@ def main(argv=None):
     warnings.simplefilter("ignore")
     rng = np.random.default_rng(args.seed)
     setup = BlindSetup()
-    effect_model = PSMEffectModel(setup.sensor, setup.sigma_S_per_m)
+    effect_model = default_effect_model_from(setup.sensor, setup.sigma_S_per_m, geometric_psm(setup.sensor))
     world = PointElectrodeSimulator(setup.sensor, setup.sigma_S_per_m, radius_factor=0.68, shells=3)
     I_cache = None
     if args.world == "bem":
