@@ -1,9 +1,8 @@
 """The bundled example logs: strict reading, labelled synthetic, the paper's set-up."""
-from pathlib import Path
-
 import numpy as np
 import pytest
 
+from validation.bench_sim import parse_path
 from validation.benchlog import read_bench_log
 from validation.studies.make_example_data import DATA_DIR, EXAMPLES
 
@@ -18,9 +17,10 @@ def test_bundled_example_reads_and_says_it_is_synthetic(name):
     assert log.tank.size_m == (1.0, 1.0, 1.0) and log.sigma_S_per_m == 0.0354
     assert len(log.pass_numbers) == len(paths)
     assert np.all(log.currents_A > 0) and np.all(np.diff(log.t_s) > 0)
-    first = log.select_pass(log.pass_numbers[0])
-    np.testing.assert_allclose(first.poses[[0, -1], 0], [-0.38, 0.38])
-    np.testing.assert_array_equal(first.poses[:, 1:], 0.0)  # y = 0, mid-plane, yaw 0
+    for number, spec in zip(log.pass_numbers, paths):  # the logged poses are the nominal path, to 0.1 mm
+        np.testing.assert_allclose(log.select_pass(number).poses, parse_path(spec), atol=5.1e-5)
+    first = log.select_pass(log.pass_numbers[0]).poses
+    assert -first[0, 0] == first[-1, 0] >= 0.37 and np.all(first[:, 1:] == 0.0)  # wall to wall at y = 0, yaw 0
 
 
 def test_wall_to_wall_resistance_rises_towards_the_walls_as_in_the_paper():

@@ -13,18 +13,25 @@ gap and a conductivity correction removes it.
 file                           content
 =============================  ===========================================================
 angels-2_wall-to-wall.csv      angels-2, x from -0.38 to 0.38 m at y = 0, yaw 0, 161 poses
-angels-4_wall-to-wall.csv      angels-4, the same pass
-angels-4_passes.csv            angels-4, 3 passes (``pass`` column): along x at y = 0, back
-                               along x at y = 0.2 m, along y at x = 0 with yaw pi/2;
-                               the water warms by 0.3 K over the run
-angels-4_object.csv            angels-4 wall to wall at y = 0 with a conducting sphere
-                               (radius 2 cm at x = 0.1, y = 0.06 m) not in the meta
+angels-4_wall-to-wall.csv      angels-4, x from -0.37 to 0.37 m at y = 0, yaw 0, 161 poses
+angels-4_passes.csv            angels-4, 3 passes of 41 poses (``pass`` column): along x at
+                               y = 0, back along x at y = 0.2 m, along y at x = 0 with yaw
+                               pi/2; the water warms by 0.3 K over the run
+angels-4_object.csv            angels-4, x from -0.37 to 0.37 m at y = 0, 81 poses, with a
+                               conducting sphere (radius 2 cm at x = 0.1, y = 0.06 m) that
+                               the meta does not mention
 =============================  ===========================================================
 
-Why -0.38 to 0.38 m: the paper's figures span the aquarium from -0.4 to 0.4 m
-but its near-wall data reach |x| = 0.38 m, and the bench-log spec's example
-starts at x = -0.38; at |x| = 0.40 m the 20 cm sensor's tip would touch the
-wall of the 1 m tank.
+The currents come from the BEM (the paper's reference, which reproduces its
+bench), so that a PSM run on these logs shows the PSM's own error on top of
+the conductivity gap, as in the paper.
+
+Why +-0.38 m: the paper's figures span the aquarium from -0.4 to 0.4 m but
+its near-wall data reach |x| = 0.38 m, and the bench-log spec's example starts
+at x = -0.38; at |x| = 0.40 m the 20 cm sensor's tip would touch the wall of
+the 1 m tank. angels-4 stops at +-0.37 m: its PSM is longer than the sensor
+(the paper's fit: 23.39 cm between the outer sphere centres), and at 0.38 m
+its tail sphere would reach beyond the wall, so no PSM could be run on the log.
 
 Run ``python -m validation.studies.make_example_data`` to regenerate them into
 a temporary folder and compare with the bundled ones (figures: resistance
@@ -47,12 +54,12 @@ RATE_HZ = 10.0
 
 #: file name -> (sensor, passes as path specs, effects, seed)
 EXAMPLES = {
-    "angels-2_wall-to-wall.csv": ("angels-2", ["wall-to-wall:161"], ["conductivity=-2.06%"], 2),
-    "angels-4_wall-to-wall.csv": ("angels-4", ["wall-to-wall:161"], ["conductivity=-2.37%"], 4),
-    "angels-4_passes.csv": ("angels-4", ["line:-0.38,0,0,0:0.38,0,0,0:81", "line:0.38,0.2,0,0:-0.38,0.2,0,0:81",
-                                         "line:0,-0.38,0,1.5707963267948966:0,0.38,0,1.5707963267948966:81"],
+    "angels-2_wall-to-wall.csv": ("angels-2", ["line:-0.38,0,0,0:0.38,0,0,0:161"], ["conductivity=-2.06%"], 2),
+    "angels-4_wall-to-wall.csv": ("angels-4", ["line:-0.37,0,0,0:0.37,0,0,0:161"], ["conductivity=-2.37%"], 4),
+    "angels-4_passes.csv": ("angels-4", ["line:-0.37,0,0,0:0.37,0,0,0:41", "line:0.37,0.2,0,0:-0.37,0.2,0,0:41",
+                                         "line:0,-0.37,0,1.5707963267948966:0,0.37,0,1.5707963267948966:41"],
                             ["conductivity=-2.37%", "temperature_drift=0.3"], 40),
-    "angels-4_object.csv": ("angels-4", ["wall-to-wall:161"],
+    "angels-4_object.csv": ("angels-4", ["line:-0.37,0,0,0:0.37,0,0,0:81"],
                             ["conductivity=-2.37%", "unmodelled_object=sphere,0.1,0.06,0,0.02,conducting"], 41),
 }
 
@@ -61,7 +68,7 @@ PAPER = {"angels-2": "about 600 mid-tank, rising towards the walls (axis 600-800
          "angels-4": "900 to 1600 near the walls (|x| = 0.28-0.38 m)"}
 
 
-def make_example(name: str, model: str = "psm", out_dir: Path = DATA_DIR, overwrite: bool = False) -> Path:
+def make_example(name: str, model: str = "bem", out_dir: Path = DATA_DIR, overwrite: bool = False) -> Path:
     """Generate one example log (see ``EXAMPLES``) into ``out_dir``."""
     import pandas as pd
 
@@ -111,7 +118,7 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="folder to write into (default: a temporary folder, then compared with the bundled files)")
     parser.add_argument("--overwrite", action="store_true", help="replace existing files in --out")
-    parser.add_argument("--model", choices=["psm", "bem"], default="psm", help="model of the virtual bench")
+    parser.add_argument("--model", choices=["psm", "bem"], default="bem", help="model of the virtual bench")
     parser.add_argument("--only", default=None, help="one file name of the set")
     args = parser.parse_args(argv)
     out = args.out or Path(tempfile.mkdtemp(prefix="esense-examples-"))
