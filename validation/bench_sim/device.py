@@ -181,8 +181,9 @@ class BenchDevice:
         self.report.fates[fate] += 1
         if self._truth is None:
             return
-        row = list(self.run.record_values(i))
-        row[5:5 + 1 + self.run.currents_A.shape[1]] = values[5:5 + 1 + self.run.currents_A.shape[1]]
+        row = list(self.run.record_values(i))  # t_s on the run's own clock: never goes back
+        measured = slice(5, 6 + self.run.currents_A.shape[1])  # U_V and the currents, as sent
+        row[measured] = values[measured]
         x, y, z, yaw = self.run.true_poses[i]
         row += [str(self.boot), str(self.seq), values[0], f"{x:.7f}", f"{y:.7f}", f"{z:.7f}", f"{yaw:.7f}",
                 f"{self.run.sigma_true_S_per_m[i]:.7g}", fate, noise or "-"]

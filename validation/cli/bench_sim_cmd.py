@@ -3,8 +3,6 @@ from __future__ import annotations
 
 import click
 
-from validation.bench_sim.effects import EFFECT_NAMES
-
 
 @click.command("bench-sim")
 @click.option("--pty", "use_pty", is_flag=True, help="Serve on a pseudo-terminal (the default); its path is printed.")
@@ -33,7 +31,10 @@ from validation.bench_sim.effects import EFFECT_NAMES
 @click.option("--voltage", type=float, default=1.0, show_default=True, help="Emitter voltage U in V.")
 @click.option("--temperature", type=float, default=20.0, show_default=True, help="Water temperature at start, C.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME=VALUE",
-              help=f"Physical effect, repeatable; names: {', '.join(EFFECT_NAMES)} (see validation.bench_sim.effects).")
+              help="Physical effect, repeatable: conductivity=-2% (true/nominal - 1), temperature_drift=0.5 (K over "
+                   "the run, 2 %/K), contact_impedance=0.01 (ohm m^2), channel_gain=1.01,0.99,1 (per receiver), "
+                   "pose_offset=DX,DY,DZ,DYAW (m, rad), water_depth=0.8 (m), tank_size=LX,LY,LZ (m), "
+                   "unmodelled_object=sphere,X,Y,Z,R[,conducting|insulating|S/m] or cylinder,X,Y,R,H[,...].")
 @click.option("--faults", default=None, metavar="KIND=N,...",
               help="Fault injection: corrupt, drop, garbage, disconnect, restart with counts, or all, or none.")
 @click.option("--disconnect-s", type=float, default=1.0, show_default=True, help="How long a disconnection lasts.")
