@@ -141,7 +141,7 @@ def test_kill_minus_nine_leaves_a_readable_log(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         t0 = time.monotonic()
-        while time.monotonic() - t0 < 20:
+        while time.monotonic() - t0 < 60:
             if log_path.exists() and log_path.read_bytes().count(b"\n") > 200:
                 break
             time.sleep(0.05)
@@ -172,7 +172,7 @@ def test_ctrl_c_on_the_command_stops_cleanly_with_a_summary(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         t0 = time.monotonic()
-        while time.monotonic() - t0 < 20 and not (log_path.exists() and log_path.read_bytes().count(b"\n") > 50):
+        while time.monotonic() - t0 < 60 and not (log_path.exists() and log_path.read_bytes().count(b"\n") > 50):
             time.sleep(0.05)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
