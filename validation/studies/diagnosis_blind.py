@@ -129,6 +129,8 @@ def main(argv=None):
     ap.add_argument("--pairs", type=float, default=0.3, help="fraction of trials with two effects")
     ap.add_argument("--seed", type=int, default=0, help="random seed")
     ap.add_argument("--data", default="tests/data/diagnosis/bem_worlds.npz", help="BEM runs (--world bem)")
+    ap.add_argument("--effects", default=",".join(EFFECTS), help="effects to inject, in turn (comma list)")
+    ap.add_argument("--no-speed", action="store_true", help="skip the 200-pose timing")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     rng = np.random.default_rng(args.seed)
@@ -147,8 +149,12 @@ def main(argv=None):
 
     records = []
     t0 = time.perf_counter()
+    order = [e for e in args.effects.split(",") if e]
+    unknown = [e for e in order if e not in EFFECTS]
+    if unknown:
+        ap.error(f"unknown effect(s) {', '.join(unknown)}")
     for i in range(args.trials):
-        first = EFFECTS[i % len(EFFECTS)]
+        first = order[i % len(order)]
         effects = [first]
         if first != "none" and rng.uniform() < args.pairs:
             others = [e for e in EFFECTS[:-1] if e != first and not (e in GEOMETRIC and first in GEOMETRIC)]
@@ -160,6 +166,8 @@ def main(argv=None):
               flush=True)
     report(records)
     print(f"\n{args.trials} trials in {time.perf_counter() - t0:.0f} s")
+    if args.no_speed:
+        return
     sec, chosen = speed(setup, effect_model, world, rng)
     print(f"speed: 200-pose log (conductivity + object), all candidates: {sec:.1f} s (target < 60 s); chosen {chosen}")
 
