@@ -10,10 +10,10 @@ Example
 >>> import numpy as np
 >>> from meshes.sensor import preset
 >>> from meshes.tank import Tank
->>> obs = Observations(poses=np.zeros((3, 4)), currents_A=np.ones((3, 3)), sensor=preset("angels-4"),
+>>> obs = Observations(poses=np.zeros((8, 4)), currents_A=np.ones((8, 3)), sensor=preset("angels-4"),
 ...                    tank=Tank((1, 1, 1)), sigma_S_per_m=0.0354)
 >>> obs.n_poses, obs.n_receivers, obs.passes.tolist()
-(3, 3, [0, 0, 0])
+(8, 3, [0, 0, 0, 0, 0, 0, 0, 0])
 """
 from __future__ import annotations
 

@@ -96,8 +96,14 @@ def _time_trend(obs: Observations, r: np.ndarray) -> dict:
     return {"slope_per_hour": float(coef[1]), "slope_stderr": se}
 
 
-def breakdown(obs: Observations, r: np.ndarray, near_m: float = 0.12, n_time_bins: int = 5, min_fraction: float = 0.05) -> dict:
-    """The residual ``r`` (P, m) broken down by receiver, place, time and heading, and where it concentrates."""
+def breakdown(obs: Observations, r: np.ndarray, near_m: float = 0.12, n_time_bins: int = 5, min_fraction: float = 0.05,
+              min_enrichment: float = 1.25) -> dict:
+    """The residual ``r`` (P, m) broken down by receiver, place, time and heading, and where it concentrates.
+
+    The concentration is the group (holding at least ``min_fraction`` of the
+    values) with the largest enrichment; below ``min_enrichment`` the gap is
+    called evenly spread (``axis`` and ``group`` "all").
+    """
     r = np.asarray(r, float)
     P, m = r.shape
     receivers = np.broadcast_to(np.asarray(obs.sensor.receivers)[None, :], (P, m))
@@ -135,7 +141,7 @@ def breakdown(obs: Observations, r: np.ndarray, near_m: float = 0.12, n_time_bin
                 continue
             if best is None or row["enrichment"] > best["enrichment"]:
                 best = {"axis": axis[3:], **row}
-    if best is None:
+    if best is None or best["enrichment"] < min_enrichment:  # spread evenly: no region to speak of
         best = {"axis": "all", "group": "all", "n": int(r.size), "rms": out["rms_relative"], "mean": out["mean_relative"],
                 "share": 1.0, "fraction": 1.0, "enrichment": 1.0}
     out["concentration"] = best
