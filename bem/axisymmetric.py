@@ -51,7 +51,8 @@ def ring_classes(boundary: WaterBoundary):
 
 
 def is_axisymmetric_sensor(boundary: WaterBoundary, tol: float = 1e-9) -> bool:
-    """True for a lone sensor in unbounded water whose vertices all lie on rings about the x axis."""
+    """True for a lone sensor in unbounded water whose vertices all lie on rings about the x axis
+    (its own frame: a sensor turned off the x axis is not recognised)."""
     if not boundary.unbounded or boundary.n_conductors or len(boundary.part_names) != 1:
         return False
     v = boundary.triangles_m.reshape(-1, 3)
@@ -63,7 +64,10 @@ def is_axisymmetric_sensor(boundary: WaterBoundary, tol: float = 1e-9) -> bool:
     starts = np.flatnonzero(np.r_[True, k[1:] != k[:-1]])
     lo = np.minimum.reduceat(rr, starts)
     hi = np.maximum.reduceat(rr, starts)
-    # each ring: all radii equal within the ring (vertex radii may differ between rings)
+    # each ring: at least three vertices (a mesh turned off the x axis has one per "ring"), all radii
+    # equal within the ring (vertex radii may differ between rings)
+    if np.any(np.diff(np.r_[starts, len(k)]) < 3):
+        return False
     return bool(np.all(hi - lo <= tol * scale + 1e-3 * hi))
 
 

@@ -272,8 +272,11 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
 
     if axisymmetric is None:
         axisymmetric = not isinstance(scene, LabelledMesh) and not scene.objects and scene.tank is None
-    if axisymmetric and is_axisymmetric_sensor(boundary):
-        solution = solve_axisymmetric(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+    # the ring classes are found about the x axis: take the sensor frame for a scene (same faces, same order)
+    own_frame = boundary if isinstance(scene, LabelledMesh) else WaterBoundary.from_meshes(sm.sensor, emitter=emitter)
+    if axisymmetric and is_axisymmetric_sensor(own_frame):
+        solution = solve_axisymmetric(own_frame, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+        solution.boundary = boundary   # unbounded water: the same unknowns at the sensor's pose
     else:
         solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
     solution.info["mesh_s"] = t_mesh
