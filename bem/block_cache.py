@@ -10,7 +10,7 @@ leaves a half-written entry that a reader would trust.
 
 The default folder is the user's cache directory (``platformdirs``), e.g.
 ``~/.cache/electrosense/bem-blocks`` on Linux; set ``ESENSE_CACHE_DIR`` to
-move it. An entry of an ``angels-4`` default mesh is about 0.5 GB; delete
+move it. An entry of an ``angels-4`` default mesh is about 0.27 GB; delete
 the folder to reclaim the space.
 
 Example
@@ -41,7 +41,7 @@ __all__ = ["BlockCache", "CACHE_MIN_TRIANGLES", "default_cache_dir"]
 #: sensor meshes with fewer triangles are factorised afresh (faster than a disk round trip)
 CACHE_MIN_TRIANGLES = 3000
 
-_FORMAT = b"bem-sensor-block-v1"
+_FORMAT = b"bem-sensor-block-v2"  # v2: float32 LU factors
 
 
 def default_cache_dir() -> Path:

@@ -34,7 +34,8 @@ from .boundary_conditions import BoundaryError, WaterBoundary
 from .conductance import ConductanceMatrix, isolate
 from .system import BemSystem, assemble_system
 
-__all__ = ["BemSolution", "solve", "solve_scene", "conductance_matrix", "factorise", "SingularSystemError"]
+__all__ = ["BemSolution", "solve", "solve_scene", "conductance_matrix", "factorise", "solve_refined",
+           "SingularSystemError"]
 
 
 class SingularSystemError(BoundaryError):
@@ -78,18 +79,27 @@ def solve_dense(matrix: np.ndarray, rhs: np.ndarray, what: str = "BEM system", p
     if rcond < 1e-6:  # too ill-conditioned for a float32 factorisation to converge quickly
         X, rcond, _ = solve_dense(matrix, rhs, what, "double")
         return X, rcond, 0
-    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(np.float32), check_finite=False).astype(float)
+    X, refinements = solve_refined(matrix, rhs, (lu, piv), what, refinement_tol, max_refinements)
+    return X, rcond, refinements
+
+
+def solve_refined(matrix: np.ndarray, rhs: np.ndarray, factors, what: str = "BEM system",
+                  refinement_tol: float = 1e-12, max_refinements: int = 6):
+    """Solve ``matrix @ X = rhs`` (float64) with low-precision LU ``factors`` of ``matrix`` and iterative
+    refinement on float64 residuals; returns ``(X, refinements)``."""
+    lu, piv = factors
+    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(lu.dtype), check_finite=False).astype(float)
     norm_rhs = np.linalg.norm(rhs)
     for k in range(1, max_refinements + 1):
         R = rhs - matrix @ X
         if np.linalg.norm(R) <= refinement_tol * norm_rhs:
-            return X, rcond, k - 1
-        X += scipy.linalg.lu_solve((lu, piv), R.astype(np.float32), check_finite=False)
+            return X, k - 1
+        X += scipy.linalg.lu_solve((lu, piv), R.astype(lu.dtype), check_finite=False)
     R = rhs - matrix @ X
     if np.linalg.norm(R) > 1e3 * refinement_tol * norm_rhs:
         raise SingularSystemError(f"the {what} did not converge under iterative refinement "
                                   f"(residual {np.linalg.norm(R) / norm_rhs:.1e}); it is close to singular")
-    return X, rcond, max_refinements
+    return X, max_refinements
 
 
 @dataclass
