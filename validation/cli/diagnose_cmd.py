@@ -9,7 +9,8 @@ from validation.diagnosis.effects import EFFECT_NAMES
 @click.command("diagnose")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["bem", "psm"]), default="psm", show_default=True,
-              help="Baseline simulation of the logged poses (effects are evaluated with the calibrated PSM either way).")
+              help="Baseline simulation of the logged poses. Effects are evaluated with that PSM for 'psm', with the "
+                   "PSM whose spheres sit at the electrodes (plus Kelvin images for spheres) for 'bem'.")
 @click.option("--effects", default="all", show_default=True,
               help=f"Candidates to consider: 'all' or a comma list of {', '.join(EFFECT_NAMES)}.")
 @click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),

@@ -12,7 +12,8 @@ name                   what changes (parameters)                    how it is ev
                        electrode: z_1..z_n, ohm m^2)                (lumped: z_c / area)
 ``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
 ``pose_offset``        robot frame shifted/turned against the tank  effect model at moved poses
-                       (dx, dy, dyaw)
+                       (dx, dy, dyaw; or the sensor mounted off
+                       its logged pose)
 ``water_depth``        free surface (or floor) elsewhere (dd)       effect model in that tank
 ``tank_size``          walls elsewhere (dLx, dLy)                   effect model in that tank
 ``unmodelled_object``  a sphere at (x, y, z) of dipole chi b^3      effect model with the sphere
@@ -32,8 +33,8 @@ Example
 >>> lib = library()
 >>> sorted(lib)[:3]
 ['channel_gain', 'conductivity', 'contact_impedance']
->>> [f.param_names for f in lib["pose_offset"]]
-[('dx_m', 'dy_m', 'dyaw_rad')]
+>>> [f.form for f in lib["pose_offset"]]
+['frame', 'mount']
 """
 from __future__ import annotations
 
@@ -263,6 +264,16 @@ def _pose_offset(theta, sc, pb, idx):
     return sc
 
 
+def _pose_offset_additive(theta, sc, pb, idx):
+    dx, dy, dyaw = theta
+    p = sc.poses.copy()
+    p[:, 0] += dx
+    p[:, 1] += dy
+    p[:, 3] += dyaw
+    sc.poses, sc.geometry_changed = p, True
+    return sc
+
+
 def _reframe_depth(sc, floor_z: float, surface_z: float):
     """Water between ``floor_z`` and ``surface_z`` (believed frame): a new tank, poses/objects re-framed."""
     lx, ly, _ = sc.tank.size_m
@@ -353,9 +364,13 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
                         "told from a conductivity change: see the confusable pairs)")
     ]
     lib["pose_offset"] = [
-        Effect("pose_offset", "", ("dx_m", "dy_m", "dyaw_rad"), ("m", "m", "rad"), (0.005, 0.005, 0.01),
+        Effect("pose_offset", "frame", ("dx_m", "dy_m", "dyaw_rad"), ("m", "m", "rad"), (0.005, 0.005, 0.01),
                (-0.05, -0.05, -0.2), (0.05, 0.05, 0.2), _pose_offset, geometric=True, order=1,
-               describe="true pose = rotation(dyaw) logged pose + (dx, dy)")
+               describe="robot frame turned and shifted: true position = rotation(dyaw) logged position + (dx, dy), "
+                        "true yaw = logged yaw + dyaw"),
+        Effect("pose_offset", "mount", ("dx_m", "dy_m", "dyaw_rad"), ("m", "m", "rad"), (0.005, 0.005, 0.01),
+               (-0.05, -0.05, -0.2), (0.05, 0.05, 0.2), _pose_offset_additive, geometric=True, order=1,
+               describe="sensor mounted off the logged pose: true pose = logged pose + (dx, dy, dyaw)"),
     ]
     if obs is None or obs.tank is not None:
         depth = obs.tank.water_depth_m if obs is not None else 1.0

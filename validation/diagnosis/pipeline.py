@@ -11,10 +11,14 @@
 4. greedy forward selection (:mod:`.select`), or ``none`` when the gap is
    noise; the pairs that cannot be told apart on these poses.
 
-Geometric effects are evaluated by an *effect model*: the PSM (vectorised),
-its radii calibrated and its spheres at the electrodes' centres
-(:func:`validation.diagnosis.forward.geometric_psm`), as a relative change
-of the baseline.
+Geometric effects are evaluated by an *effect model*, as a relative change
+of the baseline. With the PSM as baseline it is that PSM itself (the gap is
+explained in the PSM's own physics). With the BEM as baseline it is the PSM
+with its radii calibrated and its spheres at the electrodes' centres
+(:func:`validation.diagnosis.forward.geometric_psm`), with Kelvin images for
+conducting spheres (:class:`validation.diagnosis.forward.CompositeEffectModel`):
+its changes follow the BEM's within about 10 % where the calibrated PSM's are
+off by a factor of two to three near the walls.
 
 Example
 -------
@@ -175,7 +179,8 @@ def diagnose(
         Candidates to consider (``none`` is always considered).
     effect_model : callable, optional
         ``(poses, tank, objects) -> K`` for geometric effects (default: the
-        calibrated PSM, or the stand-in when the PSM cannot be used).
+        baseline PSM with ``model="psm"``; the geometric PSM with Kelvin
+        spheres otherwise; the stand-in when the PSM cannot be used).
     K_base : (P, n, n), optional
         The baseline's K at the logged poses, if already computed.
     rules : SelectionRules
@@ -204,6 +209,15 @@ def diagnose(
         K_base = base_sim(obs.poses, obs.tank, tuple(obs.objects))
     else:
         base_sim = None
+    if effect_model is None and model == "psm":
+        # the baseline's own physics: effects as the (calibrated) PSM would show them
+        try:
+            from validation.models import _load_psm, calibrated_psm
+
+            own = _load_psm(psm_model) if psm_model is not None else calibrated_psm(obs.sensor)
+            effect_model, effect_name = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, own), "psm"
+        except Exception as exc:  # fall back on the default below, and say so
+            notes.append(f"the baseline PSM could not serve as effect model ({exc})")
     if effect_model is None:
         effect_model, effect_name = default_effect_model(obs, psm_model)
     else:
