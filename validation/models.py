@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from bem.conductance import ConductanceMatrix
-from meshes.pose import poses_array
+from meshes.pose import poses_array as _poses_from_any
 from meshes.sensor import SensorDescription
 from meshes.tank import Tank
 
@@ -53,6 +53,7 @@ __all__ = [
     "calibration_layout",
     "psm_cache_dir",
     "code_version",
+    "poses_array",
 ]
 
 #: The model names understood by :func:`simulate`.
@@ -64,6 +65,19 @@ _PSM_CALIBRATION_OPTIONS = ("edge_length_m",)
 
 class ModelError(ValueError):
     """A model name, model file or model option that cannot be used as given."""
+
+
+def poses_array(poses) -> np.ndarray:
+    """Poses as a (P, 4) float array; a (P, 4) array passes without a copy per row.
+
+    :func:`meshes.pose.poses_array` for anything else (Pose objects, rows).
+    """
+    if isinstance(poses, np.ndarray) and poses.ndim == 2 and poses.shape[1] == 4:
+        poses = np.asarray(poses, dtype=float)
+        if not np.all(np.isfinite(poses)):
+            raise ValueError("poses contain non-finite values")
+        return poses
+    return _poses_from_any(poses)
 
 
 # --------------------------------------------------------------------------- version

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bem.conductance import ConductanceMatrix
-from meshes.pose import poses_array
+from validation.models import poses_array
 
 __all__ = ["SchedulerError", "SweepResult", "dask_client", "run_sweep", "map_tasks", "local_cores", "default_chunk_poses"]
 
@@ -94,10 +94,10 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
     SchedulerError
         Unreachable scheduler, or one without workers, after ``timeout_s``.
     """
-    from dask.distributed import Client, LocalCluster
-
     address = scheduler_address(scheduler)
     if address:
+        from dask.distributed import Client
+
         try:
             client = Client(address, timeout=f"{timeout_s}s", set_as_default=False)
         except Exception as exc:  # OSError, TimeoutError, ValueError for a malformed address
@@ -124,6 +124,8 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
     if n == 1:
         yield None
         return
+    from dask.distributed import Client, LocalCluster
+
     with LocalCluster(
         n_workers=n,
         threads_per_worker=1,
