@@ -8,15 +8,16 @@ the same in every pose, computed in the sensor frame) and the environment's
     [A_ss  A_se] [y_s]   [r_s]
     [A_es  A_ee] [y_e] = [r_e]
 
-The sensor's block is LU-factorised once, in float32 (and kept on disk, keyed by a hash
-of everything it depends on, so that the next process reuses it: see
-:mod:`bem.block_cache`); ``y0 = A_ss^-1 r_s`` is computed once. Per pose, the
-coupling blocks are assembled and the coupling ``A_se`` (sensor points x
-environment triangles: a smooth kernel, numerically low rank) is compressed
-by a truncated SVD, ``A_se ~ U_k s_k V_k^T``. One triangular solve with the
-``k`` columns ``W = A_ss^-1 U_k s_k`` (``k`` 40-70 for ``angels-4`` in the
-1 m tank at the default ``tol = 1e-6``, which changes K by 2e-8) gives the environment's Schur complement
-exactly (up to the truncation)::
+The sensor's block is LU-factorised once, in float32, and kept on disk,
+keyed by a hash of everything it depends on, so that the next process
+reuses it (:mod:`bem.block_cache`); ``y0 = A_ss^-1 r_s`` is computed once,
+refined to float64 accuracy. Per pose, the coupling blocks are assembled
+and the coupling ``A_se`` (sensor points x environment triangles: a smooth
+kernel, numerically low rank) is compressed by a truncated SVD,
+``A_se ~ U_k s_k V_k^T``. One triangular solve with the ``k`` columns
+``W = A_ss^-1 U_k s_k`` (``k`` 33-55 for ``angels-4`` in the 1 m tank at the
+default ``tol = 1e-6``, which moves K by 2e-8) gives the environment's Schur
+complement exactly (up to the truncation)::
 
     (A_ee - A_es W V_k^T) y_e = r_e - A_es y0,      y_s = y0 - W V_k^T y_e,
 
