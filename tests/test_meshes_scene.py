@@ -6,7 +6,7 @@ from meshes import TANK_REGIONS, Box, Cylinder, Pose, Scene, Sphere, Tank, prese
 from meshes.quality import check_mesh
 from meshes.scene_mesh import SceneError, check_scene, scene_problems
 
-SENSOR = preset("angels-4")  # 20 cm long, radius 1 cm
+SENSOR = preset("angels-4")  # 20 cm long, radius about 1.2 cm
 TANK = Tank((1.0, 0.6, 0.5), water_depth_m=0.4)  # water: x +-0.5, y +-0.3, z -0.25..0.15
 
 
@@ -48,7 +48,7 @@ def test_the_capsule_not_the_centre_decides():
     assert scene_problems(scene((0.45, 0.0, 0.0, np.pi / 2))) == []
     assert "wall_y+" in refusal(scene((0.0, 0.22, 0.0, np.pi / 2)))
     # exactly touching the free surface is refused too
-    assert "touches the free_surface" in refusal(scene((0.0, 0.0, 0.14, 0.0)))
+    assert "touches the free_surface" in refusal(scene((0.0, 0.0, TANK.free_surface_z_m - SENSOR.radius_m, 0.0)))
 
 
 def test_object_out_of_the_water_or_touching_a_boundary():
