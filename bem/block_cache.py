@@ -38,8 +38,8 @@ import numpy as np
 
 __all__ = ["BlockCache", "CACHE_MIN_TRIANGLES", "default_cache_dir"]
 
-#: sensor meshes with fewer triangles are factorised afresh (faster than a disk round trip)
-CACHE_MIN_TRIANGLES = 3000
+#: sensor meshes with fewer triangles are factorised afresh (a second or so: not worth a disk entry)
+CACHE_MIN_TRIANGLES = 6000
 
 _FORMAT = b"bem-sensor-block-v2"  # v2: float32 LU factors
 
