@@ -16,20 +16,7 @@ from __future__ import annotations
 
 import click
 
-
-def _tank(text):
-    from meshes.tank import Tank
-
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise click.BadParameter(f"{text!r}: expected LX,LY,LZ in metres", param_hint="--tank") from None
-    if len(values) != 3:
-        raise click.BadParameter(f"{text!r}: expected 3 numbers LX,LY,LZ", param_hint="--tank")
-    try:
-        return Tank(tuple(values))
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--tank") from None
+from ._parsing import parse_tank
 
 
 def _table(g) -> str:
@@ -107,7 +94,7 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
             if pose_text:
                 scene = replace(scene, pose=Pose.parse(pose_text))
             if tank_text:
-                scene = replace(scene, tank=_tank(tank_text))
+                scene = replace(scene, tank=parse_tank(tank_text))
             if unbounded:
                 scene = replace(scene, tank=None)
             if emitter is not None:

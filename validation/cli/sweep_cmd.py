@@ -20,24 +20,11 @@ from pathlib import Path
 
 import click
 
+from ._parsing import parse_tank
+
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
 DEFAULT_SIGMA_S_PER_M = 0.0354  # the paper's tank water
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
-
-
-def _parse_tank(text):
-    from meshes.tank import Tank
-
-    try:
-        size = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise click.BadParameter(f"{text!r}: expected LX,LY,LZ in metres", param_hint="--tank") from None
-    if len(size) != 3:
-        raise click.BadParameter(f"{text!r}: expected three lengths LX,LY,LZ (m)", param_hint="--tank")
-    try:
-        return Tank(tuple(size))
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--tank") from None
 
 
 def _sensor_spec_for_log(sensor, out: Path) -> str:
@@ -156,7 +143,7 @@ def _sweep(o):
     settings = load_scene_settings(o.scene_file) if o.scene_file else {}
     if scene is None and o.sensor_spec is None:
         raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
-    tank = _parse_tank(o.tank_text) if o.tank_text else None
+    tank = parse_tank(o.tank_text) if o.tank_text else None
     if scene is None and tank is None and not o.unbounded:
         tank = Tank((1.0, 1.0, 1.0))
     scene = apply_overrides(scene, sensor=o.sensor_spec, tank=tank, unbounded=o.unbounded)
