@@ -43,13 +43,18 @@ def _summary_table(results) -> Table:
     )
 
 
-def _receiver_table(result) -> Table:
-    rows = []
+def _comparisons(result) -> list:
+    """(label, comparison) for every model vs the bench, after the correction, and PSM vs BEM."""
     entries = [(f"{m.upper()} vs bench", result.comparisons[m]) for m in result.models]
     entries += [(f"{m.upper()} vs bench, sigma corrected", result.corrected[m]) for m in result.corrected]
     if result.model_difference is not None:
         entries.append(("PSM vs BEM", result.model_difference))
-    for name, c in entries:
+    return entries
+
+
+def _receiver_table(result) -> Table:
+    rows = []
+    for name, c in _comparisons(result):
         for k, s in c.by_receiver.items():
             rows.append([name, int(k), 100 * s["mean_abs"], 100 * s["max_abs"], 100 * s["rms"], 100 * s["bias"]])
     return Table(["comparison", "receiver", "mean abs. (%)", "max abs. (%)", "RMS (%)", "bias (%)"], rows,
@@ -58,11 +63,7 @@ def _receiver_table(result) -> Table:
 
 def _region_table(result) -> Table:
     rows = []
-    entries = [(f"{m.upper()} vs bench", result.comparisons[m]) for m in result.models]
-    entries += [(f"{m.upper()} vs bench, sigma corrected", result.corrected[m]) for m in result.corrected]
-    if result.model_difference is not None:
-        entries.append(("PSM vs BEM", result.model_difference))
-    for name, c in entries:
+    for name, c in _comparisons(result):
         for region, d in c.by_region.items():
             s = d["all"]
             rows.append([name, region, s["n"], 100 * s["mean_abs"], 100 * s["max_abs"], 100 * s["rms"], 100 * s["bias"]])
