@@ -38,6 +38,10 @@ __all__ = ["BemSolution", "solve", "solve_scene", "conductance_matrix", "factori
            "SingularSystemError"]
 
 
+#: collocation points per ring class of the axisymmetric reduction in :func:`solve_scene`
+AXISYMMETRIC_TARGETS_PER_CLASS = 16
+
+
 class SingularSystemError(BoundaryError):
     """The BEM system is singular (or numerically so)."""
 
@@ -285,7 +289,9 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     # the ring classes are found about the x axis: take the sensor frame for a scene (same faces, same order)
     own_frame = boundary if isinstance(scene, LabelledMesh) else WaterBoundary.from_meshes(sm.sensor, emitter=emitter)
     if axisymmetric and is_axisymmetric_sensor(own_frame):
-        solution = solve_axisymmetric(own_frame, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+        # 16 collocation points per ring class: K within 6e-6 of all of them (angels-4), 25 % faster
+        solution = solve_axisymmetric(own_frame, sigma_S_per_m, contact_impedance_ohm_m2, emitter,
+                                      targets_per_class=AXISYMMETRIC_TARGETS_PER_CLASS)
         solution.boundary = boundary   # unbounded water: the same unknowns at the sensor's pose
     else:
         solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)

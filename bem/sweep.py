@@ -131,12 +131,16 @@ class PoseSweep:
         """Alone in unbounded water K does not depend on the pose: one solve, as :func:`bem.solve.solve_scene`
         does it (the axisymmetric reduction for a sensor of revolution), and no sensor block at all."""
         from .axisymmetric import is_axisymmetric_sensor, solve_axisymmetric
-        from .solve import solve
+        from .solve import AXISYMMETRIC_TARGETS_PER_CLASS, solve
 
         wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter)
         self.sensor_boundary = wb
-        method = solve_axisymmetric if is_axisymmetric_sensor(wb) else solve
-        self._free_K = method(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter).K_S
+        if is_axisymmetric_sensor(wb):
+            solution = solve_axisymmetric(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter,
+                                          targets_per_class=AXISYMMETRIC_TARGETS_PER_CLASS)
+        else:
+            solution = solve(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter)
+        self._free_K = solution.K_S
 
     # ------------------------------------------------------------- invariant
     def _prepare_sensor(self):
