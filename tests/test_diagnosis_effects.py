@@ -54,9 +54,13 @@ def test_electrode_areas_match_the_geometry():
     s = preset("angels-4")
     A = electrode_areas_m2(s)
     r = s.radius_m
-    assert A[0] == pytest.approx(2 * np.pi * r**2)
-    e = s.electrodes[1]
-    assert A[1] == pytest.approx(2 * np.pi * r * (e.x_max_m - e.x_min_m))
+    # Archimedes: a spherical cap (or a band of the cylinder) of axial height h has area 2 pi r h
+    for a, e in zip(A, s.electrodes):
+        assert a == pytest.approx(2 * np.pi * r * (e.x_max_m - e.x_min_m))
+    # and the meshed electrodes agree (independent geometry)
+    from meshes.sensor_mesh import mesh_sensor
+
+    assert A == pytest.approx(mesh_sensor(s).electrode_areas_m2(), rel=0.02)
 
 
 def test_stand_in_is_a_conductance_and_walls_raise_resistance(sim, setup):

@@ -39,24 +39,12 @@ from meshes.objects import Sphere
 from meshes.pose import sensor_to_tank
 from meshes.sensor import SensorDescription
 from meshes.tank import Tank
+from psm.contact import electrode_areas_m2  # wetted areas: a cap of height h has 2 pi r h
 
 __all__ = ["ModelSimulator", "PSMEffectModel", "CompositeEffectModel", "kelvin_sphere_term", "geometric_psm", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
 
 
 # ----------------------------------------------------------------------------- helpers
-def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
-    """Wetted area (m^2) of each electrode: hemisphere (+ collar) for a cap, a band for a ring."""
-    r = sensor.radius_m
-    areas = []
-    for e in sensor.electrodes:
-        width = e.x_max_m - e.x_min_m
-        if e.kind == "cap":
-            areas.append(2 * np.pi * r**2 + 2 * np.pi * r * max(width - r, 0.0))
-        else:
-            areas.append(2 * np.pi * r * width)
-    return np.asarray(areas)
-
-
 def series_contact(K_S: np.ndarray, series_ohm: np.ndarray) -> np.ndarray:
     """K of the electrodes seen through series resistances (one per electrode): K (1 + Z K)^-1.
 
