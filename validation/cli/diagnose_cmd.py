@@ -22,14 +22,18 @@ from validation.diagnosis.effects import EFFECT_NAMES
 @click.option("--split-poses", type=int, default=0, show_default=True,
               help="With --model psm: run the BEM on this many poses to split the gap into the PSM's approximation "
                    "and the physics the BEM lacks (0: skip).")
+@click.option("--bem-correction", "bem_correction_poses", type=click.IntRange(min=0), default=0, show_default=True,
+              help="With --model psm: run the BEM on about this many poses (dense near the walls) and correct the PSM "
+                   "baseline by the BEM/PSM ratio interpolated along the path, so that the PSM's own approximation "
+                   "is not taken for physics (0: the bare PSM).")
 @click.option("--max-effects", type=click.IntRange(1, 3), default=3, show_default=True,
               help="Largest number of effects combined by the forward selection.")
 @click.option("--model-error", type=float, default=0.0, show_default=True,
               help="Relative error of the effect model on what the tank does; samples where the tank matters most "
                    "(close to the walls) are weighted down accordingly (0: equal weights).")
 @click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")
-def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, max_effects, model_error,
-             no_figures):
+def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, bem_correction_poses, max_effects,
+             model_error, no_figures):
     """Diagnose the gap between bench LOG(s) and the simulation.
 
     Fits every candidate effect (conductivity, temperature_drift,
@@ -58,11 +62,12 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
         obs = from_bench_logs([read_bench_log(p) for p in logs])
     except (ValueError, DiagnosisInputError) as exc:
         raise click.ClickException(str(exc)) from None
-    base_options = {"edge_length_m": edge_length_m} if (model == "bem" and edge_length_m) else {}
+    base_options = {"edge_length_m": edge_length_m} if (edge_length_m and (model == "bem" or bem_correction_poses
+                                                                           or split_poses)) else {}
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
                       rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
-                      model_error=model_error,
+                      model_error=model_error, bem_correction_poses=bem_correction_poses,
                       progress=lambda s: click.echo(f"  {s}"))
     page = write_report(d, outdir, figures=not no_figures)
     click.echo(f"noise {100 * d.noise:.3f} %, gap {100 * d.gap_before:.3f} % -> {100 * d.gap_after:.3f} % (held-out)")

@@ -166,6 +166,7 @@ def diagnose(
     split_with_bem: int = 0,
     psm_model=None,
     model_error: float = 0.0,
+    bem_correction_poses: int = 0,
     progress=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.
@@ -194,6 +195,14 @@ def diagnose(
     model_error : float
         Relative error of the effect model on what the tank does (weights the
         samples near the walls down, where models disagree; 0: equal weights).
+    bem_correction_poses : int
+        With ``model="psm"``: run the BEM on about this many poses (dense where
+        the tank's effect changes fastest) and correct the PSM baseline by the
+        BEM/PSM ratio interpolated along the path
+        (:mod:`validation.diagnosis.multifidelity`); samples weighted by the
+        estimated error of that correction. The diagnosis then explains the
+        gap between the bench and the BEM's physics, not the PSM's
+        approximation (0: the bare PSM).
     progress : callable(str), optional
     """
     t0 = time.perf_counter()
@@ -229,6 +238,28 @@ def diagnose(
         notes.append(f"the log holds conductimeter readings: mean {logged:.5g} S/m against {obs.sigma_S_per_m:.5g} S/m "
                      f"in the meta line ({100 * (logged / obs.sigma_S_per_m - 1):+.2f} %); the simulation uses the "
                      "meta line's value, compare with the conductivity candidate")
+    correction = None
+    if model == "psm" and bem_correction_poses > 0:
+        from .forward import receiver_currents
+        from .multifidelity import bem_correction, choose_bem_poses
+
+        free = receiver_currents(effect_model(obs.poses, None, tuple(obs.objects)), obs.emitter)
+        in_tank = receiver_currents(effect_model(obs.poses, obs.tank, tuple(obs.objects)), obs.emitter)
+        tank_effect = np.max(np.abs(in_tank / free - 1.0), axis=1) if obs.tank is not None else np.zeros(obs.n_poses)
+        idx = choose_bem_poses(tank_effect, obs.pass_indices(), bem_correction_poses)
+        say(f"BEM on {len(idx)} poses to correct the PSM baseline")
+        try:
+            bem = ModelSimulator("bem", obs.sensor, obs.sigma_S_per_m,
+                                 {k: v for k, v in (model_options or {}).items() if k != "psm_model"})
+            K_bem = bem(obs.poses[idx], obs.tank, tuple(obs.objects))
+            correction = bem_correction(obs, np.asarray(K_base, float), K_bem, idx)
+            K_base = correction.corrected(np.asarray(K_base, float))
+            notes.append(f"PSM baseline corrected by the BEM on {len(idx)} poses (BEM/PSM ratio interpolated along "
+                         f"the path): bare PSM vs BEM there {100 * np.sqrt(np.mean(correction.psm_vs_bem**2)):.3f} % "
+                         f"RMS, leave-one-out error of the correction "
+                         f"{100 * np.sqrt(np.mean(correction.leave_one_out**2)):.3f} % RMS")
+        except Exception as exc:  # the diagnosis still runs on the bare PSM; say so
+            notes.append(f"BEM correction of the PSM baseline not computed ({type(exc).__name__}: {exc})")
     problem = Problem(obs, K_base, effect_model, baseline_name=model)
     everything = np.arange(obs.n_poses)
     r0 = problem.relative_residual(problem.I_base, everything)
@@ -237,6 +268,8 @@ def diagnose(
         noise = max(1e-6, 1e-3 * float(np.sqrt(np.mean(r0**2))))
         notes.append("the noise estimate was zero (noise-free data?); a floor of 1e-6 relative is used")
     problem.weight = model_trust_weights(problem, noise, model_error)
+    if correction is not None:  # the correction's own uncertainty, as a model error of each sample
+        problem.weight = problem.weight / np.sqrt(1.0 + (correction.error / noise) ** 2)
     where = breakdown(obs, r0)
     mask = region_mask(where)
     folds = make_folds(obs)

@@ -21,6 +21,16 @@ when
   (held-out mean square above s^2): what is left is not worth a cause, or
 * after an effect, the held-out gap is within the noise (RMS <= ``at_noise`` x s).
 
+Parsimony among nested candidates: when a candidate with one common
+parameter (a uniform scale such as the conductivity) lies within the
+sensitivity span of the best, per-receiver or per-electrode one (largest principal angle
+below ``nested_deg``: a common change is one of the per-receiver changes) and
+leaves a held-out mean square within ``nested_excess`` x s^2 of the best
+one's, the simpler one is taken: the richer one's extra parameters remove
+less than a noise variance per sample, which the models' own approximation
+(PSM against BEM, mesh against mesh) cannot vouch for, although over many
+samples the information criterion would count it as significant.
+
 After two or more effects, each is offered a replacement by every other
 candidate (a gain per receiver may have soaked up part of another effect's
 signature before that effect was in); the penalised score decides.
@@ -42,6 +52,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .effects import Effect, Problem
+from scipy.linalg import subspace_angles
+
 from .fitting import FitResult, cross_validate, fit, object_starts, predict, subspace_angle_deg
 
 __all__ = ["SelectionRules", "CandidateScore", "Selection", "score_candidate", "rank_candidates", "forward_selection",
@@ -58,6 +70,8 @@ class SelectionRules:
     min_gain: float = 0.30  # an added effect must remove >= this share of the excess mean square
     max_effects: int = 3
     confusable_deg: float = 15.0  # sensitivity subspaces closer than this: cannot be told apart
+    nested_deg: float = 2.0  # a simpler candidate whose sensitivities lie within this angle of the best's span ...
+    nested_excess: float = 1.0  # ... and whose held-out mean square is within this many s^2 of it is preferred
 
 
 def _rms(x: np.ndarray, mask=None) -> float:
@@ -193,6 +207,8 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         for name, single in singles.items():
             if name in in_current(current):
                 continue
+            if any(_refines(single, singles.get(e), baseline, rules, noise) for e in in_current(current)):
+                continue  # a richer variant of an effect already in: its extra parameters are refused (module doc)
             if not in_current(current):
                 tried.append(single)
                 continue
@@ -203,7 +219,7 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         tried = [c for c in tried if not c.at_bound]
         if not tried:
             break
-        best = min(tried, key=lambda c: c.score)
+        best = _parsimonious(min(tried, key=lambda c: c.score), tried, current, rules, noise)
         excess = current.heldout_gap**2 - noise**2
         gain = current.heldout_gap**2 - best.heldout_gap**2
         step = {"tried": {c.name: {"score": c.score, "heldout_gap": c.heldout_gap} for c in tried}, "best": best.name,
@@ -220,7 +236,7 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         path.append(best)
         current = best
     if len(path) >= 2:
-        current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps)
+        current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps, rules, baseline)
         path[-1] = current
     if not path:
         verdict = "none" if baseline.heldout_gap <= rules.none_ceiling * noise else "unexplained"
@@ -231,7 +247,32 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
     return Selection(path, verdict, steps)
 
 
-def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, region_mask, steps) -> CandidateScore:
+def nested_angle_deg(J_simple: np.ndarray, J_rich: np.ndarray) -> float:
+    """Largest principal angle (deg) between span(J_simple) and span(J_rich): 0 when the first lies in the second."""
+    keep_a = np.linalg.norm(J_simple, axis=0) > 0 if J_simple.size else np.zeros(0, bool)
+    keep_b = np.linalg.norm(J_rich, axis=0) > 0 if J_rich.size else np.zeros(0, bool)
+    if not keep_a.any() or not keep_b.any() or keep_a.sum() > keep_b.sum():
+        return 90.0
+    return float(np.degrees(np.max(subspace_angles(J_simple[:, keep_a], J_rich[:, keep_b]))))
+
+
+def _parsimonious(best: CandidateScore, tried: list, current: CandidateScore, rules: SelectionRules,
+                  noise: float) -> CandidateScore:
+    """A one-parameter candidate nested in ``best`` that does nearly as well, else ``best`` (see module doc)."""
+    simpler = [c for c in tried if c.n_params == 1 < best.n_params and c.score < current.score
+               and c.heldout_gap**2 - best.heldout_gap**2 < rules.nested_excess * noise**2
+               and nested_angle_deg(c.fit.jac, best.fit.jac) < rules.nested_deg]
+    return min(simpler, key=lambda c: (c.n_params, c.score)) if simpler else best
+
+
+def _refines(rich: CandidateScore, simple: CandidateScore | None, baseline: CandidateScore,
+             rules: SelectionRules, noise: float) -> bool:
+    """Whether ``rich`` (alone) is a richer variant of ``simple`` (alone) that parsimony refuses."""
+    return simple is not None and _parsimonious(rich, [simple], baseline, rules, noise) is simple
+
+
+def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, region_mask, steps,
+               rules: SelectionRules = SelectionRules(), baseline: CandidateScore | None = None) -> CandidateScore:
     """Try replacing each chosen effect by each other candidate; keep a replacement that lowers the score.
 
     Greedy selection can take a broad effect first (a gain per receiver soaks
@@ -249,7 +290,9 @@ def _swap_pass(problem, current: CandidateScore, singles: dict, folds, noise, re
             effects[i] = single.effects[0]
             parts[i] = single.fit.theta
             cand = _evaluate(problem, effects, folds, noise, [np.concatenate(parts)], region_mask)
-            if cand.score < best.score and not cand.at_bound:
+            if cand.score < best.score and not cand.at_bound and not (
+                    baseline is not None and _refines(singles[name], singles.get(current.effects[i].name), baseline,
+                                                      rules, noise)):
                 best = cand
         if best is not current:
             steps.append({"swap": f"{current.effects[i].name} -> {best.effects[i].name}", "score": best.score,
