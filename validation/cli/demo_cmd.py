@@ -24,10 +24,12 @@ PAPER_S_BEM_ANGELS4 = [[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [
 
 #: Reduced and full settings: BEM sensor mesh edge length (m), BEM poses per log, potential figure grid
 #: (0: none; drawn for the first log of each sensor), how many logs. The full demo is sized to run in under 5 minutes
-#: on 2 cores: the BEM solves pose by pose, so it sees a subset of each log.
+#: on 2 cores: the BEM solves pose by pose, so it sees a subset of each log. The diagnosis corrects its PSM baseline by
+#: the BEM on about ``diagnosis_bem_poses`` poses per log (dense near the walls), so that the PSM's own approximation
+#: is not taken for physics.
 SETTINGS = {
-    "full": {"edge_length_m": 0.008, "bem_poses": 13, "potential_n": 61, "max_logs": None},
-    "quick": {"edge_length_m": 0.012, "bem_poses": 3, "potential_n": 0, "max_logs": 1},
+    "full": {"edge_length_m": 0.008, "bem_poses": 13, "potential_n": 61, "max_logs": None, "diagnosis_bem_poses": 40},
+    "quick": {"edge_length_m": 0.012, "bem_poses": 3, "potential_n": 0, "max_logs": 1, "diagnosis_bem_poses": 8},
 }
 
 
@@ -117,11 +119,12 @@ def _format_params(params: dict, uncertainty: dict | None) -> str:
     return "; ".join(parts)
 
 
-def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None):
+def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses: int = 0, edge_length_m=None):
     """Run ``esense diagnose`` on each log into folder/diagnosis/<log>; a summary Section with its figures.
 
-    The diagnosis uses the PSM calibrated by the demo (``psm_<sensor>.json``). When the diagnosis is
-    not installed the section says so.
+    The diagnosis uses the PSM calibrated by the demo (``psm_<sensor>.json``), corrected by the BEM on
+    about ``bem_poses`` poses per log (``--bem-correction``; 0: the bare PSM) with the demo's mesh edge
+    length. When the diagnosis is not installed the section says so.
     """
     import contextlib
     import importlib
@@ -142,6 +145,10 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None):
         psm_file = folder / f"psm_{log.sensor.name}.json"
         if psm_file.exists():
             args += ["--psm-model", str(psm_file)]
+        if bem_poses:
+            args += ["--bem-correction", str(bem_poses)]
+            if edge_length_m:
+                args += ["--edge-length", str(edge_length_m)]
         chatter = io.StringIO()  # the command's own step-by-step output; the demo prints a summary line
         try:
             with contextlib.redirect_stdout(chatter):
@@ -175,8 +182,12 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None):
             tables=[Table(["effect", "parameters +- std. error", "held-out gap (%)", "shrink (%)"], rows,
                           caption="Candidate effects, best first")] if rows else [],
             links=[("the full diagnosis of this log", f"diagnosis/{stem}/index.html")]))
-    return Section("Gap diagnosis", ["Which unmodelled effect explains the gap between the bench and the PSM: each "
-                                     "candidate fitted on part of the data and scored on the rest (esense diagnose)."],
+    intro = ("Which unmodelled effect explains the gap between the bench and the PSM: each candidate fitted on part of "
+             "the data and scored on the rest (esense diagnose).")
+    if bem_poses:
+        intro += (f" The PSM baseline is corrected by the BEM on about {bem_poses} poses per log (esense diagnose "
+                  "--bem-correction), so that the PSM's own approximation near the walls is not taken for physics.")
+    return Section("Gap diagnosis", [intro],
                    subsections=sections)
 
 
@@ -235,7 +246,9 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
         extra = []
         if not no_diagnosis:
             bar.set_description("gap diagnosis")
-            extra.append(_diagnosis_section(logs, paths, outdir, bar.write, bar))
+            extra.append(_diagnosis_section(logs, paths, outdir, bar.write, bar,
+                                            bem_poses=settings["diagnosis_bem_poses"],
+                                            edge_length_m=settings["edge_length_m"]))
         bar.set_description("figures and report")
         intro = [
             "This report is made by `esense demo` from the example bench logs bundled with electrosense: "

@@ -3,7 +3,10 @@
 :func:`diagnose` runs the whole chain:
 
 1. the baseline: the model (``"bem"`` or ``"psm"``) at the logged poses, in
-   the believed tank, at the believed conductivity;
+   the believed tank, at the believed conductivity; with ``"psm"`` and
+   ``bem_correction_poses``, corrected by the BEM on that many poses
+   (:mod:`.multifidelity`), so that the PSM's own approximation near the
+   walls is not blamed on the physics;
 2. the residual r = (bench - baseline) / |baseline|, the noise level s
    estimated from the data, and where r lies (:mod:`.where`);
 3. every candidate of :mod:`.effects` fitted and cross-validated on held-out
