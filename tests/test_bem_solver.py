@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from bem.boundary_conditions import BoundaryError, WaterBoundary
+from bem.closed_forms import two_sphere_resistance_ohm
 from bem.conductance import isolate
 from bem.solve import solve
 from meshes.labelled_mesh import LabelledMesh, concatenate
@@ -18,17 +19,6 @@ def sphere_mesh(radius_m, centre_m=(0, 0, 0), electrode=1, subdivisions=3, regio
     scale = radius_m * (4 / 3 * np.pi / s.volume) ** (1 / 3)
     return LabelledMesh(s.vertices * scale + np.asarray(centre_m, float), s.faces,
                         np.full(len(s.faces), electrode), None, (region,))
-
-
-def two_sphere_resistance_ohm(a, d, sigma=1.0):
-    """Exact isolated resistance between two equal spheres (bispherical series, Smythe)."""
-    beta = np.arccosh(d / (2 * a))
-    n = np.arange(1, 80)
-    with np.errstate(over="ignore"):
-        c11 = a * np.sinh(beta) * np.sum(1 / np.sinh((2 * n - 1) * beta))
-        c12 = -a * np.sinh(beta) * np.sum(1 / np.sinh(2 * n * beta))
-    P = np.linalg.inv(4 * np.pi * sigma * np.array([[c11, c12], [c12, c11]]))
-    return P[0, 0] + P[1, 1] - 2 * P[0, 1]
 
 
 @functools.lru_cache(maxsize=None)

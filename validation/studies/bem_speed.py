@@ -28,6 +28,8 @@ import time
 
 import numpy as np
 
+from bem.closed_forms import two_sphere_resistance_ohm
+
 
 def _two_sphere_mesh(subdivisions: int, a=0.01, d=0.03):
     import trimesh
@@ -41,21 +43,11 @@ def _two_sphere_mesh(subdivisions: int, a=0.01, d=0.03):
     return concatenate(parts)
 
 
-def exact_two_sphere_resistance(a=0.01, d=0.03, sigma=1.0):
-    beta = np.arccosh(d / (2 * a))
-    n = np.arange(1, 80)
-    with np.errstate(over="ignore"):
-        c11 = a * np.sinh(beta) * np.sum(1 / np.sinh((2 * n - 1) * beta))
-        c12 = -a * np.sinh(beta) * np.sum(1 / np.sinh(2 * n * beta))
-    P = np.linalg.inv(4 * np.pi * sigma * np.array([[c11, c12], [c12, c11]]))
-    return P[0, 0] + P[1, 1] - 2 * P[0, 1]
-
-
 def ours_two_spheres(levels):
     from bem.boundary_conditions import WaterBoundary
     from bem.solve import solve
 
-    exact = exact_two_sphere_resistance()
+    exact = two_sphere_resistance_ohm(0.01, 0.03)
     solve(WaterBoundary.from_meshes(_two_sphere_mesh(1)), 1.0)  # compile / load the cache
     rows = []
     for s in levels:
@@ -73,7 +65,7 @@ def bempp_two_spheres(levels):
         return None
     import scipy.linalg
 
-    exact = exact_two_sphere_resistance()
+    exact = two_sphere_resistance_ohm(0.01, 0.03)
     rows = []
     t_compile = time.perf_counter()
     first = True
@@ -171,7 +163,7 @@ def main(argv=None):
             flag = "ok" if value <= target else "MISSED"
             print(f"{name:48s} {value:8.2f}   < {target:6.1f}   {flag:6s} {note}")
     print("\ntwo spheres a = 1 cm, d = 3 cm against the exact series (R = %.5f ohm at sigma = 1)"
-          % exact_two_sphere_resistance())
+          % two_sphere_resistance_ohm(0.01, 0.03))
     ours = ours_two_spheres(args.levels)
     theirs = None if args.no_bempp else bempp_two_spheres(args.levels)
     print(f"{'triangles':>10s} | {'ours s':>8s} {'ours err':>9s} | {'bempp s':>8s} {'bempp err':>9s}")
