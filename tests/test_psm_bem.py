@@ -59,11 +59,14 @@ def test_small_sphere_dipole_term_against_the_bem(angels2):
     assert d_psm == pytest.approx(d_bem, rel=0.3)
 
 
-@pytest.mark.parametrize("z, rtol", [(1e-2, 0.2), (0.1, 0.03)])
+@pytest.mark.parametrize("z, rtol", [(1e-2, 0.3), (0.1, 0.1), (10.0, 0.02)])
 def test_contact_series_term_against_the_bem(angels2, z, rtol):
+    # z_c/A is exact once z_c dominates (uniform current) and falls short by the current's
+    # crowding at the electrode edges while it does not; 2 % leaves room for the faceted
+    # electrode area of the BEM mesh (about 1 % larger than the smooth one)
     sensor, ref, cal = angels2
     extra_bem = bem.conductance_matrix(Scene(sensor), SIGMA, contact_impedance_ohm_m2=z).resistance_ohm[0] - ref.resistance_ohm[0]
     R0 = conductance(cal.model, np.zeros((1, 4)), SIGMA).resistance_ohm[0, 0]
     extra_psm = conductance(cal.model, np.zeros((1, 4)), SIGMA, contact_impedance_ohm_m2=z, sensor=sensor).resistance_ohm[0, 0] - R0
-    assert extra_psm <= extra_bem * (1 + 1e-3)  # uniform current is the least resistive distribution
+    assert extra_psm <= extra_bem * 1.02  # uniform current is the least resistive distribution
     assert extra_psm == pytest.approx(extra_bem, rel=rtol)
