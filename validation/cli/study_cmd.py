@@ -20,7 +20,7 @@ def _available() -> dict[str, str]:
     return out
 
 
-@click.command("study", context_settings={"ignore_unknown_options": True})
+@click.command("study", context_settings={"ignore_unknown_options": True, "allow_interspersed_args": False})
 @click.argument("name", required=False)
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
 @click.option("--list", "list_", is_flag=True, help="List the studies and benchmarks and exit.")
