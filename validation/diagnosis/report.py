@@ -194,7 +194,8 @@ def _figures(d: Diagnosis, folder: Path) -> list:
     names = [c.name for c in d.ranking]
     figs.append(Figure(bar_figure(names, {"held-out gap (%)": [100 * c.heldout_gap for c in d.ranking],
                                           "noise (%)": [100 * d.noise] * len(names)},
-                                  folder / "ranking.png", "candidates alone", "RMS relative (%)", panel_size=(1400, 560)),
+                                  folder / "ranking.png", "candidates alone", "RMS relative (%)", panel_size=(1400, 600),
+                                  y_max=300 * max(d.gap_before, d.noise)),
                        "held-out gap left by each candidate alone, against the noise level"))
     return figs
 

@@ -204,10 +204,14 @@ def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, p
     return png_path
 
 
-def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=(900, 560)) -> Path:
+def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=(900, 560),
+               y_max: float | None = None) -> Path:
     """Grouped bars: one group per category, one bar colour per key of ``values``.
 
-    The categories are written on the x axis as tick labels.
+    The categories are written on the x axis as tick labels (``_`` breaks the
+    line, so identifiers such as ``contact_impedance`` stay readable). Bars
+    above ``y_max`` are cut there and their value is written under the
+    category, so that one off-scale bar does not flatten the others.
 
     Parameters
     ----------
@@ -216,7 +220,7 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
     values : dict
         Label -> (len(categories),) array (e.g. model -> mean |error| in %).
     """
-    categories = [str(c) for c in categories]
+    categories = [str(c).replace("_", "\n") for c in categories]
     if not categories or not values:
         raise ValueError("bar_figure needs categories and at least one series of values")
     x = np.arange(len(categories), dtype=float)
@@ -225,6 +229,10 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
         v = np.asarray(v, dtype=float).ravel()
         if v.size != len(categories):
             raise ValueError(f"bar series {label!r} has {v.size} values for {len(categories)} categories")
+        if y_max is not None:
+            for i in np.flatnonzero(v > y_max):
+                categories[i] += f"\n({label.split(' (')[0]} {v[i]:.3g})"
+            v = np.minimum(v, y_max)
         arrays.append(v)
         labels.append(str(label))
         colour = _colour(str(label), k)
