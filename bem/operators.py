@@ -115,22 +115,7 @@ def _layers_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, 
 
 
 @njit(parallel=True, cache=True)
-def _mixed_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double, group, A, B):
-    n, m = points.shape[0], tri.shape[0]
-    for i in prange(n):
-        x0, x1, x2 = points[i, 0], points[i, 1], points[i, 2]
-        for j in range(m):
-            is_own = own[i] == j
-            sl, dl = _pair(x0, x1, x2, j, is_own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2)
-            h = dl + 0.5 if is_own else dl
-            A[i, j] = c_single[j] * sl + c_double[j] * h
-            g = group[j]
-            if g >= 0:
-                B[i, g] += h
-
-
-@njit(parallel=True, cache=True)
-def _mixed_reduced_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double,
+def _mixed_kernel(points, own, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double,
                           group, column_class, A, B):
     n, m = points.shape[0], tri.shape[0]
     for i in prange(n):
@@ -187,11 +172,17 @@ def mixed_system(points_m, triangles, own, c_single, c_double, group, n_groups, 
     ``out`` may pass a preallocated (P, T) array for ``A``.
     """
     pts, t, own = _prepare(points_m, triangles, own)
-    A = np.empty((len(pts), len(t))) if out is None else out
+    if out is None:
+        A = np.zeros((len(pts), len(t)))
+    else:
+        A = out
+        A.fill(0.0)
     B = np.zeros((len(pts), max(int(n_groups), 1)))
+    every_column = np.arange(len(t), dtype=np.int64)  # the full system: one class per triangle
     _mixed_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
                   t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
-                  np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64), A, B)
+                  np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64),
+                  every_column, A, B)
     return A, B[:, : int(n_groups)]
 
 
@@ -205,8 +196,8 @@ def mixed_system_reduced(points_m, triangles, own, c_single, c_double, group, n_
     pts, t, own = _prepare(points_m, triangles, own)
     A = np.zeros((len(pts), int(n_classes)))
     B = np.zeros((len(pts), max(int(n_groups), 1)))
-    _mixed_reduced_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
-                          t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
-                          np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64),
-                          np.ascontiguousarray(column_class, dtype=np.int64), A, B)
+    _mixed_kernel(pts, own, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
+                  t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
+                  np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64),
+                  np.ascontiguousarray(column_class, dtype=np.int64), A, B)
     return A, B[:, : int(n_groups)]
