@@ -7,17 +7,22 @@ import pkgutil
 import click
 
 
-def _available() -> dict[str, str]:
+def _names() -> list[str]:
     import validation.studies as studies
 
-    out = {}
-    for info in pkgutil.iter_modules(studies.__path__):
-        if info.name.startswith("_"):
-            continue
-        mod = importlib.import_module(f"validation.studies.{info.name}")
-        if hasattr(mod, "main"):
-            out[info.name] = (mod.__doc__ or "").strip().splitlines()[0] if mod.__doc__ else ""
-    return out
+    return sorted(info.name for info in pkgutil.iter_modules(studies.__path__) if not info.name.startswith("_"))
+
+
+def _summary(name: str) -> str:
+    """First line of a study's docstring, read without importing it (a study may set up numba threads)."""
+    import ast
+
+    import validation.studies as studies
+
+    path = f"{studies.__path__[0]}/{name}.py"
+    with open(path, encoding="utf-8") as f:
+        doc = ast.get_docstring(ast.parse(f.read())) or ""
+    return doc.strip().splitlines()[0] if doc.strip() else ""
 
 
 @click.command("study", context_settings={"ignore_unknown_options": True, "allow_interspersed_args": False})
@@ -29,14 +34,14 @@ def study(name, args, list_):
 
     Example: ``esense study bem_speed``.
     """
-    available = _available()
+    available = _names()
     if list_ or not name:
-        for key, doc in sorted(available.items()):
-            click.echo(f"{key:28s} {doc}")
+        for key in available:
+            click.echo(f"{key:28s} {_summary(key)}")
         return
-    names = sorted(available) if name == "all" else [name]
+    names = available if name == "all" else [name]
     for n in names:
         if n not in available:
-            raise click.BadParameter(f"unknown study {n!r}; known: {', '.join(sorted(available))}", param_hint="NAME")
+            raise click.BadParameter(f"unknown study {n!r}; known: {', '.join(available)}", param_hint="NAME")
         click.echo(f"== {n}")
         importlib.import_module(f"validation.studies.{n}").main(list(args))
