@@ -376,15 +376,6 @@ def relative_error_figure(
 
 
 # ------------------------------------------------------------------ 3D figures
-def _electrode_colours(n: int) -> list[str]:
-    """The electrode colours of :mod:`meshes.render`, so that every picture of a sensor agrees."""
-    try:
-        from meshes.render import ELECTRODE_COLOURS
-    except ImportError:  # pragma: no cover - meshes without its renderer
-        ELECTRODE_COLOURS = _CYCLE
-    return [ELECTRODE_COLOURS[k % len(ELECTRODE_COLOURS)] for k in range(n)]
-
-
 def _polydata(mesh) -> "pv.PolyData":
     faces = np.hstack([np.full((mesh.faces.shape[0], 1), 3), mesh.faces]).ravel()
     poly = pv.PolyData(np.asarray(mesh.vertices_m, dtype=float), faces)
@@ -392,24 +383,20 @@ def _polydata(mesh) -> "pv.PolyData":
     return poly
 
 
-def _add_sensor(plotter, sensor_mesh, pose=None):
-    """Sensor faces: grey insulator, one colour per electrode; returns the legend entries."""
+def _add_sensor(plotter, sensor_mesh, pose=None, emitter=None):
+    """Sensor faces: grey insulator, one colour per electrode (those of :mod:`meshes.render`, so that
+    every picture of a sensor agrees); returns the legend entries."""
+    from meshes.render import electrode_colour, electrode_legend
+
     mesh = sensor_mesh.transformed(pose) if pose is not None else sensor_mesh
     poly = _polydata(mesh)
     labels = np.asarray(mesh.electrode)
-    n = int(labels.max()) if labels.size else 0
-    colours = _electrode_colours(n)
-    legend = []
-    insulator = poly.extract_cells(np.flatnonzero(labels == 0))
-    if insulator.n_cells:
-        plotter.add_mesh(insulator, color="#c8c8c8", show_edges=True, edge_color="#a0a0a0", line_width=0.5)
-        legend.append(["insulator", "#a8a8a8"])
-    for k in range(1, n + 1):
-        part = poly.extract_cells(np.flatnonzero(labels == k))
-        if part.n_cells:
-            plotter.add_mesh(part, color=colours[k - 1], show_edges=True, edge_color="#404040", line_width=0.5)
-            legend.append([f"electrode {k}", colours[k - 1]])
-    return legend
+    present = [int(k) for k in np.unique(labels)]
+    for k in present:
+        edge = "#a0a0a0" if k == 0 else "#404040"
+        plotter.add_mesh(poly.extract_cells(np.flatnonzero(labels == k)), color=electrode_colour(k), show_edges=True,
+                         edge_color=edge, line_width=0.5)
+    return [list(entry) for entry in electrode_legend([k for k in present if k > 0], emitter)]
 
 
 def _scalar_bar(title: str, fmt: str = "%.2f") -> dict:
@@ -429,6 +416,7 @@ def scene_figure(
     title: str = "",
     window_size=(1800, 900),
     passes=None,
+    emitter: int | None = None,
 ) -> Path:
     """The 3D scene: tank, sensor mesh (electrodes coloured), path coloured by ``values``.
 
@@ -450,6 +438,8 @@ def scene_figure(
         Objects in the tank frame.
     passes : (P,) array, optional
         Pass labels: each pass is drawn as its own line.
+    emitter : int, optional
+        1-based emitter, named in the sensor's legend.
     """
     has_closeup = sensor_mesh is not None
     plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
@@ -496,8 +486,8 @@ def scene_figure(
     plotter.camera.elevation = 4.0
     if has_closeup:
         plotter.subplot(0, 1)
-        legend = _add_sensor(plotter, sensor_mesh)
-        plotter.add_legend(legend, bcolor="white", border=True, size=(0.25, 0.05 * len(legend) + 0.02),
+        legend = _add_sensor(plotter, sensor_mesh, emitter=emitter)
+        plotter.add_legend(legend, bcolor="white", border=True, size=(0.36, 0.05 * len(legend) + 0.02),
                            loc="upper left", face="rectangle")
         length = float(np.ptp(sensor_mesh.vertices_m[:, 0]))
         plotter.add_text(f"sensor mesh: {sensor_mesh.n_triangles} triangles, {length * 100:.1f} cm, head (1) at +x",
@@ -627,8 +617,10 @@ def potential_figure(
         plotter.add_mesh(pv.lines_from_points(pts), color="#1b2a49", line_width=10)
     if len(walls_m):
         legend.append(["tank wall (insulating)", "#1b2a49"])
-    colours = _electrode_colours(max(len(electrode_segments), 1))
-    for (seg, label), colour in zip(electrode_segments, colours):
+    from meshes.render import electrode_colour
+
+    for k, (seg, label) in enumerate(electrode_segments, start=1):
+        colour = electrode_colour(k)
         seg = np.asarray(seg, dtype=float)
         for piece in np.split(seg, np.flatnonzero(np.isnan(seg[:, 0]))):
             piece = piece[np.isfinite(piece[:, 0])]

@@ -166,7 +166,8 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
             notes.append(f"objects not drawn: {exc}")
     p = scene_figure(folder / f"scene_{slug}.png", sensor_mesh, pose, log.tank, log.poses[:, :3], err,
                      value_label=f"{first.upper()} mean abs. error (%)", object_meshes=object_meshes,
-                     title=f"{result.label}: path coloured by {first.upper()} error", passes=passes)
+                     title=f"{result.label}: path coloured by {first.upper()} error", passes=passes,
+                     emitter=log.emitter)
     figures.append(Figure(p, f"{result.label}: the scene; the sensor is drawn at the pose of largest "
                              f"{first.upper()} error (x = {pose.x_m:.3f} m), the path coloured by the "
                              "mean abs. error over receivers."))
