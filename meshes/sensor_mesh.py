@@ -54,7 +54,7 @@ import numpy as np
 from .labelled_mesh import LabelledMesh
 from .sensor import SensorDescription
 
-__all__ = ["mesh_sensor", "SensorProfile", "default_edge_length_m"]
+__all__ = ["mesh_sensor", "SensorProfile", "default_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
 
 
 def default_edge_length_m(sensor: SensorDescription) -> float:
@@ -91,6 +91,14 @@ class SensorProfile:
         r = np.where(s <= s1, R * np.sin(theta_head), np.where(s <= s2, R, R * np.cos(theta_tail)))
         return x, r
 
+    def normal(self, s):
+        """Unit normal (n_x, n_r) of the meridian at arc length ``s``, out of the body into the water."""
+        x, r = self.point(s)
+        s = np.asarray(s, dtype=float)
+        s1, s2 = self.s_junction
+        centre = np.where(s <= s1, self.c, np.where(s <= s2, x, -self.c))
+        return (x - centre) / self.R, np.where((s > s1) & (s <= s2), 1.0, r / self.R)
+
     def arc_length(self, x: float) -> float:
         """Arc length (m) of the point of the meridian at axial position ``x``."""
         R, c = self.R, self.c
@@ -113,6 +121,43 @@ def _ring_radius_factor(m: int, mode: str) -> float:
     raise ValueError(f"mesh_sensor: ring_radius must be 'area', 'perimeter' or 'inscribed', got {mode!r}")
 
 
+def electrode_edge_arc_lengths(sensor: SensorDescription) -> np.ndarray:
+    """Arc lengths (m, from the head tip) of the electrode/insulator edges, sorted.
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> electrode_edge_arc_lengths(preset("angels-2")).size
+    2
+    """
+    profile = SensorProfile(sensor)
+    half = 0.5 * sensor.length_m
+    edge_x = sorted({x for e in sensor.electrodes for x in (e.x_min_m, e.x_max_m) if abs(abs(x) - half) > 1e-12})
+    return np.array(sorted(profile.arc_length(x) for x in edge_x))
+
+
+def graded_arc_lengths(sensor: SensorDescription, h_far_m: float, h_edge_m: float, grading: float):
+    """Nodes of the meridian (arc lengths from the head tip, m), graded towards the electrode edges.
+
+    The nodes include both tips, every electrode edge and both cap/cylinder
+    junctions; between them they equidistribute ``1 / h(s)`` with
+    ``h(s) = min(h_far_m, h_edge_m + (grading - 1) d(s))``, ``d`` the arc
+    length to the nearest electrode edge. Returns the nodes and ``h``.
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> s, h = graded_arc_lengths(preset("angels-2"), 0.005, 0.0005, 1.2)
+    >>> bool(s[0] == 0.0 and np.all(np.diff(s) > 0))
+    True
+    """
+    profile = SensorProfile(sensor)
+    edges = electrode_edge_arc_lengths(sensor)
+    breaks = np.unique(np.concatenate([[0.0, profile.total], edges, profile.s_junction]))
+    breaks = breaks[np.concatenate([[True], np.diff(breaks) > 1e-9 * profile.total])]
+    return _ring_positions(breaks, edges, h_far_m, h_edge_m, grading)
+
+
 def _ring_positions(breaks: np.ndarray, edges: np.ndarray, h_far: float, h_edge: float, grading: float) -> np.ndarray:
     """Arc lengths of the rings: every breakpoint plus graded rings between them."""
 
@@ -125,6 +170,10 @@ def _ring_positions(breaks: np.ndarray, edges: np.ndarray, h_far: float, h_edge:
     rings = [breaks[0]]
     for a, b in zip(breaks[:-1], breaks[1:]):
         t = np.linspace(a, b, 801)
+        for e in edges[(edges >= a) & (edges <= b)]:   # resolve 1/h where it is steep, however fine h_edge
+            offsets = np.geomspace(1e-3 * h_edge, b - a, 400)
+            t = np.concatenate([t, e - offsets, e + offsets])
+        t = np.unique(np.clip(t, a, b))
         inv_h = 1.0 / size(t)
         F = np.concatenate([[0.0], np.cumsum(0.5 * (inv_h[1:] + inv_h[:-1]) * np.diff(t))])
         n = max(1, int(np.round(F[-1])))
@@ -235,12 +284,7 @@ def mesh_sensor(
             f"mesh_sensor: edge_length_m {h_far} m is coarser than the sensor's diameter {2 * sensor.radius_m} m"
         )
     profile = SensorProfile(sensor)
-    half = 0.5 * sensor.length_m
-    edge_x = sorted({x for e in sensor.electrodes for x in (e.x_min_m, e.x_max_m) if abs(abs(x) - half) > 1e-12})
-    edges = np.array(sorted(profile.arc_length(x) for x in edge_x))
-    breaks = np.unique(np.concatenate([[0.0, profile.total], edges, profile.s_junction]))
-    breaks = breaks[np.concatenate([[True], np.diff(breaks) > 1e-9 * profile.total])]
-    s_rings, size = _ring_positions(breaks, edges, h_far, h_far / edge_refinement, grading)
+    s_rings, size = graded_arc_lengths(sensor, h_far, h_far / edge_refinement, grading)
     x_rings, r_rings = profile.point(s_rings)
     r_rings[0] = r_rings[-1] = 0.0
 

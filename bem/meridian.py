@@ -1,0 +1,304 @@
+"""Ring boundary elements on the meridian of a sensor of revolution in unbounded water.
+
+A sensor of :mod:`meshes.sensor` (cylinder, hemispherical ends, electrodes
+that are caps or rings) alone in unbounded water has an axisymmetric
+solution for every pattern of electrode potentials. Integrating the Laplace
+kernel ``G = 1/(4 pi |x - y|)`` around the axis turns the surface integrals
+into integrals along the meridian (arc length ``s``, axial coordinate ``x``,
+radius ``r``) with the classical ring kernels (``m`` the parameter of the
+complete elliptic integrals ``K(m)``, ``E(m)``)::
+
+    a^2 = (r + r')^2 + (x - x')^2,   b^2 = (r - r')^2 + (x - x')^2,   m = 4 r r' / a^2,
+
+    single_layer:  int G dA_y           = int r' K(m) / (pi a) ds'
+    double_layer:  int dG/dn_y dA_y     = int [ -n_r' (K(m) + (r'^2 - r^2 - (x - x')^2) E(m) / b^2)
+                                                 + n_x' 2 r' (x - x') E(m) / b^2 ] / (2 pi a) ds'
+
+The direct formulation is the one of :mod:`bem.system`: with ``n`` out of
+the body into the water and ``q = -du/dn``,
+``u/2 = single_layer[q] + double_layer[u]`` at every collocation point of
+the (smooth) meridian. Elements are arcs of the exact meridian (no faceting
+error), constant ``q`` on electrode elements and constant ``u`` on insulator
+elements, collocated at their midpoints; the logarithmic singularity of the
+ring kernels is integrated by splitting each element at the point nearest the
+target with a ``u^2`` substitution on each side, Gauss-Legendre elsewhere.
+
+The meridian is one-dimensional, so it can be graded towards the electrode
+edges (where the current density is singular, ~ d^-1/2) far past what a
+surface mesh affords: thousands of elements, 1e-7 m at the edges, in about a
+second. :func:`converged_conductance` refines such meridians until the
+conductance matrix settles and extrapolates (Richardson); it is the
+mesh-converged reference the surface BEM is checked against
+(``validation/studies/bem_paper.py``) and the source of its free-space
+discretisation correction (:mod:`bem.edge_correction`).
+
+Conventions as in :mod:`bem.conductance`: ``K[i, j]`` is the current (A)
+leaving electrode ``i`` into the water when electrode ``j`` is at 1 V and the
+others at 0 V, the sensor isolated (currents sum to zero).
+
+Example
+-------
+>>> from meshes import preset
+>>> g = meridian_conductance(preset("angels-2"), 1.0)
+>>> bool(abs(g.K_S.sum(axis=1)).max() < 1e-12 * abs(g.K_S).max())
+True
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import ellipe, ellipkm1
+
+from meshes.sensor import SensorDescription
+from meshes.sensor_mesh import SensorProfile, graded_arc_lengths
+
+from .conductance import ConductanceMatrix, isolate
+from .system import contact_impedances
+
+__all__ = ["MeridianMesh", "mesh_meridian", "ring_single_layer", "ring_double_layer",
+           "single_layer", "double_layer", "meridian_conductance", "converged_conductance"]
+
+_GAUSS_FAR = np.polynomial.legendre.leggauss(6)
+_GAUSS_NEAR = np.polynomial.legendre.leggauss(16)
+
+
+@dataclass(frozen=True)
+class MeridianMesh:
+    """Elements ``[s_nodes[k], s_nodes[k+1]]`` of the meridian (arc length from the head tip, m).
+
+    ``electrode[k]`` is the electrode number of element ``k`` (0: insulator).
+    """
+
+    sensor: SensorDescription
+    s_nodes: np.ndarray
+    electrode: np.ndarray
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.electrode)
+
+    @property
+    def areas_m2(self) -> np.ndarray:
+        """Area of the band each element sweeps around the axis (m^2), exact."""
+        profile = SensorProfile(self.sensor)
+        u, w = _GAUSS_NEAR
+        a, b = self.s_nodes[:-1, None], self.s_nodes[1:, None]
+        s = 0.5 * (a + b) + 0.5 * (b - a) * u
+        _, r = profile.point(s)
+        return 2 * np.pi * np.sum(r * w * 0.5 * (b - a), axis=1)
+
+
+def mesh_meridian(sensor: SensorDescription, h_far_m: float | None = None, h_edge_m: float | None = None,
+                  grading: float = 1.05) -> MeridianMesh:
+    """Graded elements along the meridian (every electrode edge on a node).
+
+    Defaults: ``h_far_m = radius / 8`` and ``h_edge_m = 1e-5 h_far_m``.
+
+    Example
+    -------
+    >>> from meshes import preset
+    >>> m = mesh_meridian(preset("angels-4"))
+    >>> sorted(set(m.electrode.tolist()))
+    [0, 1, 2, 3, 4]
+    """
+    h_far = sensor.radius_m / 8 if h_far_m is None else float(h_far_m)
+    h_edge = 1e-5 * h_far if h_edge_m is None else float(h_edge_m)
+    if not (h_far > 0 and 0 < h_edge <= h_far and grading > 1):
+        raise ValueError(f"mesh_meridian: need h_far_m > 0, 0 < h_edge_m <= h_far_m, grading > 1; "
+                         f"got {h_far}, {h_edge}, {grading}")
+    s_nodes, _ = graded_arc_lengths(sensor, h_far, h_edge, grading)
+    x_mid, _ = SensorProfile(sensor).point(0.5 * (s_nodes[1:] + s_nodes[:-1]))
+    electrode = np.zeros(len(s_nodes) - 1, dtype=np.int64)
+    for number, e in enumerate(sensor.electrodes, start=1):
+        electrode[(x_mid >= e.x_min_m) & (x_mid <= e.x_max_m)] = number
+    return MeridianMesh(sensor, np.asarray(s_nodes), electrode)
+
+
+def _ring_terms(x, r, xs, rs):
+    """a, b^2 and the elliptic integrals K(m), E(m) of the ring kernels."""
+    dx2 = (x - xs) ** 2
+    a2 = (r + rs) ** 2 + dx2
+    b2 = (r - rs) ** 2 + dx2
+    m1 = b2 / a2                         # 1 - m, without cancellation near the ring itself
+    return np.sqrt(a2), b2, ellipkm1(m1), ellipe(1.0 - m1)
+
+
+def ring_single_layer(x, r, xs, rs):
+    """Single layer of a unit-density ring: ``int G r' dphi'`` of the source ring (x', r') at (x, r), 1/m.
+
+    Example
+    -------
+    >>> # far from a ring of radius 1 mm the ring looks like a point charge 2 pi r'
+    >>> v = ring_single_layer(1.0, 0.0, 0.0, 1e-3)
+    >>> bool(abs(v / (2 * np.pi * 1e-3 / (4 * np.pi * 1.0)) - 1) < 1e-9)
+    True
+    """
+    a, _, K, _ = _ring_terms(x, r, xs, rs)
+    return rs * K / (np.pi * a)
+
+
+def ring_double_layer(x, r, xs, rs, nx, nr):
+    """Double layer ``int dG/dn_y r' dphi'`` of the source ring (x', r') with meridian normal (n_x', n_r'), 1/m^2."""
+    a, b2, K, E = _ring_terms(x, r, xs, rs)
+    dx = x - xs
+    return (-nr * (K + (rs**2 - r**2 - dx**2) * E / b2) + nx * 2 * rs * dx * E / b2) / (2 * np.pi * a)
+
+
+def _element_rules(mesh: MeridianMesh, targets_s: np.ndarray, near_factor: float = 3.0):
+    """Quadrature points and weights (ds) for every (target, element) pair.
+
+    Far pairs: 6-point Gauss-Legendre. Near pairs (target within ``near_factor``
+    element lengths of the element's midpoint): the element is split at its
+    point nearest the target and each side integrated with a ``u^2``
+    substitution and 16 points, which integrates the logarithmic singularity.
+    Returns a generator of (i_target, j_element, s_points, weights) blocks.
+    """
+    profile = SensorProfile(mesh.sensor)
+    a, b = mesh.s_nodes[:-1], mesh.s_nodes[1:]
+    length = b - a
+    mid = 0.5 * (a + b)
+    xt, rt = profile.point(targets_s)
+    xm, rm = profile.point(mid)
+    dist = np.hypot(xt[:, None] - xm[None, :], rt[:, None] - rm[None, :])
+    near = dist < near_factor * length[None, :]
+    # far: the same rule for every target
+    u, w = _GAUSS_FAR
+    s_far = mid[:, None] + 0.5 * length[:, None] * u
+    w_far = 0.5 * length[:, None] * w
+    # near: split at the element's point nearest the target (sampled, then clipped to the element)
+    i_near, j_near = np.nonzero(near)
+    samples = np.linspace(0.0, 1.0, 65)
+    s_samp = a[j_near, None] + length[j_near, None] * samples
+    xs, rs = profile.point(s_samp)
+    k = np.argmin((xs - xt[i_near, None]) ** 2 + (rs - rt[i_near, None]) ** 2, axis=1)
+    s_split = s_samp[np.arange(len(k)), k]
+    on_self = targets_s[i_near] >= a[j_near]
+    on_self &= targets_s[i_near] <= b[j_near]
+    s_split = np.where(on_self, targets_s[i_near], s_split)
+    un, wn = _GAUSS_NEAR
+    t = 0.5 * (un + 1.0)                 # Gauss points on [0, 1]
+    left = (s_split - a[j_near])[:, None]
+    right = (b[j_near] - s_split)[:, None]
+    s_near = np.concatenate([s_split[:, None] - left * t**2, s_split[:, None] + right * t**2], axis=1)
+    w_near = np.concatenate([left * 2 * t * 0.5 * wn, right * 2 * t * 0.5 * wn], axis=1)
+    return near, (s_far, w_far), (i_near, j_near, s_near, w_near)
+
+
+def _assemble(mesh: MeridianMesh, kernel: str) -> np.ndarray:
+    """Collocation matrix of ``single_layer`` or ``double_layer`` at the element midpoints."""
+    profile = SensorProfile(mesh.sensor)
+    mid = 0.5 * (mesh.s_nodes[:-1] + mesh.s_nodes[1:])
+    xt, rt = profile.point(mid)
+    near, (s_far, w_far), (i_near, j_near, s_near, w_near) = _element_rules(mesh, mid)
+
+    def values(x, r, s):
+        xs, rs = profile.point(s)
+        if kernel == "single":
+            return ring_single_layer(x, r, xs, rs)
+        nx, nr = profile.normal(s)
+        return ring_double_layer(x, r, xs, rs, nx, nr)
+
+    n = mesh.n_elements
+    A = np.empty((n, n))
+    for start in range(0, n, 256):          # far rule in blocks of targets (bounded memory)
+        rows = slice(start, min(n, start + 256))
+        A[rows] = np.sum(values(xt[rows, None, None], rt[rows, None, None], s_far[None]) * w_far[None], axis=2)
+    A[i_near, j_near] = np.sum(values(xt[i_near, None], rt[i_near, None], s_near) * w_near, axis=1)
+    return A
+
+
+def single_layer(mesh: MeridianMesh) -> np.ndarray:
+    """``V[i, j] = int_{element j} G(x_i, y) dA_y`` (m), collocation at element midpoints."""
+    return _assemble(mesh, "single")
+
+
+def double_layer(mesh: MeridianMesh) -> np.ndarray:
+    """``D[i, j] = int_{element j} dG/dn_y(x_i, y) dA_y`` (dimensionless), normals into the water."""
+    return _assemble(mesh, "double")
+
+
+def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
+                         mesh: MeridianMesh | None = None, grounded: bool = False) -> ConductanceMatrix:
+    """Conductance matrix of a sensor of revolution alone in unbounded water, by ring elements.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+    sigma_S_per_m : float
+        Conductivity of the water (S/m).
+    contact_impedance_ohm_m2 : float or sequence, optional
+        Contact impedance of the electrodes (one value or one per electrode).
+    mesh : MeridianMesh, optional
+        Default :func:`mesh_meridian` (about 2 000 elements, 0.1 % or better).
+    grounded : bool
+        Return the matrix with the far field held at 0 V (a sphere electrode
+        alone gives ``4 pi sigma a``) instead of the isolated sensor's.
+
+    Returns
+    -------
+    ConductanceMatrix
+        ``info`` holds the element count and seconds.
+    """
+    t0 = time.perf_counter()
+    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
+        raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    mesh = mesh_meridian(sensor) if mesh is None else mesh
+    n = len(sensor.electrodes)
+    z = contact_impedances(contact_impedance_ohm_m2, n)
+    V, D = single_layer(mesh), double_layer(mesh)
+    on_electrode = mesh.electrode > 0
+    zs = np.where(on_electrode, z[np.maximum(mesh.electrode, 1) - 1] * sigma_S_per_m, 0.0)
+    # u/2 - D u - V q = 0; on electrodes u = V_k - z sigma q, on insulators u is the unknown
+    A = np.where(on_electrode[None, :], -V + zs[None, :] * (D - 0.5 * np.eye(len(zs))), 0.5 * np.eye(len(zs)) - D)
+    patterns = (mesh.electrode[:, None] == np.arange(1, n + 1)[None, :]).astype(float)   # element potential per 1 V
+    b = D @ patterns - 0.5 * patterns
+    solution = np.linalg.solve(A, b)
+    flux = np.where(on_electrode[:, None], solution, 0.0) * sigma_S_per_m * mesh.areas_m2[:, None]
+    C = patterns.T @ flux
+    C = 0.5 * (C + C.T)
+    K = C if grounded else isolate(C)
+    return ConductanceMatrix(K, sensor.emitter, float(sigma_S_per_m),
+                             info=dict(model="bem-meridian", elements=mesh.n_elements,
+                                       seconds=time.perf_counter() - t0))
+
+
+def converged_conductance(sensor: SensorDescription, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
+                          refinements=(1, 2, 4), h_far_m: float | None = None, grading: float = 1.1):
+    """Mesh-converged conductance matrix by Richardson extrapolation over refined meridians.
+
+    The meridian family ``h_far / d``, ``h_edge = 1e-5 h_far / d``,
+    ``grading = 1 + (grading - 1) / d`` for ``d`` in ``refinements`` refines every
+    element by ``d``; the observed order ``p`` of every entry comes from the
+    three finest and the limit is ``K_d + (K_d - K_{d/2}) / (2^p - 1)``.
+
+    Returns
+    -------
+    limit : ConductanceMatrix
+        ``info`` holds the observed orders, the finest mesh's departure from the
+        limit (an error estimate) and the element counts.
+    """
+    t0 = time.perf_counter()
+    h_far = sensor.radius_m / 4 if h_far_m is None else float(h_far_m)
+    values, counts = [], []
+    for d in refinements:
+        mesh = mesh_meridian(sensor, h_far / d, 1e-5 * h_far / d, 1 + (grading - 1) / d)
+        values.append(meridian_conductance(sensor, sigma_S_per_m, contact_impedance_ohm_m2, mesh).K_S)
+        counts.append(mesh.n_elements)
+    K0, K1, K2 = values[-3:]
+    ratio = refinements[-1] / refinements[-2]
+    d1, d2 = K1 - K0, K2 - K1
+    scale = np.abs(K2).max()
+    settled = np.abs(d2) < 1e-9 * scale
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = np.where(settled, np.inf, np.log(np.abs(d1 / d2)) / np.log(ratio))
+    monotone = np.sign(d1) == np.sign(d2)
+    p_use = np.where(monotone & np.isfinite(p) & (p > 0.5), p, 1.0)   # non-monotone: a cautious order 1
+    limit = np.where(settled, K2, K2 + d2 / (ratio**p_use - 1))
+    limit = 0.5 * (limit + np.swapaxes(limit, -1, -2))
+    departure = float(np.max(np.abs(K2 - limit)) / scale)
+    return ConductanceMatrix(limit, sensor.emitter, float(sigma_S_per_m),
+                             info=dict(model="bem-meridian-richardson", elements=counts,
+                                       observed_order=np.where(np.isfinite(p), p, np.nan).tolist(),
+                                       finest_departure=departure, seconds=time.perf_counter() - t0))
