@@ -75,6 +75,9 @@ class PoseSweep:
         Sensor mesh edge length (default: the mesher's).
     tank_edge_length_m : float, optional
         Tank edge length nearest the trajectory (default: the scene mesher's).
+    tank_grading : float, optional
+        Growth of the tank's edge length per metre from the trajectory
+        (default: the scene mesher's, :data:`meshes.scene_mesh.DEFAULT_TANK_GRADING`).
     focus_m : (P, 3) array, optional
         Tank-frame points the tank mesh is graded towards; default: the
         sensor's axis at every pose of the first call.
@@ -89,6 +92,9 @@ class PoseSweep:
         directory, a directory, ``False`` never; ``None`` (default): only
         when the sensor mesh has at least ``CACHE_MIN_TRIANGLES`` triangles
         (where factorising costs more than reading).
+    edge_correction : bool
+        Add the sensor mesh's free-space electrode-edge error to every pose's
+        K (:mod:`bem.edge_correction`; computed once, about a second).
 
     Example
     -------
@@ -97,7 +103,7 @@ class PoseSweep:
 
     def __init__(self, sensor, tank=None, objects=(), sigma_S_per_m: float = 1.0, contact_impedance_ohm_m2=None,
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
-                 **sensor_mesh_options):
+                 edge_correction: bool = True, tank_grading: float | None = None, **sensor_mesh_options):
         from meshes.sensor_mesh import mesh_sensor
 
         if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
@@ -111,6 +117,9 @@ class PoseSweep:
         self.sigma_S_per_m = float(sigma_S_per_m)
         self.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
         self.tank_edge_length_m = tank_edge_length_m
+        from meshes.scene_mesh import DEFAULT_TANK_GRADING
+
+        self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         self.tol = float(tol)
         self.block_cache = block_cache
@@ -126,6 +135,14 @@ class PoseSweep:
         else:
             self._prepare_sensor()
         self.timings["sensor_block_s"] = time.perf_counter() - t0
+        self._K_correction = np.zeros((self.n, self.n))
+        if edge_correction:
+            from .edge_correction import free_space_correction
+
+            t0 = time.perf_counter()
+            self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
+                                                       self.sensor_mesh, surface_K_S=getattr(self, "_free_K", None))
+            self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _prepare_free(self):
         """Alone in unbounded water K does not depend on the pose: one solve, as :func:`bem.solve.solve_scene`
@@ -185,7 +202,7 @@ class PoseSweep:
 
     def _prepare_environment(self, poses: np.ndarray):
         from meshes.object_mesh import mesh_object
-        from meshes.scene_mesh import sensor_axis_points_m
+        from meshes.scene_mesh import default_tank_edge_length_m, sensor_axis_points_m
         from meshes.scene import Scene
         from meshes.tank_mesh import mesh_tank
 
@@ -194,8 +211,8 @@ class PoseSweep:
             if self.focus_m is None:
                 self.focus_m = np.concatenate([sensor_axis_points_m(Scene(self.sensor, Pose.from_array(p), self.tank), 9)
                                                for p in poses])
-            h = self.sensor.length_m / 10 if self.tank_edge_length_m is None else self.tank_edge_length_m
-            tank_mesh = mesh_tank(self.tank, h, self.focus_m)
+            h = default_tank_edge_length_m(self.sensor) if self.tank_edge_length_m is None else self.tank_edge_length_m
+            tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading)
         object_meshes = tuple(mesh_object(o, None, region_name=f"object_{i}") for i, o in enumerate(self.objects, 1))
         if tank_mesh is None and not object_meshes:
             self.env_tris = None
@@ -289,16 +306,17 @@ class PoseSweep:
         unbounded = self.tank is None
         for p in iterator:
             if self.env_tris is None:
-                K[p] = self._free_K
+                K[p] = self._free_K + self._K_correction
                 continue
             y_s, ranks[p] = self._solve_pose(poses[p])
             C = np.zeros((self.n, self.n))
             np.add.at(C, self._electrode_of_row, self._electrode_weight[:, None] * y_s[self._electrode_rows])
-            K[p] = isolate(C) if unbounded else C
+            K[p] = (isolate(C) if unbounded else C) + self._K_correction
         seconds = time.perf_counter() - t0
         info = {"model": "bem", "triangles": int(self.sensor_mesh.n_triangles + (0 if self.env_tris is None else len(self.env_tris))),
                 "sensor_triangles": int(self.sensor_mesh.n_triangles), "seconds": seconds,
-                "coupling_rank": ranks.tolist(), **self.timings}
+                "coupling_rank": ranks.tolist(), **self.timings,
+                "edge_correction_max_relative": float(np.abs(self._K_correction).max() / np.abs(K).max())}
         g = ConductanceMatrix(K, self.emitter, self.sigma_S_per_m, info)
         info.update(asymmetry=g.asymmetry, row_sum_residue=g.row_sum_residue)
         return g

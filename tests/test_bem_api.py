@@ -57,7 +57,10 @@ def test_surface_solution_as_vtk(free_solution):
     areas = poly.compute_cell_sizes().cell_data["Area"]
     J = poly.cell_data["current_density_A_per_m2"]
     I_emitter = np.sum((areas * J)[poly.cell_data["electrode"] == 2])
-    assert I_emitter == pytest.approx(free_solution.electrode_currents_A([0.0, 1.0])[1], rel=1e-9)
+    V = free_solution.isolated_potentials([0.0, 1.0])
+    assert I_emitter == pytest.approx((free_solution.K_surface_S @ V)[1], rel=1e-9)
+    # the conductance matrix carries the edge correction on top (bem.edge_correction): a few tenths of a percent
+    assert I_emitter == pytest.approx(free_solution.electrode_currents_A([0.0, 1.0])[1], rel=1e-2)
 
 
 @pytest.fixture(scope="module")
@@ -73,7 +76,9 @@ def test_pose_sweep_matches_the_direct_solver(tank_sweep):
     for p, K in zip(poses, g.K_S):
         direct = conductance_matrix(Scene(preset("angels-2"), Pose.from_array(p), Tank((0.4, 0.3, 0.3))), 1.0,
                                     edge_length_m=H, tank_edge_length_m=0.03, tank_focus_m=tank_sweep.focus_m)
-        np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)   # the sweep integrates the tank block exactly
+        # the sweep integrates the tank block's double layer exactly, the direct solver by its centroid rule
+        # beyond FAR diameters (bem.operators): a row-sum residue of ~1e-4 in the direct solution
+        np.testing.assert_allclose(K, direct.K_S, rtol=1e-4)
     assert g.row_sum_residue < 5e-3
 
 
@@ -154,7 +159,7 @@ def test_axisymmetric_reduction_matches_the_full_collocation(free_solution):
     assert "method" not in full.info
     np.testing.assert_allclose(free_solution.K_S, full.K_S, rtol=1e-4)
     quick = solve_axisymmetric(full.boundary, 1.0, targets_per_class=4)
-    np.testing.assert_allclose(quick.K_S, full.K_S, rtol=1e-3)
+    np.testing.assert_allclose(quick.K_S, full.K_surface_S, rtol=1e-3)   # both without the edge correction
     # surface potentials agree in the mean (single faces of the zipped transition bands, where the
     # mesh departs most from rotational symmetry, differ by up to ~1 % of the potential step)
     u_full, _ = full.surface([0.0, 1.0])
