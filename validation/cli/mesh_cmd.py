@@ -111,9 +111,9 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the scene (PNG).")
 @click.option("--edge-length", "edge_length_m", type=float, default=None, help="Sensor edge length in metres.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=float, default=None,
-              help="Tank edge length nearest the sensor in metres (default: a tenth of the sensor length); "
+              help="Tank edge length nearest the sensor in metres (default: a twentieth of the sensor length); "
                    "it grows away from the sensor.")
-@click.option("--tank-grading", type=float, default=0.5, show_default=True,
+@click.option("--tank-grading", type=float, default=0.25, show_default=True,
               help="Growth of the tank's edge length per metre of distance from the sensor.")
 def mesh_scene_cmd(scene_file, sensor, tank, depth_m, unbounded, pose, output, png, edge_length_m,
                    tank_edge_length_m, tank_grading):
