@@ -184,19 +184,21 @@ def _angels(n: int) -> SensorDescription:
 
 
 # The paper gives the 20 cm length only. The other dimensions were fitted with
-# our BEM (validation/studies/bem_paper.py, default sensor mesh): the radius,
-# cap extent, ring width and ring centre of angels-4 by least squares on the
-# paper's free-space S_BEM table (mean relative error 0.11 %, every entry within
-# 0.3 %); angels-2 keeps the same body and its cap extent is set so that its
-# free-space conductance gives the paper's PSM equivalent radius a = 0.71 cm at
-# L = 20 cm (S = 4 pi sigma / (2/a - 2/L)).
+# our mesh-converged BEM (validation/studies/bem_paper.py --fit: ring elements
+# on the meridian, which the surface BEM with its edge correction reproduces):
+# the radius, cap extent, ring width and ring centre of angels-4 by least
+# squares on the paper's free-space S_BEM table (mean relative error 0.07 %,
+# every entry within 0.22 %; the table leaves a shallow valley of radius
+# against electrode extents, see fit_angels4); angels-2 keeps the same body and
+# its cap extent is set so that its free-space conductance gives the paper's
+# PSM equivalent radius a = 0.71 cm at L = 20 cm (S = 4 pi sigma / (2/a - 2/L)).
 _ANGELS_DIMENSIONS = {
     "length_m": 0.20,
-    "radius_m": 0.011582,
-    "cap_extent_m": 0.008704,  # end electrodes of angels-4: a spherical cap shorter than the hemisphere
-    "cap_extent_2_m": 0.008459,  # end electrodes of angels-2
-    "ring_width_m": 0.007266,
-    "ring_centre_m": 0.031037,
+    "radius_m": 0.012184,
+    "cap_extent_m": 0.008304,  # end electrodes of angels-4: a spherical cap shorter than the hemisphere
+    "cap_extent_2_m": 0.008088,  # end electrodes of angels-2
+    "ring_width_m": 0.006541,
+    "ring_centre_m": 0.031430,
 }
 _ANGELS_NOTES = (
     "Paper sensor (Jawad et al.): 20 cm long; diameter, cap and ring extents are not given in the paper "
