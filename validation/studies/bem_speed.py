@@ -12,9 +12,21 @@ Figures (printed side by side with the targets of the BEM issue):
 * two spheres (radius 1 cm, centres 3 cm apart) against the exact series:
   error against the number of triangles and time, ours and bempp-cl's
   (Galerkin P0 single layer, dense LU), and the time each needs to reach
-  0.3 % and 0.1 % (interpolated in log-log).
+  0.3 % and 0.1 % (interpolated in log-log);
+* the sensor (``angels-4`` in unbounded water, sigma = 1 S/m) against its
+  converged S, on the same meshes for both: ``mesh_sensor`` with edge length
+  ``h0 / d`` and grading ``1 + 0.15 / d`` for refinement factors ``d``; the
+  largest relative error over the entries of S against the number of
+  triangles and time, ours and bempp-cl's (the mixed problem in Galerkin P0,
+  dense LU: :mod:`validation.studies.bempp_sensor`), and the time each needs
+  to reach 0.3 % and 0.1 %. bempp-cl stops at ``--bempp-max-triangles``
+  (its dense matrices take some 7 GB at 16 000 triangles).
 
-Run: ``python -m validation.studies.bem_speed [--full] [--no-bempp] [--levels 1 2 3 4]``.
+Run: ``python -m validation.studies.bem_speed [--full] [--no-bempp] [--levels 1 2 3 4]
+[--sensor-levels 0.5 0.7 1 1.41 2] [--bempp-max-triangles 20000] [--no-sensor-comparison]``
+(``--skip-sensor``: only the two-sphere comparison). The default sensor levels
+take some 5 minutes for ours (the finest, 32 000 triangles, most of it) and
+3 minutes for bempp-cl on two cores.
 bempp-cl is optional (``pip install bempp-cl``); its first operator compiles for about a minute.
 """
 from __future__ import annotations
@@ -91,6 +103,177 @@ def bempp_two_spheres(levels):
     return rows, compile_s
 
 
+#: converged free-space S (siemens) of ``angels-4`` at sigma = 1 S/m, the sensor comparison's reference:
+#: Richardson extrapolation of our BEM (placeholder until the meridian solver's converged value replaces it).
+#: It belongs to the angels-4 dimensions radius 11.582 mm, caps 8.704 mm, rings 27.404-34.670 mm from the
+#: centre: replace it whenever the preset changes.
+ANGELS4_CONVERGED_S_S = np.array([[0.07241213, -0.02755605, -0.02256576],
+                                  [-0.02755592, 0.07717295, -0.02705173],
+                                  [-0.02256589, -0.02705173, 0.07717293]])
+#: refinement factors d of the sensor meshes (edge length h0 / d, grading 1 + 0.15 / d)
+SENSOR_LEVELS = (0.5, 0.7, 1.0, 1.41, 2.0)
+
+
+def sensor_mesh_at(sensor, d: float):
+    """The sensor's mesh at refinement factor ``d``: edge length ``h0 / d``, grading ``1 + 0.15 / d``.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+    d : float
+        Refinement factor; ``d = 1`` is the default edge length ``h0`` (with grading 1.15).
+
+    Returns
+    -------
+    LabelledMesh
+    """
+    from meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+
+    return mesh_sensor(sensor, edge_length_m=default_edge_length_m(sensor) / d, grading=1 + 0.15 / d)
+
+
+def max_relative_error(S, reference_S) -> float:
+    """``max |S_ij / reference_ij - 1|`` over the entries of S."""
+    return float(np.max(np.abs(np.asarray(S) / np.asarray(reference_S) - 1)))
+
+
+def _sensor(sensor):
+    """A SensorDescription from a preset name or itself."""
+    from meshes import preset
+
+    return preset(sensor) if isinstance(sensor, str) else sensor
+
+
+def ours_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 1.0):
+    """Our BEM on the sensor in unbounded water, at each refinement factor of ``levels``.
+
+    Parameters
+    ----------
+    levels : sequence of float
+        Refinement factors ``d`` (see :func:`sensor_mesh_at`).
+    reference_S : (n-1, n-1) array
+        The converged S (siemens) at ``sigma_S_per_m``.
+    sensor : str or SensorDescription
+        Preset name or sensor; ``reference_S`` must be its converged S.
+    sigma_S_per_m : float
+
+    Returns
+    -------
+    list of (triangles, seconds, error)
+        ``error``: :func:`max_relative_error` of S; ``seconds``: boundary, assembly and solve.
+    """
+    from bem.boundary_conditions import WaterBoundary
+    from bem.solve import solve
+
+    s = _sensor(sensor)
+    solve(WaterBoundary.from_meshes(sensor_mesh_at(s, min(levels)), emitter=s.emitter), sigma_S_per_m)  # kernels
+    rows = []
+    for d in levels:
+        mesh = sensor_mesh_at(s, d)
+        t0 = time.perf_counter()
+        S = solve(WaterBoundary.from_meshes(mesh, emitter=s.emitter), sigma_S_per_m).conductance.S_S
+        rows.append((mesh.n_triangles, time.perf_counter() - t0, max_relative_error(S, reference_S)))
+    return rows
+
+
+def bempp_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 1.0,
+                 max_triangles: int = 20000):
+    """bempp-cl on the sensor (the mixed problem in Galerkin P0, dense LU) at each refinement factor.
+
+    The first level is solved twice: the first time includes the compilation
+    of bempp-cl's kernels (in a process that has already assembled bempp-cl's
+    single layer, the double layer's mostly) and is reported apart.
+
+    Parameters
+    ----------
+    levels : sequence of float
+        Refinement factors ``d`` (see :func:`sensor_mesh_at`); meshes of more
+        than ``max_triangles`` triangles are skipped.
+    reference_S : (n-1, n-1) array
+        The converged S (siemens) at ``sigma_S_per_m``.
+    sensor : str or SensorDescription
+        Preset name or sensor; ``reference_S`` must be its converged S.
+    sigma_S_per_m : float
+    max_triangles : int
+        The dense matrices take 3 x 8 bytes x triangles^2.
+
+    Returns
+    -------
+    (rows, compile_s) or None
+        ``rows``: (triangles, seconds, error) as for :func:`ours_sensor`;
+        ``compile_s``: the first solve, compilation included. None without bempp-cl.
+    """
+    from .bempp_sensor import bempp_available, bempp_conductance
+
+    if not bempp_available():
+        return None
+    s = _sensor(sensor)
+    meshes = [m for m in (sensor_mesh_at(s, d) for d in levels) if m.n_triangles <= max_triangles]
+    if not meshes:
+        return [], np.nan
+    t0 = time.perf_counter()
+    bempp_conductance(meshes[0], sigma_S_per_m, s.emitter)
+    compile_s = time.perf_counter() - t0
+    rows = []
+    for mesh in meshes:
+        t0 = time.perf_counter()
+        S = bempp_conductance(mesh, sigma_S_per_m, s.emitter).S_S
+        rows.append((mesh.n_triangles, time.perf_counter() - t0, max_relative_error(S, reference_S)))
+    return rows, compile_s
+
+
+def print_sensor_comparison(levels, reference_S, with_bempp: bool = True, bempp_max_triangles: int = 20000,
+                            sensor="angels-4", sigma_S_per_m: float = 1.0):
+    """Print ours and bempp-cl's error and time side by side on the sensor's meshes, and the time to 0.3 % and 0.1 %.
+
+    Parameters
+    ----------
+    levels : sequence of float
+        Refinement factors ``d`` (see :func:`sensor_mesh_at`).
+    reference_S : (n-1, n-1) array
+        The converged S (siemens) at ``sigma_S_per_m``.
+    with_bempp : bool
+        Run bempp-cl too (skipped with a note when it is not installed).
+    bempp_max_triangles : int
+        bempp-cl's largest mesh.
+    sensor : str or SensorDescription
+        Preset name or sensor; ``reference_S`` must be its converged S.
+    sigma_S_per_m : float
+
+    Returns
+    -------
+    ours, theirs
+        As returned by :func:`ours_sensor` and :func:`bempp_sensor`.
+    """
+    s = _sensor(sensor)
+    print(f"\n{s.name} (radius {1e3 * s.radius_m:.3f} mm) in unbounded water (sigma = {sigma_S_per_m:g} S/m) "
+          f"against its converged S\n(max relative error over the entries of S; the same meshes for both: "
+          f"edge length h0/d, grading 1 + 0.15/d)")
+    ours = ours_sensor(levels, reference_S, s, sigma_S_per_m)
+    theirs = bempp_sensor(levels, reference_S, s, sigma_S_per_m, bempp_max_triangles) if with_bempp else None
+    if with_bempp and theirs is None:
+        print("(bempp-cl is not installed: ours only)")
+    by_n = {n: (t, e) for n, t, e in theirs[0]} if theirs else {}
+    print(f"{'d':>5s} {'triangles':>10s} | {'ours s':>8s} {'ours err':>9s} | {'bempp s':>8s} {'bempp err':>9s}")
+    for d, (n, t, e) in zip(levels, ours):
+        b = by_n.get(n)
+        print(f"{d:5.2f} {n:10d} | {t:8.2f} {e:9.2e} | " + (f"{b[0]:8.2f} {b[1]:9.2e}" if b else "     n/a       n/a"))
+
+    def seconds(t):
+        return f"{t:.2f} s" if np.isfinite(t) else "not reached"
+
+    for target in (3e-3, 1e-3):
+        t_ours = time_to_accuracy(ours, target)
+        t_theirs = time_to_accuracy(theirs[0], target) if theirs and theirs[0] else np.nan
+        print(f"time to {100 * target:.1f} %: ours {seconds(t_ours)}, "
+              f"bempp-cl {seconds(t_theirs) if theirs else 'n/a'}"
+              + (f" (bempp-cl / ours = {t_theirs / t_ours:.2g})" if np.isfinite(t_theirs) and np.isfinite(t_ours)
+                 else ""))
+    if theirs:
+        print(f"bempp-cl first sensor solve (compilation included): {theirs[1]:.1f} s")
+    return ours, theirs
+
+
 def time_to_accuracy(rows, target):
     """Seconds to reach a relative error ``target``, interpolated in log-log between measured meshes."""
     n, t, e = (np.array(c, float) for c in zip(*rows))
@@ -156,6 +339,12 @@ def main(argv=None):
     parser.add_argument("--no-bempp", action="store_true", help="skip bempp-cl")
     parser.add_argument("--levels", type=int, nargs="+", default=[1, 2, 3, 4], help="icosphere subdivisions")
     parser.add_argument("--skip-sensor", action="store_true", help="only the two-sphere comparison")
+    parser.add_argument("--no-sensor-comparison", action="store_true",
+                        help="skip the sensor's error and time against its converged S (ours and bempp-cl)")
+    parser.add_argument("--sensor-levels", type=float, nargs="+", default=list(SENSOR_LEVELS),
+                        help="refinement factors d of the sensor meshes (edge length h0/d, grading 1 + 0.15/d)")
+    parser.add_argument("--bempp-max-triangles", type=int, default=20000,
+                        help="largest sensor mesh for bempp-cl (dense: 3 x 8 bytes x triangles^2)")
     args = parser.parse_args(argv)
     if not args.skip_sensor:
         print("figure                                           ours        target   note")
@@ -177,6 +366,9 @@ def main(argv=None):
               + (f" ({t_theirs / t_ours:.1f}x)" if np.isfinite(t_theirs) and np.isfinite(t_ours) else ""))
     if theirs:
         print(f"bempp-cl first operator (compilation included): {theirs[1]:.1f} s")
+    if not (args.skip_sensor or args.no_sensor_comparison):
+        print_sensor_comparison(args.sensor_levels, ANGELS4_CONVERGED_S_S, with_bempp=not args.no_bempp,
+                                bempp_max_triangles=args.bempp_max_triangles)
 
 
 if __name__ == "__main__":
