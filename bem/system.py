@@ -93,7 +93,7 @@ class BemSystem:
 def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                     triangles=None) -> BemSystem:
     """Assemble the dense mixed system on ``boundary`` (refusing what does not fit in memory)."""
-    from .operators import TriangleSet, mixed_system  # numba kernels, loaded on first use
+    from .operators import FAR, TriangleSet, mixed_system  # numba kernels, loaded on first use
 
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
@@ -105,10 +105,14 @@ def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     scale = float(np.sqrt(np.mean(tris.areas)))
     c_single, c_double, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
     own = np.arange(n_f)
+    # in a closed tank every row's solid angles must add up (the Neumann problem's compatibility):
+    # the centroid rule beyond FAR diameters breaks that by ~1e-4 per row, which grows with the tank
+    # mesh; exact solid angles for every pair cost ~1/3 more assembly (as PoseSweep's tank block)
+    far = np.inf if not boundary.unbounded else FAR
     if n_c == 0:
-        A, B = mixed_system(tris.centroids, tris, own, c_single, c_double, group, n)
+        A, B = mixed_system(tris.centroids, tris, own, c_single, c_double, group, n, far=far)
         return BemSystem(A, -B, scale, z_c, 0)
-    A, B = mixed_system(tris.centroids, tris, own, c_single, c_double, group, n + n_c)
+    A, B = mixed_system(tris.centroids, tris, own, c_single, c_double, group, n + n_c, far=far)
     M = np.zeros((n_f + n_c, n_f + n_c))
     M[:n_f, :n_f] = A
     M[:n_f, n_f:] = B[:, n:]
