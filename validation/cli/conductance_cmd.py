@@ -46,6 +46,9 @@ def _table(g) -> str:
 @click.option("--edge-length", "edge_length", type=float, default=None,
               help="Sensor mesh edge length far from electrode edges, in metres "
                    "(default: 0.6 x radius, at most length/30).")
+@click.option("--no-edge-correction", "no_edge_correction", is_flag=True,
+              help="K of the surface solution itself, without the electrode-edge correction "
+                   "(bem/edge_correction.py; about 0.5 % lower at the default mesh).")
 @click.option("--emitter", type=int, default=None, help="Emitting electrode number (default: the sensor's, the last).")
 @click.option("--json", "json_out", default=None, type=click.Path(dir_okay=False),
               help="Write the result (K_S, S_S, sigma_S_per_m, emitter, triangles, seconds...) to this JSON file.")
@@ -53,7 +56,7 @@ def _table(g) -> str:
               help="Write the surface solution for the emitter at 1 V (cell data: potential_V, "
                    "current_density_A_per_m2) to this .vtp file.")
 def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_text, sigma, z_c, edge_length,
-                emitter, json_out, vtp_out):
+                no_edge_correction, emitter, json_out, vtp_out):
     """Conductance matrix K (and the paper's S) of a sensor by the BEM."""
     import json
     from dataclasses import replace
@@ -104,7 +107,7 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
             sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
         if z_c is None and "contact" in settings:
             z_c = settings["contact"].get("impedance_ohm_m2")
-        solution = solve_scene(target, sigma, z_c, edge_length)
+        solution = solve_scene(target, sigma, z_c, edge_length, edge_correction=not no_edge_correction)
     except click.ClickException:
         raise
     except (ValueError, MemoryError) as exc:
@@ -118,12 +121,16 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
     click.echo(f"S (S), receivers {list(g.receivers)}:\n{g.S_S}")
     click.echo(f"{g.info['triangles']} triangles, {g.info['seconds']:.2f} s, asymmetry {g.asymmetry:.1e}, "
                f"row-sum residue {g.row_sum_residue:.1e}, sigma {sigma} S/m"
-               + ("" if solution.boundary.unbounded else ", in the tank"))
+               + ("" if solution.boundary.unbounded else ", in the tank")
+               + (f", edge correction {100 * g.info['edge_correction_max_relative']:.2f} % of max |K|"
+                  if "edge_correction_max_relative" in g.info else ", no edge correction"))
     if json_out:
         d = g.to_json_dict()
         d.update(model="bem", triangles=int(g.info["triangles"]), seconds=float(g.info["seconds"]),
                  unbounded=bool(solution.boundary.unbounded),
                  contact_impedance_ohm_m2=solution.z_c.tolist(),
+                 edge_correction=solution.K_correction_S is not None,
+                 K_surface_S=solution.K_surface_S.tolist(),
                  resistance_ohm=[float(r) for r in g.resistance_ohm])
         if not mesh_file:
             d.update(sensor=target.sensor.to_dict(), pose=target.pose.as_array().tolist(),

@@ -103,15 +103,8 @@ def bempp_two_spheres(levels):
     return rows, compile_s
 
 
-#: converged free-space S (siemens) of ``angels-4`` at sigma = 1 S/m, the sensor comparison's reference:
-#: Richardson extrapolation of our BEM (placeholder until the meridian solver's converged value replaces it).
-#: It belongs to the angels-4 dimensions radius 11.582 mm, caps 8.704 mm, rings 27.404-34.670 mm from the
-#: centre: replace it whenever the preset changes.
-ANGELS4_CONVERGED_S_S = np.array([[0.07241213, -0.02755605, -0.02256576],
-                                  [-0.02755592, 0.07717295, -0.02705173],
-                                  [-0.02256589, -0.02705173, 0.07717293]])
 #: refinement factors d of the sensor meshes (edge length h0 / d, grading 1 + 0.15 / d)
-SENSOR_LEVELS = (0.5, 0.7, 1.0, 1.41, 2.0)
+SENSOR_LEVELS = (0.5, 0.7, 1.0, 1.41)
 
 
 def sensor_mesh_at(sensor, d: float):
@@ -159,10 +152,15 @@ def ours_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 1
 
     Returns
     -------
-    list of (triangles, seconds, error)
-        ``error``: :func:`max_relative_error` of S; ``seconds``: boundary, assembly and solve.
+    list of (triangles, seconds, error, corrected seconds, corrected error)
+        ``error``: :func:`max_relative_error` of S of the surface solution itself (full collocation);
+        ``seconds``: boundary, assembly and solve. ``corrected``: with the edge correction of
+        :mod:`bem.edge_correction` added (what ``conductance_matrix`` returns by default; in unbounded
+        water that is the ring elements' K, so its time adds theirs, computed afresh).
     """
+    from bem import edge_correction
     from bem.boundary_conditions import WaterBoundary
+    from bem.conductance import S_from_K
     from bem.solve import solve
 
     s = _sensor(sensor)
@@ -171,8 +169,14 @@ def ours_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 1
     for d in levels:
         mesh = sensor_mesh_at(s, d)
         t0 = time.perf_counter()
-        S = solve(WaterBoundary.from_meshes(mesh, emitter=s.emitter), sigma_S_per_m).conductance.S_S
-        rows.append((mesh.n_triangles, time.perf_counter() - t0, max_relative_error(S, reference_S)))
+        K = solve(WaterBoundary.from_meshes(mesh, emitter=s.emitter), sigma_S_per_m).K_S
+        seconds = time.perf_counter() - t0
+        edge_correction._CACHE.clear()
+        t0 = time.perf_counter()
+        dK = edge_correction.free_space_correction(s, sigma_S_per_m, None, mesh, surface_K_S=None)
+        corrected_seconds = seconds + time.perf_counter() - t0
+        rows.append((mesh.n_triangles, seconds, max_relative_error(S_from_K(K, s.emitter), reference_S),
+                     corrected_seconds, max_relative_error(S_from_K(K + dK, s.emitter), reference_S)))
     return rows
 
 
@@ -254,21 +258,25 @@ def print_sensor_comparison(levels, reference_S, with_bempp: bool = True, bempp_
     if with_bempp and theirs is None:
         print("(bempp-cl is not installed: ours only)")
     by_n = {n: (t, e) for n, t, e in theirs[0]} if theirs else {}
-    print(f"{'d':>5s} {'triangles':>10s} | {'ours s':>8s} {'ours err':>9s} | {'bempp s':>8s} {'bempp err':>9s}")
-    for d, (n, t, e) in zip(levels, ours):
+    print(f"{'d':>5s} {'triangles':>10s} | {'ours s':>8s} {'ours err':>9s} | {'corrected s':>11s} {'err':>9s} | "
+          f"{'bempp s':>8s} {'bempp err':>9s}")
+    for d, (n, t, e, tc, ec) in zip(levels, ours):
         b = by_n.get(n)
-        print(f"{d:5.2f} {n:10d} | {t:8.2f} {e:9.2e} | " + (f"{b[0]:8.2f} {b[1]:9.2e}" if b else "     n/a       n/a"))
+        print(f"{d:5.2f} {n:10d} | {t:8.2f} {e:9.2e} | {tc:11.2f} {ec:9.2e} | "
+              + (f"{b[0]:8.2f} {b[1]:9.2e}" if b else "     n/a       n/a"))
 
     def seconds(t):
         return f"{t:.2f} s" if np.isfinite(t) else "not reached"
 
     for target in (3e-3, 1e-3):
-        t_ours = time_to_accuracy(ours, target)
+        t_ours = time_to_accuracy([r[:3] for r in ours], target)
+        t_corrected = time_to_accuracy([(r[0], r[3], r[4]) for r in ours], target)
         t_theirs = time_to_accuracy(theirs[0], target) if theirs and theirs[0] else np.nan
-        print(f"time to {100 * target:.1f} %: ours {seconds(t_ours)}, "
+        print(f"time to {100 * target:.1f} %: ours {seconds(t_ours)} (surface solution alone), "
+              f"{seconds(t_corrected)} (with the edge correction, the default), "
               f"bempp-cl {seconds(t_theirs) if theirs else 'n/a'}"
-              + (f" (bempp-cl / ours = {t_theirs / t_ours:.2g})" if np.isfinite(t_theirs) and np.isfinite(t_ours)
-                 else ""))
+              + (f" (bempp-cl / ours corrected = {t_theirs / t_corrected:.2g})"
+                 if np.isfinite(t_theirs) and np.isfinite(t_corrected) else ""))
     if theirs:
         print(f"bempp-cl first sensor solve (compilation included): {theirs[1]:.1f} s")
     return ours, theirs
@@ -367,7 +375,14 @@ def main(argv=None):
     if theirs:
         print(f"bempp-cl first operator (compilation included): {theirs[1]:.1f} s")
     if not (args.skip_sensor or args.no_sensor_comparison):
-        print_sensor_comparison(args.sensor_levels, ANGELS4_CONVERGED_S_S, with_bempp=not args.no_bempp,
+        from bem.meridian import converged_conductance
+        from meshes import preset
+
+        reference = converged_conductance(preset("angels-4"), 1.0)
+        print(f"\nreference: converged S of angels-4 by ring elements on the meridian (bem.meridian, "
+              f"{reference.info['elements']} elements, Richardson, finest within "
+              f"{100 * reference.info['finest_departure']:.4f} %)")
+        print_sensor_comparison(args.sensor_levels, reference.S_S, with_bempp=not args.no_bempp,
                                 bempp_max_triangles=args.bempp_max_triangles)
 
 
