@@ -141,9 +141,16 @@ def ring_single_layer(x, r, xs, rs):
 
 def ring_double_layer(x, r, xs, rs, nx, nr):
     """Double layer ``int dG/dn_y r' dphi'`` of the source ring (x', r') with meridian normal (n_x', n_r'), 1/m^2."""
+    return _ring_kernels(x, r, xs, rs, nx, nr)[1]
+
+
+def _ring_kernels(x, r, xs, rs, nx, nr):
+    """Single and double layer of the source ring together (one evaluation of K and E)."""
     a, b2, K, E = _ring_terms(x, r, xs, rs)
     dx = x - xs
-    return (-nr * (K + (rs**2 - r**2 - dx**2) * E / b2) + nx * 2 * rs * dx * E / b2) / (2 * np.pi * a)
+    single = rs * K / (np.pi * a)
+    double = (-nr * (K + (rs**2 - r**2 - dx**2) * E / b2) + nx * 2 * rs * dx * E / b2) / (2 * np.pi * a)
+    return single, double
 
 
 def _element_rules(mesh: MeridianMesh, targets_s: np.ndarray, near_factor: float = 3.0):
@@ -186,37 +193,37 @@ def _element_rules(mesh: MeridianMesh, targets_s: np.ndarray, near_factor: float
     return near, (s_far, w_far), (i_near, j_near, s_near, w_near)
 
 
-def _assemble(mesh: MeridianMesh, kernel: str) -> np.ndarray:
-    """Collocation matrix of ``single_layer`` or ``double_layer`` at the element midpoints."""
+def _assemble(mesh: MeridianMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Collocation matrices of ``single_layer`` and ``double_layer`` at the element midpoints (one pass)."""
     profile = SensorProfile(mesh.sensor)
     mid = 0.5 * (mesh.s_nodes[:-1] + mesh.s_nodes[1:])
     xt, rt = profile.point(mid)
     near, (s_far, w_far), (i_near, j_near, s_near, w_near) = _element_rules(mesh, mid)
 
-    def values(x, r, s):
-        xs, rs = profile.point(s)
-        if kernel == "single":
-            return ring_single_layer(x, r, xs, rs)
-        nx, nr = profile.normal(s)
-        return ring_double_layer(x, r, xs, rs, nx, nr)
+    def kernels(x, r, s):
+        return _ring_kernels(x, r, *profile.point(s), *profile.normal(s))
 
     n = mesh.n_elements
-    A = np.empty((n, n))
+    V, D = np.empty((n, n)), np.empty((n, n))
     for start in range(0, n, 256):          # far rule in blocks of targets (bounded memory)
         rows = slice(start, min(n, start + 256))
-        A[rows] = np.sum(values(xt[rows, None, None], rt[rows, None, None], s_far[None]) * w_far[None], axis=2)
-    A[i_near, j_near] = np.sum(values(xt[i_near, None], rt[i_near, None], s_near) * w_near, axis=1)
-    return A
+        single, double = kernels(xt[rows, None, None], rt[rows, None, None], s_far[None])
+        V[rows] = np.sum(single * w_far[None], axis=2)
+        D[rows] = np.sum(double * w_far[None], axis=2)
+    single, double = kernels(xt[i_near, None], rt[i_near, None], s_near)
+    V[i_near, j_near] = np.sum(single * w_near, axis=1)
+    D[i_near, j_near] = np.sum(double * w_near, axis=1)
+    return V, D
 
 
 def single_layer(mesh: MeridianMesh) -> np.ndarray:
     """``V[i, j] = int_{element j} G(x_i, y) dA_y`` (m), collocation at element midpoints."""
-    return _assemble(mesh, "single")
+    return _assemble(mesh)[0]
 
 
 def double_layer(mesh: MeridianMesh) -> np.ndarray:
     """``D[i, j] = int_{element j} dG/dn_y(x_i, y) dA_y`` (dimensionless), normals into the water."""
-    return _assemble(mesh, "double")
+    return _assemble(mesh)[1]
 
 
 def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
@@ -247,7 +254,7 @@ def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contac
     mesh = mesh_meridian(sensor) if mesh is None else mesh
     n = len(sensor.electrodes)
     z = contact_impedances(contact_impedance_ohm_m2, n)
-    V, D = single_layer(mesh), double_layer(mesh)
+    V, D = _assemble(mesh)
     on_electrode = mesh.electrode > 0
     zs = np.where(on_electrode, z[np.maximum(mesh.electrode, 1) - 1] * sigma_S_per_m, 0.0)
     # u/2 - D u - V q = 0; on electrodes u = V_k - z sigma q, on insulators u is the unknown
