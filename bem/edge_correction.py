@@ -92,11 +92,13 @@ def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):
         surface = np.asarray(surface_K_S, float)
     else:
         wb = WaterBoundary.from_meshes(sensor_mesh, emitter=sensor.emitter)
-        if not is_axisymmetric_sensor(wb):
-            raise ValueError(f"edge correction: the mesh of sensor {sensor.name!r} is not a mesh of revolution "
-                             "(mesh_sensor's); solve without the correction")
-        surface = solve_axisymmetric(wb, sigma, z if np.ndim(z) == 0 else list(z), sensor.emitter,
-                                     targets_per_class=targets_per_class).K_S
+        z_list = z if np.ndim(z) == 0 else list(z)
+        if is_axisymmetric_sensor(wb):
+            surface = solve_axisymmetric(wb, sigma, z_list, sensor.emitter, targets_per_class=targets_per_class).K_S
+        else:   # not ring by ring (not mesh_sensor's): the full collocation of the same mesh
+            from .solve import solve
+
+            surface = solve(wb, sigma, z_list, sensor.emitter).K_S
     reference = meridian_conductance(sensor, sigma, z if np.ndim(z) == 0 else list(z),
                                      mesh=mesh_meridian(sensor, grading=MERIDIAN_GRADING)).K_S
     dK = reference - surface

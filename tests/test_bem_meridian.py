@@ -116,3 +116,16 @@ def test_edge_correction_is_the_same_in_a_sweep_and_in_a_scene():
     raw = PoseSweep(s, tank, sigma_S_per_m=0.05, edge_correction=False).conductance([pose.as_array()])
     shift = sweep.K_S[0, 0, 0] / raw.K_S[0, 0, 0] - 1
     assert 1e-3 < shift < 1e-2
+
+
+def test_contact_impedance_removes_most_of_the_edge_error():
+    """Behind a contact impedance the current density is no longer singular at the electrode edges, so the
+    surface mesh's own error (and with it the correction) shrinks."""
+    from bem.edge_correction import free_space_correction
+    from meshes.sensor_mesh import mesh_sensor
+
+    s = preset("angels-2")
+    mesh = mesh_sensor(s)
+    bare = free_space_correction(s, 0.05, None, mesh)[0, 0]
+    behind = free_space_correction(s, 0.05, 1e-3, mesh)[0, 0]
+    assert bare > 20 * abs(behind)
