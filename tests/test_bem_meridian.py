@@ -119,13 +119,14 @@ def test_edge_correction_is_the_same_in_a_sweep_and_in_a_scene():
 
 
 def test_contact_impedance_removes_most_of_the_edge_error():
-    """Behind a contact impedance the current density is no longer singular at the electrode edges, so the
-    surface mesh's own error (and with it the correction) shrinks."""
+    """Behind a contact impedance the current density is no longer singular at the electrode edges (it is
+    smoothed over the length z_c sigma), so the surface mesh's own error (and with it the correction) shrinks."""
     from bem.edge_correction import free_space_correction
     from meshes.sensor_mesh import mesh_sensor
 
     s = preset("angels-2")
     mesh = mesh_sensor(s)
-    bare = free_space_correction(s, 0.05, None, mesh)[0, 0]
-    behind = free_space_correction(s, 0.05, 1e-3, mesh)[0, 0]
-    assert bare > 20 * abs(behind)
+    bare = free_space_correction(s, 1.0, None, mesh)[0, 0]
+    smoothed = [free_space_correction(s, 1.0, z, mesh)[0, 0] for z in (1e-5, 1e-4, 1e-3)]   # z sigma: 0.01-1 mm
+    assert bare > smoothed[0] > smoothed[1] > smoothed[2]
+    assert bare > 20 * abs(smoothed[2])
