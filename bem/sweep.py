@@ -276,9 +276,10 @@ class PoseSweep:
         # dominant right singular vectors by randomised range finding (bem.low_rank: a few products with
         # ~rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3);
         # A_se V_k = U_k s_k, so W V_k^T = A_ss^-1 A_se V_k V_k^T
-        Vt, _ = right_singular_vectors(A_se, self.tol, rank_hint=getattr(self, "_rank_hint", 32))
+        # (the same first sample at every pose, whatever came before: a pose's K does not depend on
+        # which worker computed it or after which pose)
+        Vt, _ = right_singular_vectors(A_se, self.tol, rank_hint=48)
         k = len(Vt)
-        self._rank_hint = k
         W = scipy.linalg.lu_solve((self._lu, self._piv), (A_se @ Vt.T).astype(self._lu.dtype),
                                   check_finite=False).astype(float)
         schur = self._A_e - (A_es @ W) @ Vt
