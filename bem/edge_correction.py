@@ -39,7 +39,7 @@ import hashlib
 
 import numpy as np
 
-__all__ = ["free_space_correction", "MERIDIAN_GRADING"]
+__all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING"]
 
 #: grading of the meridian used for the correction (about 700 elements for angels-4, 1e-4 of converged)
 MERIDIAN_GRADING = 1.15
@@ -81,6 +81,11 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
 
 
 _CACHE: dict = {}
+
+
+def clear_cache() -> None:
+    """Forget the corrections computed in this process (they are kept per sensor, sigma, z_c and mesh)."""
+    _CACHE.clear()
 
 
 def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):
