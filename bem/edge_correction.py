@@ -41,7 +41,7 @@ import numpy as np
 
 __all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING"]
 
-#: grading of the meridian used for the correction (about 700 elements for angels-4, 1e-4 of converged)
+#: grading of the meridian used for the correction (angels-4: 970 elements, 1.2e-4 of converged, 0.3-0.6 s)
 MERIDIAN_GRADING = 1.15
 
 
