@@ -50,6 +50,7 @@ __all__ = [
     "pose_evaluator",
     "simulate",
     "calibrated_psm",
+    "free_space_bem",
     "calibration_layout",
     "psm_cache_dir",
     "code_version",
@@ -215,6 +216,15 @@ def calibration_layout(sensor: SensorDescription, symmetric: bool | None = None)
     raise ModelError(f"no PSM layout of {n} spheres is determined by the {n_data} conductance(s) of {sensor.name!r}")
 
 
+def free_space_bem(sensor: SensorDescription, edge_length_m: float | None = None):
+    """The sensor's BEM conductance matrix alone in unbounded water at 1 S/m (with the edge correction of
+    :mod:`bem.edge_correction`): the reference every PSM calibration of the package fits."""
+    from bem import conductance_matrix
+    from meshes.scene import Scene
+
+    return conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m)
+
+
 def calibrated_psm(
     sensor: SensorDescription,
     edge_length_m: float | None = None,
@@ -223,7 +233,7 @@ def calibrated_psm(
 ):
     """A PSM calibrated against the free-space BEM conductance of ``sensor``, computed once.
 
-    The reference is ``bem.conductance_matrix(Scene(sensor), 1 S/m)`` in
+    The reference is :func:`free_space_bem` in
     unbounded water (the PSM's geometry does not depend on the conductivity);
     :func:`psm.calibrate` fits the spheres to it in the layout of
     :func:`calibration_layout`. The result is cached as a PSM JSON file in
@@ -255,11 +265,9 @@ def calibrated_psm(
         except Exception:  # a damaged cache entry is recomputed, never trusted
             path.unlink(missing_ok=True)
 
-    from bem import conductance_matrix
-    from meshes.scene import Scene
     from psm.calibration import calibrate
 
-    reference = conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m)
+    reference = free_space_bem(sensor, edge_length_m)
     model = calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -47,6 +47,7 @@ def _sensor_section(sensor, folder: Path, edge_length_m, bar, echo):
     from meshes.render import render_mesh
     from meshes.sensor_mesh import mesh_sensor
     from psm import calibrate
+    from validation.models import free_space_bem
     from validation.report.html import Figure, Section, Table
 
     name = sensor.name
@@ -56,7 +57,7 @@ def _sensor_section(sensor, folder: Path, edge_length_m, bar, echo):
     quality = mesh_quality(mesh)
     bar.update(1)
     t0 = time.perf_counter()
-    reference = _free_space_bem(sensor, mesh)
+    reference = free_space_bem(sensor, edge_length_m)
     bem_s = time.perf_counter() - t0
     bar.update(1)
     t0 = time.perf_counter()
@@ -98,13 +99,6 @@ def _quality_text(q) -> str:
             f"{'watertight' if q.is_watertight else 'NOT watertight'}")
 
 
-def _free_space_bem(sensor, mesh):
-    """The sensor's free-space BEM conductance at 1 S/m from its mesh."""
-    from bem import conductance_matrix
-    from bem.conductance import ConductanceMatrix
-
-    C = conductance_matrix(mesh, 1.0)
-    return ConductanceMatrix(C.K_S, sensor.emitter, 1.0, C.info)
 
 
 def _format_params(params: dict, uncertainty: dict | None) -> str:

@@ -49,14 +49,10 @@ PAPER_RECEIVER_COLOURS = ("#1f5fbf", "#d62728", "#2ca02c")
 
 def calibrate_like_the_paper(sensor, edge_length_m=None):
     """Free-space BEM of the sensor at 1 S/m and the PSM fitted to it the paper's way; (reference, calibration)."""
-    from bem import conductance_matrix
-    from bem.conductance import ConductanceMatrix
-    from meshes.sensor_mesh import mesh_sensor
     from psm import calibrate
+    from validation.models import free_space_bem
 
-    mesh = mesh_sensor(sensor, edge_length_m=edge_length_m)
-    C = conductance_matrix(mesh, 1.0)
-    reference = ConductanceMatrix(C.K_S, sensor.emitter, 1.0, C.info)
+    reference = free_space_bem(sensor, edge_length_m)
     calibration = calibrate(reference, symmetric=True, sensor=sensor,
                             fix_length_m=sensor.length_m if sensor.n_electrodes == 2 else None)
     return reference, calibration
