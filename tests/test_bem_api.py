@@ -125,6 +125,17 @@ def test_conductance_command(tmp_path, free_solution):
         assert key in d
     np.testing.assert_allclose(d["K_S"], free_solution.K_S, rtol=1e-10)
     assert ConductanceMatrix.from_json_dict(d).emitter == 2
+    assert d["edge_correction"] is True
+    np.testing.assert_allclose(d["K_surface_S"], free_solution.K_surface_S, rtol=1e-10)
+    raw = tmp_path / "raw.json"
+    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--edge-length", str(H),
+                                       "--no-edge-correction", "--json", str(raw)])
+    assert result.exit_code == 0, result.output
+    assert "no edge correction" in result.output
+    d_raw = json.loads(raw.read_text())
+    assert d_raw["edge_correction"] is False
+    np.testing.assert_allclose(d_raw["K_S"], free_solution.K_surface_S, rtol=1e-10)
+    assert d_raw["S_S"][0][0] < d["S_S"][0][0]        # the surface mesh alone is low at the electrode edges
 
 
 def test_conductance_command_refuses_a_sensor_out_of_the_tank():
