@@ -160,7 +160,8 @@ def _element_rules(mesh: MeridianMesh, targets_s: np.ndarray, near_factor: float
     element lengths of the element's midpoint): the element is split at its
     point nearest the target and each side integrated with a ``u^2``
     substitution and 16 points, which integrates the logarithmic singularity.
-    Returns a generator of (i_target, j_element, s_points, weights) blocks.
+    Returns the far rule ``(s, w)`` per element, each (elements, 6), and the
+    near rule ``(i_target, j_element, s, w)`` per near pair, s and w (pairs, 32).
     """
     profile = SensorProfile(mesh.sensor)
     a, b = mesh.s_nodes[:-1], mesh.s_nodes[1:]
@@ -190,7 +191,7 @@ def _element_rules(mesh: MeridianMesh, targets_s: np.ndarray, near_factor: float
     right = (b[j_near] - s_split)[:, None]
     s_near = np.concatenate([s_split[:, None] - left * t**2, s_split[:, None] + right * t**2], axis=1)
     w_near = np.concatenate([left * 2 * t * 0.5 * wn, right * 2 * t * 0.5 * wn], axis=1)
-    return near, (s_far, w_far), (i_near, j_near, s_near, w_near)
+    return (s_far, w_far), (i_near, j_near, s_near, w_near)
 
 
 def _assemble(mesh: MeridianMesh) -> tuple[np.ndarray, np.ndarray]:
@@ -198,7 +199,7 @@ def _assemble(mesh: MeridianMesh) -> tuple[np.ndarray, np.ndarray]:
     profile = SensorProfile(mesh.sensor)
     mid = 0.5 * (mesh.s_nodes[:-1] + mesh.s_nodes[1:])
     xt, rt = profile.point(mid)
-    near, (s_far, w_far), (i_near, j_near, s_near, w_near) = _element_rules(mesh, mid)
+    (s_far, w_far), (i_near, j_near, s_near, w_near) = _element_rules(mesh, mid)
 
     def kernels(x, r, s):
         return _ring_kernels(x, r, *profile.point(s), *profile.normal(s))
