@@ -130,6 +130,7 @@ class PoseSweep:
         self.z_c = contact_impedances(contact_impedance_ohm_m2, self.n)
         self._env_ready = False
         self.timings = {}
+        self._free_K = None   # K alone in unbounded water, when that is the whole problem
         t0 = time.perf_counter()
         if tank is None and not self.objects:
             self._prepare_free()
@@ -142,7 +143,7 @@ class PoseSweep:
 
             t0 = time.perf_counter()
             self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
-                                                       self.sensor_mesh, surface_K_S=getattr(self, "_free_K", None))
+                                                       self.sensor_mesh, surface_K_S=self._free_K)
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _prepare_free(self):

@@ -193,22 +193,28 @@ def convergence(sensor, sigma=SIGMA_PAPER, tank_order=2.0):
       and the sensor mesh refined by sqrt 2 (grading too) at the default tank, whose change bounds what
       the edge correction leaves of the sensor's own error.
     """
+    from bem.conductance import S_from_K
     from bem.meridian import converged_conductance
-    from bem.solve import conductance_matrix
+    from bem.solve import conductance_matrix, solve_scene
     from meshes.pose import Pose
     from meshes.scene import Scene
     from meshes.scene_mesh import DEFAULT_TANK_GRADING, default_tank_edge_length_m
     from meshes.sensor_mesh import default_edge_length_m
     from meshes.tank import Tank
 
+    def default_and_raw_S(scene):
+        """S at the default meshes, with and without the edge correction (one solve)."""
+        solution = solve_scene(scene, sigma)
+        return (solution, S_from_K(solution.K_S, sensor.emitter),
+                S_from_K(solution.K_surface_S, sensor.emitter))
+
     reference = converged_conductance(sensor, sigma)
-    raw = conductance_matrix(Scene(sensor), sigma, edge_correction=False)
-    corrected = conductance_matrix(Scene(sensor), sigma)
+    free, corrected, raw = default_and_raw_S(Scene(sensor))
     print(f"{sensor.name} free space: converged S by ring elements ({reference.info['elements']} elements, "
           f"observed order {np.nanmean(reference.info['observed_order']):.2f}, finest within "
           f"{100 * reference.info['finest_departure']:.4f} %); default surface mesh "
-          f"({raw.info.get('triangles', '?')} triangles) off by {100 * _max_relative(raw.S_S, reference.S_S):.3f} % "
-          f"without the edge correction, {100 * _max_relative(corrected.S_S, reference.S_S):.4f} % with it "
+          f"({free.boundary.n_triangles} triangles) off by {100 * _max_relative(raw, reference.S_S):.3f} % "
+          f"without the edge correction, {100 * _max_relative(corrected, reference.S_S):.4f} % with it "
           f"(target 0.3 %)", flush=True)
     tank = Tank((1.0, 1.0, 1.0))
     h0, ht = default_edge_length_m(sensor), default_tank_edge_length_m(sensor)
@@ -216,25 +222,23 @@ def convergence(sensor, sigma=SIGMA_PAPER, tank_order=2.0):
     for label, pose in (("mid-tank", Pose(0, 0, 0, 0)), ("tip 1 cm from a wall", Pose(near_x, 0, 0, 0))):
         scene = Scene(sensor, pose, tank)
         t0 = time.perf_counter()
-        default = conductance_matrix(scene, sigma)
+        solution, default, raw = default_and_raw_S(scene)
         finer_tank = conductance_matrix(scene, sigma, tank_edge_length_m=ht / 2, tank_grading=DEFAULT_TANK_GRADING / 2)
-        limit = finer_tank.S_S + (finer_tank.S_S - default.S_S) / (2**tank_order - 1)
+        limit = finer_tank.S_S + (finer_tank.S_S - default) / (2**tank_order - 1)
         finer_sensor = conductance_matrix(scene, sigma, edge_length_m=h0 / np.sqrt(2), grading=1 + 0.15 / np.sqrt(2))
-        raw = conductance_matrix(scene, sigma, edge_correction=False)
-        tank_part = _max_relative(default.S_S, limit)
-        sensor_part = _max_relative(default.S_S, finer_sensor.S_S)
-        print(f"{sensor.name} {label}: default meshes ({default.info['triangles']} triangles) off the tank-converged S "
+        tank_part = _max_relative(default, limit)
+        sensor_part = _max_relative(default, finer_sensor.S_S)
+        print(f"{sensor.name} {label}: default meshes ({solution.boundary.n_triangles} triangles) off the tank-converged S "
               f"by {100 * tank_part:.3f} % (tank mesh halved: {finer_tank.info['triangles']} triangles); the sensor "
               f"mesh refined by sqrt 2 moves S by {100 * sensor_part:.3f} %; together within "
               f"{100 * (tank_part + sensor_part):.3f} % (target 0.3 %); without the edge correction "
-              f"{100 * _max_relative(raw.S_S, limit):.3f} %; {time.perf_counter() - t0:.0f} s", flush=True)
+              f"{100 * _max_relative(raw, limit):.3f} %; {time.perf_counter() - t0:.0f} s", flush=True)
 
 
 def fine_reference(sensor, sigma=SIGMA_PAPER, divisions=(1, 2, 4, 8), targets_per_class=8):
     """Free-space I1/U on meshes refined far past the default (h0 / d), by the axisymmetric reduction.
 
-    Refining only the edge length (as :func:`convergence` does) keeps the grading ratio ``g`` towards
-    the electrode edges: the graded zone keeps its element size relative to the distance from the edge,
+    Refining only the edge length keeps the grading ratio ``g`` towards the electrode edges: the graded zone keeps its element size relative to the distance from the edge,
     ``g - 1``, and its error does not shrink (observed order 0.3 or less, no asymptotic range). Here
     the mesh family refines that zone too, ``g = 1 + (g0 - 1) / d`` at ``h0 / d``: the observed order
     comes out between 1 and 1.5 and the Richardson limit is a reference worth the name. Up to h0/8
