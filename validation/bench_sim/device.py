@@ -10,9 +10,12 @@ again.
 What really happened to every sample can be written to a *truth* file (a
 bench log labelled as simulated) with the columns ``boot``, ``seq``,
 ``t_device_s``, the true pose and conductivity, ``fate`` (``sent``,
-``corrupt``, ``dropped``, ``disconnected``, ``unsent``) and ``noise``
-(``line`` or ``prefix`` when garbage bytes came before it): the tests check a
-logger against it.
+``corrupt``, ``dropped``, ``disconnected``, ``unsent``, ``unheard``) and
+``noise`` (``line`` or ``prefix`` when garbage bytes came before it): the
+tests check a logger against it. ``unheard`` is a record an ``autostart``
+device wrote to a host that had not yet said anything on the line: whether
+it was read depends on when the host's port finished opening (opening a port
+flushes what waits in it), so a host may or may not have it.
 
 Example
 -------
@@ -215,7 +218,7 @@ class BenchDevice:
                     time.sleep(min(next_due - now, 0.002))
                     continue
                 faults = self.schedule.pop(i, [])
-                if faults and not (self.host_ready and self.transport.connected):
+                if faults and not (self.host_ready and self.transport.connected and self.transport.heard):
                     # nobody listens: the fault would go unseen; it happens at the next sample instead
                     self.schedule.setdefault(i + 1, []).extend(faults)
                     faults = []
@@ -257,6 +260,8 @@ class BenchDevice:
                         self.report.faults["corrupt"] += 1
                     sent = self._send(line)
                     fate = ("corrupt" if "corrupt" in faults else "sent") if sent else "unsent"
+                    if fate == "sent" and not self.transport.heard:
+                        fate = "unheard"  # the host's port may have flushed it while opening
                 self._truth_row(i, values, fate, noise)
                 self.seq += 1
                 self.since_boot += 1

@@ -6,6 +6,12 @@ pulled: :meth:`disconnect` closes the line (the host's reads fail),
 pseudo-terminal, a symbolic link that is pointed at the new terminal; for the
 socket, the same host and port).
 
+:attr:`heard` tells whether the host has said anything on the line since it
+came up (or, for the socket, since the host connected). Until then the
+device cannot know that the host's port is open: a host's port opening
+discards what was waiting (pyserial flushes its input when it opens a port,
+a socket included), so what was written before may never be read.
+
 Example
 -------
 >>> from validation.bench_sim.transport import PtyTransport
@@ -61,6 +67,7 @@ class PtyTransport:
         self.link = Path(link) if link else Path(tempfile.mkdtemp(prefix="esense-bench-")) / "bench"
         self.write_timeout_s = write_timeout_s
         self.master = self.slave = None
+        self.heard = False
         self._open()
 
     def _open(self) -> None:
@@ -70,6 +77,7 @@ class PtyTransport:
         tty.setraw(slave)  # no echo, no line editing: the bytes go through as they are
         os.set_blocking(master, False)
         self.master, self.slave = master, slave
+        self.heard = False
         self.device = os.ttyname(slave)
         tmp = self.link.with_name(self.link.name + f".{os.getpid()}.tmp")
         tmp.unlink(missing_ok=True)
@@ -103,13 +111,15 @@ class PtyTransport:
         if self.master is None:
             return b""
         try:
-            return os.read(self.master, 4096)
+            data = os.read(self.master, 4096)
         except BlockingIOError:
             return b""
         except OSError as exc:
             if exc.errno == errno.EIO:
                 return b""
             raise
+        self.heard = self.heard or bool(data)
+        return data
 
     def pending(self) -> int:
         """Bytes written that the host has not read yet."""
@@ -153,6 +163,7 @@ class SocketTransport:
         self.host, self.port = host, int(port)
         self.write_timeout_s = write_timeout_s
         self.server = self.conn = None
+        self.heard = False
         self._listen()
 
     def _listen(self) -> None:
@@ -186,6 +197,7 @@ class SocketTransport:
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         conn.settimeout(self.write_timeout_s)
         self.conn = conn
+        self.heard = False
 
     def write(self, data: bytes) -> None:
         self._accept()
@@ -212,6 +224,7 @@ class SocketTransport:
         if not data:  # the host closed its side
             self.conn.close()
             self.conn = None
+        self.heard = self.heard or bool(data)
         return data
 
     def pending(self) -> int:
