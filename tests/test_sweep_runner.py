@@ -156,10 +156,10 @@ def test_dask_config_names_the_scheduler(monkeypatch):
 
 
 def test_one_local_worker_starts_nothing():
-    before = threading.active_count()
+    before = set(threading.enumerate())
     with dask_client(workers=1) as client:
         assert client is None
-    assert threading.active_count() == before
+    assert set(threading.enumerate()) <= before  # threads of earlier tests may end meanwhile; none may start
 
 
 @pytest.mark.skipif(not hasattr(__import__("bem"), "PoseSweep"), reason="bem.PoseSweep not there yet")
