@@ -41,7 +41,9 @@ import click
 @click.option("--seed", type=int, default=None, help="Random seed (noise, faults).")
 @click.option("--truth", default=None, type=click.Path(dir_okay=False),
               help="Also write what happened to every sample (true pose, fate) into this bench log.")
-@click.option("--autostart", is_flag=True, help="Stream at once instead of waiting for the host's START.")
+@click.option("--autostart", is_flag=True,
+              help="Stream at once instead of waiting for the host's START (in the truth file, records written "
+                   "before the host said anything are 'unheard': opening a port may flush them).")
 @click.option("--exit-when-done", is_flag=True, help="Close the line when the run is over (default: wait for Ctrl-C).")
 def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, psm_model, tank, depth, sigma,
               path_spec, passes, rate, voltage, temperature, effects, faults, disconnect_s, seed, truth, autostart,
