@@ -67,7 +67,6 @@ class PtyTransport:
         self.link = Path(link) if link else Path(tempfile.mkdtemp(prefix="esense-bench-")) / "bench"
         self.write_timeout_s = write_timeout_s
         self.master = self.slave = None
-        self.heard = False
         self._open()
 
     def _open(self) -> None:
