@@ -28,7 +28,6 @@ Example
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +44,7 @@ class MeshFileError(ValueError):
 
 
 def _pyvista():
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    """pyvista, imported when needed (reading and writing draw nothing: no OpenGL window is chosen here)."""
     import pyvista
 
     return pyvista

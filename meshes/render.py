@@ -15,17 +15,31 @@ Example
 >>> png = pathlib.Path(tempfile.mkdtemp()) / "sensor.png"
 >>> render_mesh(mesh_sensor(preset("angels-4")), png, title="angels-4").exists()
 True
+
+Offscreen rendering
+-------------------
+VTK renders without a display through EGL (GPU or Mesa's EGL) or OSMesa
+(software), whichever the machine has. :func:`offscreen_backend` chooses once
+per process (a trial render in a subprocess, so that a missing library that
+crashes VTK cannot crash the caller), sets ``VTK_DEFAULT_OPENGL_WINDOW`` for
+this process and its children, and returns the choice; :func:`can_render_3d`
+says whether any works. The environment variable
+``ESENSE_OFFSCREEN_BACKEND`` (``egl``, ``osmesa`` or ``none``) skips the trial.
+With neither, the 3D pictures raise :class:`RenderUnavailable`, whose message
+says what to install; reports leave those pictures out and say so.
 """
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from .labelled_mesh import LabelledMesh
 
-__all__ = ["render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
+__all__ = ["offscreen_backend", "can_render_3d", "RenderUnavailable", "require_3d", "render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
 
 #: colour-blind-friendly, distinct from the insulator's grey and the water's blue
 ELECTRODE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#e377c2", "#17becf", "#8c564b",
@@ -39,8 +53,89 @@ BACKGROUND = "white"
 _TANK_REGIONS = {"wall_x-", "wall_x+", "wall_y-", "wall_y+", "floor", "free_surface"}
 
 
+#: offscreen backends in the order tried: name -> VTK render window class
+OFFSCREEN_BACKENDS = {"egl": "vtkEGLRenderWindow", "osmesa": "vtkOSOpenGLRenderWindow"}
+_ENV = "ESENSE_OFFSCREEN_BACKEND"
+_chosen: list = []  # [name or None] once probed in this process
+
+# A trial render: an 8 x 8 red window; prints the class VTK really made (it falls back silently) and the pixel.
+_PROBE = """
+from vtkmodules.vtkCommonCore import vtkUnsignedCharArray
+from vtkmodules.vtkRenderingCore import vtkRenderWindow, vtkRenderer
+import vtkmodules.vtkRenderingOpenGL2
+window = vtkRenderWindow()
+window.SetOffScreenRendering(1)
+window.SetSize(8, 8)
+renderer = vtkRenderer()
+renderer.SetBackground(1.0, 0.0, 0.0)
+window.AddRenderer(renderer)
+window.Render()
+pixel = vtkUnsignedCharArray()
+window.GetPixelData(0, 0, 0, 0, 1, pixel, 0)
+print(window.GetClassName(), pixel.GetValue(0), pixel.GetValue(1))
+"""
+
+
+class RenderUnavailable(RuntimeError):
+    """No offscreen OpenGL (neither EGL nor OSMesa) works on this machine: 3D pictures cannot be drawn."""
+
+
+def _probe(window_class: str, timeout_s: float = 60.0) -> bool:
+    """Whether VTK renders a red pixel with ``window_class`` (tried in a subprocess: it may segfault)."""
+    env = dict(os.environ, VTK_DEFAULT_OPENGL_WINDOW=window_class)
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True,
+                              timeout=timeout_s)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    words = done.stdout.split()
+    return done.returncode == 0 and words[:3] == [window_class, "255", "0"]
+
+
+def offscreen_backend() -> str | None:
+    """The offscreen backend VTK renders with here, ``"egl"`` or ``"osmesa"``; ``None`` if neither works.
+
+    Probed once per process (EGL first, then OSMesa), then cached; the choice
+    is put into ``VTK_DEFAULT_OPENGL_WINDOW`` and ``ESENSE_OFFSCREEN_BACKEND``
+    so that child processes inherit it without probing. Setting
+    ``ESENSE_OFFSCREEN_BACKEND`` to ``egl``, ``osmesa`` or ``none`` beforehand
+    skips the probe.
+
+    Example
+    -------
+    >>> offscreen_backend() in ("egl", "osmesa", None)
+    True
+    """
+    if _chosen:
+        return _chosen[0]
+    preset_choice = os.environ.get(_ENV, "").strip().lower()
+    if preset_choice in OFFSCREEN_BACKENDS or preset_choice == "none":
+        name = None if preset_choice == "none" else preset_choice
+    else:
+        name = next((n for n, cls in OFFSCREEN_BACKENDS.items() if _probe(cls)), None)
+    if name is not None:
+        os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = OFFSCREEN_BACKENDS[name]
+    os.environ[_ENV] = name or "none"
+    _chosen.append(name)
+    return name
+
+
+def can_render_3d() -> bool:
+    """Whether 3D pictures (pyvista, offscreen) can be drawn on this machine (see :func:`offscreen_backend`)."""
+    return offscreen_backend() is not None
+
+
+def require_3d() -> None:
+    """Raise :class:`RenderUnavailable`, saying what to install, when no offscreen backend works."""
+    if not can_render_3d():
+        raise RenderUnavailable(
+            "3D pictures cannot be drawn: VTK finds no offscreen OpenGL here (neither EGL nor OSMesa). Install "
+            "Mesa's EGL (Debian/Ubuntu: apt install libegl1 libgl1-mesa-dri) or OSMesa (apt install "
+            "libosmesa6), or set ESENSE_OFFSCREEN_BACKEND=egl|osmesa to force one.")
+
+
 def _pyvista():
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    require_3d()
     import pyvista
 
     return pyvista

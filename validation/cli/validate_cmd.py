@@ -133,10 +133,9 @@ def print_summary(results, paths, echo=click.echo) -> None:
 def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_length, stride, near_wall,
              near_object, no_potential, outdir, quiet):
     """Compare BEM and PSM receiver currents with bench LOGS (bench-log CSV files); write a report to OUTDIR."""
-    import os
     import sys
 
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    from meshes.render import offscreen_backend
     from validation.benchlog import BenchLogError, read_bench_log
 
     model_names = _parse_models(models)
@@ -157,6 +156,8 @@ def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_l
             raise click.ClickException(f"{scene_file}: {exc}") from None
     if psm_file is not None and "psm" not in model_names:
         raise click.BadParameter("--psm is given but psm is not among --models", param_hint="--psm")
+    if offscreen_backend() is None:  # EGL or OSMesa, chosen once for every picture
+        click.echo("note: no offscreen OpenGL (EGL or OSMesa) here: the report leaves out its 3D pictures", err=True)
     try:
         results, paths = run_validation(
             read, model_names, outdir, psm=psm_file, conductivity_correction=conductivity_correction,

@@ -55,7 +55,13 @@ def view(file, png, html, scalars, title):
     if interactive and not has_display():
         raise click.ClickException("no display to open a window on: give --png FILE (or --html FILE)")
 
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    if not interactive:  # a window on the display renders by itself; pictures need EGL or OSMesa
+        from meshes.render import RenderUnavailable, require_3d
+
+        try:
+            require_3d()
+        except RenderUnavailable as exc:
+            raise click.ClickException(str(exc)) from None
     import pyvista as pv
 
     from meshes.io import from_polydata, read_mesh

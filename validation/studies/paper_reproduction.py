@@ -25,7 +25,6 @@ Run: ``python -m validation.studies.paper_reproduction [--quick] [--bem-poses 41
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
@@ -220,7 +219,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="coarse BEM mesh (12 mm) and 9 BEM poses")
     ap.add_argument("--out", type=Path, default=Path("paper-reproduction"), help="report folder")
     args = ap.parse_args(argv)
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    from meshes.render import offscreen_backend
+
+    offscreen_backend()  # EGL or OSMesa for the 3D pictures, chosen once
     if args.quick:
         args.bem_poses = min(args.bem_poses, 9)
         args.edge_length = args.edge_length or 0.012
