@@ -1,7 +1,8 @@
 """Offscreen pictures of labelled meshes, fit for a report.
 
-Electrodes are drawn in distinct colours with a legend ("electrode 4
-(emitter)"), the insulator in grey, the tank's water box translucent, the
+The emitter is drawn in gold (:data:`EMITTER_COLOUR`, a colour no receiver
+gets) and faces the camera; the receivers in distinct colours; a legend names
+them ("electrode 4 (emitter)"), the insulator in grey, the tank's water box translucent, the
 objects in bronze; the axes are labelled in metres. For a scene the sensor
 is small next to the tank, so the picture gets a second panel, a close-up
 of the sensor.
@@ -39,11 +40,13 @@ import numpy as np
 
 from .labelled_mesh import LabelledMesh
 
-__all__ = ["offscreen_backend", "can_render_3d", "RenderUnavailable", "require_3d", "render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "INSULATOR_COLOUR", "electrode_legend"]
+__all__ = ["offscreen_backend", "can_render_3d", "RenderUnavailable", "require_3d", "render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "EMITTER_COLOUR", "INSULATOR_COLOUR",
+           "electrode_colour", "facing_emitter", "electrode_legend"]
 
-#: colour-blind-friendly, distinct from the insulator's grey and the water's blue
-ELECTRODE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#e377c2", "#17becf", "#8c564b",
-                     "#bcbd22", "#7f7f00")
+#: receivers' colours: distinct from the insulator's grey, the water's blue and the emitter's gold
+ELECTRODE_COLOURS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#e377c2", "#17becf", "#8c564b", "#7f7f00")
+#: the emitter's colour in every picture (never a receiver's)
+EMITTER_COLOUR = "#f2b700"
 INSULATOR_COLOUR = "#9a9a9a"
 TANK_COLOUR = "#6fa8dc"
 FREE_SURFACE_COLOUR = "#3d85c6"
@@ -141,17 +144,25 @@ def _pyvista():
     return pyvista
 
 
-def electrode_colour(k: int) -> str:
-    """Colour of electrode k (1-based); the insulator (0) is grey."""
-    return INSULATOR_COLOUR if k == 0 else ELECTRODE_COLOURS[(k - 1) % len(ELECTRODE_COLOURS)]
+def electrode_colour(k: int, emitter: int | None = None) -> str:
+    """Colour of electrode k (1-based): gold for the emitter, the insulator (0) grey, receivers by number.
+
+    >>> electrode_colour(2, emitter=2) == EMITTER_COLOUR, electrode_colour(0)
+    (True, '#9a9a9a')
+    """
+    if k == 0:
+        return INSULATOR_COLOUR
+    if emitter is not None and k == emitter:
+        return EMITTER_COLOUR
+    return ELECTRODE_COLOURS[(k - 1) % len(ELECTRODE_COLOURS)]
 
 
 def electrode_legend(electrodes, emitter: int | None) -> list[tuple[str, str]]:
-    """Legend entries ``("electrode k (emitter)", colour)`` for the electrodes, then the insulator."""
+    """Legend entries ``("electrode k (emitter)", colour)``: the emitter first, the receivers, the insulator."""
     entries = []
-    for k in electrodes:
+    for k in sorted(electrodes, key=lambda k: (k != emitter, k)):
         role = "emitter" if k == emitter else "receiver"
-        entries.append((f"electrode {k} ({role})", electrode_colour(k)))
+        entries.append((f"electrode {k} ({role})", electrode_colour(k, emitter)))
     entries.append(("insulator", INSULATOR_COLOUR))
     return entries
 
@@ -162,7 +173,8 @@ def _polydata(mesh: LabelledMesh, mask: np.ndarray):
     return pv.PolyData(sub.vertices_m, np.c_[np.full(sub.n_triangles, 3), sub.faces].ravel())
 
 
-def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: float, detail: bool):
+def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: float, detail: bool,
+               emitter: int | None = None):
     """Add the sensor (by electrode), tank and objects of ``mesh`` to a plotter (sub)plot.
 
     In an overview (``detail`` False) of a scene the small parts are drawn
@@ -176,7 +188,7 @@ def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: floa
     edge_kw = dict(show_edges=small_edges, edge_color="#404040", line_width=0.5)
     shading = dict(specular=0.2, ambient=0.3, diffuse=0.8)
     for k in np.unique(mesh.electrode[is_body]):
-        plotter.add_mesh(_polydata(mesh, is_body & (mesh.electrode == k)), color=electrode_colour(int(k)),
+        plotter.add_mesh(_polydata(mesh, is_body & (mesh.electrode == k)), color=electrode_colour(int(k), emitter),
                          **edge_kw, **shading)
     if is_object.any():
         plotter.add_mesh(_polydata(mesh, is_object), color=OBJECT_COLOUR, **edge_kw, **shading)
@@ -187,6 +199,17 @@ def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: floa
             if sel.any():
                 plotter.add_mesh(_polydata(mesh, sel), color=colour, opacity=tank_opacity, show_edges=show_edges,
                                  edge_color="#7a9cc6", line_width=0.4, ambient=0.4)
+
+
+def facing_emitter(mesh: LabelledMesh, emitter: int | None, base=(0.45, -1.0, 0.55)) -> tuple:
+    """An oblique view direction from the emitter's end of the sensor (x flipped when the emitter lies at -x)."""
+    view = np.asarray(base, dtype=float)
+    if emitter is not None and np.any(mesh.electrode == emitter):
+        body = mesh.vertices_m[mesh.faces[mesh.electrode > 0]].reshape(-1, 3)
+        at = mesh.vertices_m[mesh.faces[mesh.electrode == emitter]].reshape(-1, 3).mean(axis=0)
+        if at[0] < 0.5 * (body[:, 0].min() + body[:, 0].max()) - 1e-9:
+            view[0] = -view[0]
+    return tuple(view)
 
 
 def _padded_bounds(lo: np.ndarray, hi: np.ndarray, min_fraction: float = 0.3, margin: float = 0.05):
@@ -213,7 +236,7 @@ def _add_legend(plotter, entries, scale: float = 1.0):
 
 def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int | None = None,
                  window_size: tuple[int, int] = (1600, 1000), show_edges: bool = True, tank_opacity: float = 0.12,
-                 close_up: bool | None = None, view_vector=(0.45, -1.0, 0.55), off_screen: bool = True):
+                 close_up: bool | None = None, view_vector=None, off_screen: bool = True):
     """A :class:`pyvista.Plotter` showing a labelled mesh (see :func:`render_mesh` for the parameters)."""
     pv = _pyvista()
     if mesh.n_triangles == 0:
@@ -221,6 +244,8 @@ def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int |
     electrodes = mesh.electrodes
     if emitter is None and electrodes:
         emitter = max(electrodes)
+    if view_vector is None:
+        view_vector = facing_emitter(mesh, emitter)
     names = np.asarray(mesh.region_names)[mesh.region]
     has_body = np.any(~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object"))
     has_surroundings = bool(np.any(np.isin(names, list(_TANK_REGIONS))) or np.any(np.char.startswith(names.astype(str), "object")))
@@ -234,7 +259,7 @@ def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int |
     panels = [(0, False)] + ([(1, True)] if close_up else [])
     for column, detail in panels:
         plotter.subplot(0, column)
-        _add_parts(plotter, mesh, show_edges, tank_opacity, detail)
+        _add_parts(plotter, mesh, show_edges, tank_opacity, detail, emitter)
         part = mesh.select(is_body) if detail else mesh
         lo, hi = part.vertices_m.min(axis=0), part.vertices_m.max(axis=0)
         if detail:  # the sensor and what is near it
@@ -257,7 +282,7 @@ def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int |
 
 def render_mesh(mesh: LabelledMesh, png_path: str | Path, *, title: str | None = None, emitter: int | None = None,
                 window_size: tuple[int, int] = (1600, 1000), show_edges: bool = True, tank_opacity: float = 0.12,
-                close_up: bool | None = None, view_vector=(0.45, -1.0, 0.55)) -> Path:
+                close_up: bool | None = None, view_vector=None) -> Path:
     """Write an offscreen picture (PNG) of a labelled mesh (sensor, object, tank or whole scene).
 
     Parameters
@@ -279,8 +304,9 @@ def render_mesh(mesh: LabelledMesh, png_path: str | Path, *, title: str | None =
     close_up : bool, optional
         Add a panel with a close-up of the sensor; default: when the mesh
         holds a tank or objects as well as electrodes.
-    view_vector : 3 floats
-        Direction from the focal point to the camera.
+    view_vector : 3 floats, optional
+        Direction from the focal point to the camera; default: obliquely from
+        the side of the emitter, so that it is in sight.
 
     Returns
     -------

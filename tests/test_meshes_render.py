@@ -6,9 +6,13 @@ from click.testing import CliRunner
 from meshes.labelled_mesh import concatenate
 from meshes.object_mesh import mesh_object
 from meshes.objects import Box, Sphere
-from meshes.render import ELECTRODE_COLOURS, render_mesh
+from meshes import render
+from meshes.render import EMITTER_COLOUR, RenderUnavailable, can_render_3d, electrode_colour, render_mesh
 from meshes.tank import Tank
 from meshes.tank_mesh import mesh_tank
+
+
+needs_3d = pytest.mark.skipif(not can_render_3d(), reason="no offscreen OpenGL (EGL or OSMesa) for VTK here")
 
 
 def read_png(path):
@@ -36,17 +40,49 @@ def toy_sensor_scene():
     return body, concatenate([body, mesh_tank(Tank((0.6, 0.5, 0.4)), 0.1), obj])
 
 
-def test_picture_is_not_blank_and_shows_each_electrode(tmp_path):
+@needs_3d
+@pytest.mark.parametrize("emitter", [1, 2])
+def test_picture_is_not_blank_and_shows_each_electrode(tmp_path, emitter):
+    """Each electrode is in sight, the emitter in its own colour, whichever end it is at."""
     body, _ = toy_sensor_scene()
-    png = render_mesh(body, tmp_path / "body.png", title="toy", window_size=(800, 500))
+    png = render_mesh(body, tmp_path / "body.png", title="toy", window_size=(800, 500), emitter=emitter)
     rgb, dims = read_png(png)
     assert dims[0] * dims[1] == 800 * 500
     not_background = np.any(rgb < 245, axis=1).sum()
     assert not_background > 0.05 * len(rgb)
-    for k in (1, 2):
-        assert colour_pixels(rgb, ELECTRODE_COLOURS[k - 1]) > 200, f"electrode {k} not visible"
+    receiver = 3 - emitter
+    assert colour_pixels(rgb, EMITTER_COLOUR) > 2000, "the emitter is not in sight"
+    assert colour_pixels(rgb, electrode_colour(receiver, emitter)) > 200, f"electrode {receiver} not visible"
+    assert electrode_colour(receiver, emitter) != EMITTER_COLOUR
 
 
+def test_offscreen_backend_is_chosen_once_for_children_too():
+    import os
+
+    name = render.offscreen_backend()
+    assert name in ("egl", "osmesa", None)
+    assert render.offscreen_backend() == name
+    assert os.environ["ESENSE_OFFSCREEN_BACKEND"] == (name or "none")
+    if name is not None:
+        assert os.environ["VTK_DEFAULT_OPENGL_WINDOW"] == render.OFFSCREEN_BACKENDS[name]
+    assert render._probe("vtkNoSuchRenderWindow") is False  # VTK falls back silently: the probe sees it
+
+
+def test_without_offscreen_opengl_pictures_are_refused_clearly(tmp_path, monkeypatch):
+    from meshes.io import write_mesh
+    from validation.cli import main
+
+    monkeypatch.setattr(render, "_chosen", [None])
+    body, _ = toy_sensor_scene()
+    with pytest.raises(RenderUnavailable, match="neither EGL nor OSMesa"):
+        render_mesh(body, tmp_path / "body.png")
+    assert not (tmp_path / "body.png").exists()
+    write_mesh(body, tmp_path / "b.vtp")
+    out = CliRunner().invoke(main, ["view", str(tmp_path / "b.vtp"), "--png", str(tmp_path / "v.png")])
+    assert out.exit_code != 0 and "libosmesa6" in out.output and "Traceback" not in out.output
+
+
+@needs_3d
 def test_scene_picture_has_two_panels(tmp_path):
     _, scene = toy_sensor_scene()
     rgb, dims = read_png(render_mesh(scene, tmp_path / "scene.png", window_size=(1000, 500)))
@@ -55,6 +91,7 @@ def test_scene_picture_has_two_panels(tmp_path):
         assert np.any(half < 245, axis=2).mean() > 0.03
 
 
+@needs_3d
 def test_mesh_sensor_and_view_commands(tmp_path):
     pytest.importorskip("meshes.sensor_mesh")
     from validation.cli import main
@@ -99,6 +136,7 @@ def test_mesh_scene_command_with_scene_file_and_overrides(tmp_path):
     assert out.exit_code != 0 and "no sensor" in out.output
 
 
+@needs_3d
 def test_view_refuses_clearly(tmp_path, monkeypatch):
     from validation.cli import main
     from validation.cli import view_cmd

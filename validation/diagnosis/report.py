@@ -164,39 +164,58 @@ def write_json(d: Diagnosis, path) -> Path:
 
 
 def _figures(d: Diagnosis, folder: Path) -> list:
-    """Residual along the path (before/after, per receiver) and the share of the gap by place."""
+    """Residual along the path (before/after, per receiver, one row per pass), the gap by place, the ranking.
+
+    Residuals are shown as simulation / bench - 1, the sign convention of every
+    report figure (the diagnosis itself works with r = bench / simulation - 1:
+    simulation / bench - 1 = -r / (1 + r)).
+    """
     from validation.report.figures import Panel, Series, bar_figure, curves_figure, path_coordinate
     from validation.report.html import Figure
+    from validation.report.style import RELATIVE_ERROR_LABEL
+
+    def sim_over_bench(r):
+        return 100 * (-r / (1 + r))
 
     figs = []
-    final = d.final
-    after = final.heldout
+    after = d.final.heldout
+    labels = list(np.unique(d.obs.passes))
+    indices = d.obs.pass_indices()
+    band = (-100 * d.noise, 100 * d.noise, "noise (1 sigma)")
     panels = []
-    for j, k in enumerate(d.obs.sensor.receivers):
-        series = []
-        for p in np.unique(d.obs.passes):
-            idx = d.obs.pass_indices()[list(np.unique(d.obs.passes)).index(p)]
-            x, xlabel = path_coordinate(d.obs.poses[idx])
-            lab = p == np.unique(d.obs.passes)[0]
-            series.append(Series(x, 100 * d.r0[idx, j], "before" if lab else "", "scatter", "black", marker_size=6))
-            series.append(Series(x, 100 * after[idx, j], ("after " + "+".join(d.chosen)) if lab else "", "scatter",
-                                 "#d9541a", marker_size=6))
-        panels.append(Panel(f"receiver {k}", xlabel, "bench / model - 1 (%)", series))
-    figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png"),
-                       "relative residual along the path, before and after the chosen effect(s) (held-out predictions)"))
+    for p, idx in zip(labels, indices):
+        x, xlabel = path_coordinate(d.obs.poses[idx])
+        prefix = f"pass {p}, " if len(labels) > 1 else ""
+        for j, k in enumerate(d.obs.sensor.receivers):
+            series = [Series(x, sim_over_bench(d.r0[idx, j]), "before", "scatter", "#7f7f7f"),
+                      Series(x, sim_over_bench(after[idx, j]), "after " + "+".join(d.chosen), "scatter", "#d9541a")]
+            panels.append(Panel(f"{prefix}receiver {k}", xlabel, RELATIVE_ERROR_LABEL, series, zero_line=True,
+                                band=band))
+    values = np.concatenate([s.y for p in panels for s in p.series] + [np.array(band[:2])])
+    values = values[np.isfinite(values)]
+    if values.size:
+        span = float(values.max() - values.min()) or 1.0
+        for panel in panels:
+            panel.y_range = (float(values.min()) - 0.06 * span, float(values.max()) + 0.06 * span)
+    figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png", ncols=len(d.obs.sensor.receivers)),
+                       "relative residual along the path, simulation / bench - 1, before and after the chosen "
+                       "effect(s) (held-out predictions), one row per pass; grey band: the noise level"))
     table = d.where["by_place"]
     if len(table) >= 1:
         figs.append(Figure(bar_figure([r["group"] for r in table],
                                       {"share of the squared gap": [r["share"] for r in table],
                                        "share of the samples": [r["fraction"] for r in table]},
-                                      folder / "gap_by_place.png", "where the gap lies", "share"),
-                           "share of the squared gap by place, against the share of the samples there"))
-    names = [c.name for c in d.ranking]
-    figs.append(Figure(bar_figure(names, {"held-out gap (%)": [100 * c.heldout_gap for c in d.ranking],
-                                          "noise (%)": [100 * d.noise] * len(names)},
-                                  folder / "ranking.png", "candidates alone", "RMS relative (%)", panel_size=(1400, 600),
-                                  y_max=300 * max(d.gap_before, d.noise)),
-                       "held-out gap left by each candidate alone, against the noise level"))
+                                      folder / "gap_by_place.png", "where the gap lies", "share", log=False,
+                                      counts=[r["n"] for r in table]),
+                           "share of the squared gap by place, against the share of the samples there "
+                           "(n: samples in the place)"))
+    names = [c.name.replace("_", " ") for c in d.ranking]
+    figs.append(Figure(bar_figure(names, {"held-out gap": [100 * c.heldout_gap for c in d.ranking]},
+                                  folder / "ranking.png", "candidates alone", "held-out RMS gap (%)",
+                                  horizontal=True,
+                                  lines={"gap before": 100 * d.gap_before, "noise (1 sigma)": 100 * d.noise}),
+                       "held-out gap left by each candidate alone (best first), against the gap before and the "
+                       "noise level; a logarithmic axis when the gaps span more than a factor 30"))
     return figs
 
 

@@ -1,18 +1,22 @@
-"""Figures of the validation and diagnosis reports, drawn with pyvista offscreen.
+"""Figures of the validation and diagnosis reports.
 
 Two kinds of figures:
 
-* 2D curves (:func:`curves_figure`, :func:`bar_figure`) on pyvista's
-  ``Chart2D``: a grid of panels, each a list of :class:`Series`; the
-  report-specific figures (:func:`resistance_figure`,
-  :func:`relative_error_figure`) are thin layers over it, and the gap
-  diagnosis reuses the same pieces.
-* 3D scenes (:func:`scene_figure`, :func:`potential_figure`): the tank, the
-  sensor mesh with its electrodes coloured, the trajectory coloured by a value,
-  and the potential on a plane with current lines.
+* 2D plots, drawn with matplotlib (:mod:`.style` gives their common look and
+  writes a PNG with a vector PDF beside it): curves (:func:`curves_figure`, a
+  grid of :class:`Panel` s, each a list of :class:`Series`), grouped bars
+  (:func:`bar_figure`), the report-specific :func:`resistance_figure` and
+  :func:`relative_error_figure`, and the potential map
+  (:func:`potential_figure`); the gap diagnosis reuses the same pieces.
+* 3D scenes (:func:`scene_figure`), drawn with pyvista offscreen: the tank,
+  the sensor mesh with its electrodes coloured and the emitter named, the path
+  coloured by a value. They need an offscreen OpenGL
+  (:func:`meshes.render.can_render_3d`); without one they raise
+  :class:`meshes.render.RenderUnavailable` and the reports leave them out.
 
 Every function takes plain arrays (and meshes), writes one PNG and returns its
-path. Fonts are sized for a printed page; axes carry their units.
+path. Relative errors follow one sign convention,
+:data:`.style.RELATIVE_ERROR_LABEL` (simulation / bench - 1).
 
 Example
 -------
@@ -20,14 +24,10 @@ Example
 >>> x = np.linspace(-0.4, 0.4, 20)
 >>> panel = Panel("receiver 1", "x (m)", "U/I (ohm)", [Series(x, 600 + 500 * x**2, "bench")])
 >>> path = curves_figure([panel], os.path.join(tempfile.mkdtemp(), "r.png"))
->>> path.exists()
-True
+>>> path.exists(), path.with_suffix(".pdf").exists()
+(True, True)
 """
 from __future__ import annotations
-
-import os
-
-os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
 
 import math
 from dataclasses import dataclass, field
@@ -35,7 +35,8 @@ from pathlib import Path
 from typing import Sequence
 
 import numpy as np
-import pyvista as pv
+
+from .style import COLOURS, CYCLE, DPI, PANEL_SIZE_IN, RELATIVE_ERROR_LABEL, colour_of, new_figure, save
 
 __all__ = [
     "Series",
@@ -52,19 +53,9 @@ __all__ = [
     "COLOURS",
 ]
 
-#: Colours of the usual series, the same in every figure.
-COLOURS = {
-    "bench": "black",
-    "bench (corrected)": "#8c8c8c",
-    "bem": "#1f5fbf",
-    "psm": "#d9541a",
-    "bem-psm": "#6a3d9a",
-    "psm vs bem": "#6a3d9a",
-}
-_CYCLE = ["#1f5fbf", "#d9541a", "#2ca02c", "#6a3d9a", "#b8860b", "#17becf", "#e377c2", "#7f7f7f"]
-
-FONT = {"title": 26, "label": 22, "ticks": 18, "legend": 18}
-PANEL_SIZE = (760, 560)
+#: legend places a panel accepts: matplotlib's, "outside" (one legend above all panels, off the data) and none
+_LEGEND_LOCS = ("outside", "none", "best", "upper right", "upper left", "lower left", "lower right", "right",
+                "center left", "center right", "lower center", "upper center", "center")
 
 
 @dataclass
@@ -80,8 +71,8 @@ class Series:
     label: str = ""
     kind: str = "line"
     colour: str | None = None
-    width: float = 3.0
-    marker_size: float = 9.0
+    width: float = 1.4
+    marker_size: float = 3.5
     marker: str = "o"
     style: str = "-"
 
@@ -96,7 +87,13 @@ class Series:
 
 @dataclass
 class Panel:
-    """One chart: a title, axis labels with units, and its series."""
+    """One chart: a title, axis labels with units, and its series.
+
+    ``legend_loc``: ``"outside"`` (default) gathers the legends of all panels
+    into one above the figure, off the data; a matplotlib place (``"upper
+    right"``...) puts it inside this panel; ``"none"`` draws none.
+    ``y_log``: logarithmic y axis. ``zero_line``: a thin line at y = 0.
+    """
 
     title: str
     x_label: str
@@ -104,74 +101,72 @@ class Panel:
     series: list[Series] = field(default_factory=list)
     y_range: tuple[float, float] | None = None
     x_range: tuple[float, float] | None = None
-    legend_loc: str = "upper right"
-    headroom: float = 0.3
-    """Fraction of the data's height left free above it for the legend (when ``y_range`` is not set)."""
+    legend_loc: str = "outside"
+    y_log: bool = False
+    zero_line: bool = False
+    band: tuple[float, float, str] | None = None
+    """(low, high, label): a shaded band across the panel, e.g. the noise level."""
+
+    def __post_init__(self):
+        loc = self.legend_loc.replace("centre", "center")
+        if loc not in _LEGEND_LOCS:
+            raise ValueError(f"panel {self.title!r}: legend_loc {self.legend_loc!r} is not one of "
+                             f"{', '.join(_LEGEND_LOCS)}")
+        self.legend_loc = loc
 
 
-def _colour(name: str, k: int) -> str:
-    """The usual colour of a series named ``name`` (or of its first word), else the k-th of a cycle."""
-    key = name.lower()
-    if key in COLOURS:
-        return COLOURS[key]
-    first = key.split()[0] if key.split() else key
-    return COLOURS.get(first, _CYCLE[k % len(_CYCLE)])
+def _px_to_in(size) -> tuple[float, float]:
+    """A panel size in pixels of the PNG (at :data:`.style.DPI`) as inches; inches pass through."""
+    w, h = size
+    return (w / DPI, h / DPI) if max(w, h) > 40 else (float(w), float(h))
 
 
-def _padded_range(values: Sequence[np.ndarray], pad: float = 0.05) -> tuple[float, float] | None:
-    finite = [v[np.isfinite(v)] for v in values if v.size]
-    finite = [v for v in finite if v.size]
-    if not finite:
-        return None
-    lo = min(float(v.min()) for v in finite)
-    hi = max(float(v.max()) for v in finite)
-    span = hi - lo
-    if span <= 0:
-        span = abs(hi) if hi != 0 else 1.0
-    return lo - pad * span, hi + pad * span
-
-
-_LEGEND_ALIGN = {"left": 0, "centre": 1, "center": 1, "right": 2, "upper": 3, "top": 3, "lower": 4, "bottom": 4}
-
-
-def _chart(panel: Panel) -> "pv.Chart2D":
-    chart = pv.Chart2D(x_label=panel.x_label, y_label=panel.y_label)
-    chart.background_color = "white"
-    chart.title = panel.title
-    chart.GetTitleProperties().SetFontSize(FONT["title"])
-    for axis in (chart.x_axis, chart.y_axis):
-        axis.label_size = FONT["label"]
-        axis.tick_label_size = FONT["ticks"]
-    chart.GetLegend().SetLabelSize(FONT["legend"])
-    # leave room for the tick labels and the axis titles
-    chart.loc = (0.04, 0.05)
-    chart.size = (0.94, 0.92)
+def _draw_panel(ax, panel: Panel):
+    if panel.band is not None:
+        lo, hi, label = panel.band
+        ax.axhspan(lo, hi, color="#d8d8d8", alpha=0.6, lw=0, label=label, zorder=0)
+    if panel.zero_line:
+        ax.axhline(0.0, color="#444444", lw=0.7, zorder=1)
     for s in panel.series:
+        colour = s.colour or "black"
         if s.kind == "line":
-            chart.line(s.x, s.y, color=s.colour or "black", width=s.width, label=s.label, style=s.style)
+            ax.plot(s.x, s.y, s.style, color=colour, lw=s.width, label=s.label or None, zorder=2)
         else:
-            chart.scatter(s.x, s.y, color=s.colour or "black", size=s.marker_size, style=s.marker, label=s.label)
-    chart.legend_visible = any(s.label for s in panel.series)
-    try:
-        vertical, horizontal = panel.legend_loc.split()
-        legend = chart.GetLegend()
-        legend.SetVerticalAlignment(_LEGEND_ALIGN[vertical])
-        legend.SetHorizontalAlignment(_LEGEND_ALIGN[horizontal])
-    except (ValueError, KeyError):
-        raise ValueError(f"panel {panel.title!r}: legend_loc {panel.legend_loc!r} is not like 'upper right'") from None
-    y_range = panel.y_range or _padded_range([s.y for s in panel.series])
-    if panel.y_range is None and y_range is not None and chart.legend_visible:
-        y_range = (y_range[0], y_range[1] + panel.headroom * (y_range[1] - y_range[0]))
-    x_range = panel.x_range or _padded_range([s.x for s in panel.series], pad=0.0)
-    if y_range is not None:
-        chart.y_range = list(y_range)
-    if x_range is not None and x_range[1] > x_range[0]:
-        chart.x_range = list(x_range)
-    return chart
+            ax.plot(s.x, s.y, linestyle="none", marker=s.marker, ms=s.marker_size, color=colour,
+                    mec="none" if s.marker != "d" else colour, label=s.label or None, zorder=3)
+    if panel.y_log:
+        ax.set_yscale("log")
+    ax.margins(x=0.03, y=0.06)  # whole markers at the ends, never half clipped by the frame
+    if panel.y_range is not None:
+        ax.set_ylim(*panel.y_range)
+    if panel.x_range is not None and panel.x_range[1] > panel.x_range[0]:
+        ax.set_xlim(*panel.x_range)
+    ax.set_title(panel.title)
+    ax.set_xlabel(panel.x_label)
+    ax.set_ylabel(panel.y_label)
+    if panel.legend_loc not in ("outside", "none") and ax.get_legend_handles_labels()[1]:
+        ax.legend(loc=panel.legend_loc)
 
 
-def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, panel_size=PANEL_SIZE) -> Path:
-    """Draw panels of 2D curves on a grid (``ncols`` per row) and save a PNG.
+def _shared_legend(fig, axes_panels):
+    """One legend above the panels for every panel whose legend is 'outside' (each label once)."""
+    entries = {}
+    for ax, panel in axes_panels:
+        if panel.legend_loc != "outside":
+            continue
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    if entries:
+        # entries per row that fit the figure's width (8 pt text: about 0.062 inch a character)
+        entry_in = 0.75 + 0.062 * max(len(label) for label in entries)
+        per_row = max(1, min(len(entries), 4, int(fig.get_figwidth() // entry_in)))
+        fig.legend(list(entries.values()), list(entries), loc="outside upper center", ncols=per_row,
+                   handlelength=2.2, markerscale=1.5)
+
+
+def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, panel_size=PANEL_SIZE_IN,
+                  title: str = "", share_y: bool = False) -> Path:
+    """Draw panels of 2D curves on a grid (``ncols`` per row) and save a PNG (and a PDF beside it).
 
     Parameters
     ----------
@@ -179,83 +174,126 @@ def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, p
     png_path : path-like
     ncols : int, optional
         Panels per row (default: all in one row up to 3).
-    panel_size : (int, int)
-        Pixels per panel.
+    panel_size : (float, float)
+        Inches per panel (or pixels of the PNG, when larger than 40).
+    title : str
+        Heading above the whole figure.
+    share_y : bool
+        One y range for all panels.
     """
     panels = list(panels)
     if not panels:
         raise ValueError("curves_figure needs at least one panel")
     ncols = ncols or min(len(panels), 3)
     nrows = math.ceil(len(panels) / ncols)
-    plotter = pv.Plotter(
-        off_screen=True,
-        shape=(nrows, ncols),
-        border=False,
-        window_size=(panel_size[0] * ncols, panel_size[1] * nrows),
-    )
-    plotter.set_background("white")
+    fig, axes = new_figure(nrows, ncols, _px_to_in(panel_size), sharey=share_y)
     for i, panel in enumerate(panels):
-        plotter.subplot(i // ncols, i % ncols)
-        plotter.add_chart(_chart(panel))
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    plotter.screenshot(str(png_path))
-    plotter.close()
-    return png_path
+        _draw_panel(axes.flat[i], panel)
+    for ax in axes.flat[len(panels):]:
+        ax.set_visible(False)
+    _shared_legend(fig, list(zip(axes.flat, panels)))
+    if title:
+        fig.suptitle(title)
+    return save(fig, png_path)
 
 
-def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=(900, 560),
-               y_max: float | None = None) -> Path:
+def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=None,
+               y_max: float | None = None, counts: Sequence[int] | None = None, log: bool | None = None,
+               horizontal: bool | None = None, lines: dict | None = None) -> Path:
     """Grouped bars: one group per category, one bar colour per key of ``values``.
-
-    The categories are written on the x axis as tick labels (``_`` breaks the
-    line, so identifiers such as ``contact_impedance`` stay readable). Bars
-    above ``y_max`` are cut there and their value is written under the
-    category, so that one off-scale bar does not flatten the others.
 
     Parameters
     ----------
     categories : sequence of str
-        Names on the x axis (e.g. regions of the path).
+        Names of the groups (e.g. regions of the path, candidate effects).
     values : dict
         Label -> (len(categories),) array (e.g. model -> mean |error| in %).
+    y_label : str
+        The values' axis, with its unit.
+    y_max : float, optional
+        Cut bars above it and write their value at the cut (linear scale only).
+    counts : sequence of int, optional
+        Samples behind each category, written under its name ("n = 40").
+    log : bool, optional
+        Logarithmic value axis; default: when the positive values span more
+        than a factor 30.
+    horizontal : bool, optional
+        Bars along x with the names on the left (readable, never clipped);
+        default: with more than 5 categories.
+    lines : dict, optional
+        Label -> value: reference levels drawn across the bars (a noise level, say).
     """
-    categories = [str(c).replace("_", "\n") for c in categories]
-    if not categories or not values:
+    if not len(categories) or not values:
         raise ValueError("bar_figure needs categories and at least one series of values")
-    x = np.arange(len(categories), dtype=float)
-    arrays, labels, colours = [], [], []
+    names = [str(c) for c in categories]
+    if counts is not None:
+        if len(counts) != len(names):
+            raise ValueError(f"bar_figure: {len(counts)} counts for {len(names)} categories")
+        names = [f"{c}\n(n = {int(n)})" for c, n in zip(names, counts)]
+    arrays, colours = {}, []
     for k, (label, v) in enumerate(values.items()):
         v = np.asarray(v, dtype=float).ravel()
-        if v.size != len(categories):
-            raise ValueError(f"bar series {label!r} has {v.size} values for {len(categories)} categories")
-        if y_max is not None:
-            for i in np.flatnonzero(v > y_max):
-                categories[i] += f"\n({label.split(' (')[0]} {v[i]:.3g})"
-            v = np.minimum(v, y_max)
-        arrays.append(v)
-        labels.append(str(label))
-        colour = _colour(str(label), k)
-        spare = (c for c in _CYCLE if c not in colours)
+        if v.size != len(names):
+            raise ValueError(f"bar series {label!r} has {v.size} values for {len(names)} categories")
+        arrays[str(label)] = v
+        colour = colour_of(str(label), k)
+        spare = (c for c in CYCLE if c not in colours)
         colours.append(colour if colour not in colours else next(spare, colour))  # every bar series distinct
-    chart = _chart(Panel(title, "", y_label, []))
-    for v, label, colour in zip(arrays, labels, colours):
-        chart.bar(x, v, color=colour, label=label)  # VTK places the bar plots of one chart side by side
-    chart.legend_visible = True
-    top = max(float(np.nanmax(a)) for a in arrays)
-    bottom = min(0.0, min(float(np.nanmin(a)) for a in arrays))
-    chart.y_range = [bottom, top * 1.3 if top > 0 else 1.0]
-    chart.x_range = [-0.6, len(categories) - 0.4]
-    chart.x_axis.tick_locations = x
-    chart.x_axis.tick_labels = categories
-    plotter = pv.Plotter(off_screen=True, window_size=panel_size)
-    plotter.set_background("white")
-    plotter.add_chart(chart)
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    plotter.screenshot(str(png_path))
-    plotter.close()
-    return png_path
+    every = np.concatenate(list(arrays.values()) + [np.asarray(list((lines or {}).values()), dtype=float)])
+    positive = every[np.isfinite(every) & (every > 0)]
+    if log is None:
+        log = bool(positive.size and np.all(every[np.isfinite(every)] >= 0) and positive.max() > 30 * positive.min())
+    if horizontal is None:
+        horizontal = len(names) > 5
+    n_series = len(arrays)
+    width = 0.8 / n_series
+    if panel_size is None:
+        long = max(len(names) * (0.32 + 0.12 * n_series), 2.4)
+        panel_size = (6.4, long) if horizontal else (max(len(names) * 0.9 * max(n_series, 1), 3.6), 3.0)
+    fig, axes = new_figure(1, 1, _px_to_in(panel_size))
+    ax = axes[0, 0]
+    pos = np.arange(len(names), dtype=float)
+    cut = y_max is not None and not log
+    for i, ((label, v), colour) in enumerate(zip(arrays.items(), colours)):
+        at = pos + (i - (n_series - 1) / 2) * width
+        shown = np.minimum(v, y_max) if cut else v
+        if log:
+            shown = np.where(shown > 0, shown, np.nan)  # nothing to draw on a log axis
+        if horizontal:
+            ax.barh(at, shown, height=width, color=colour, label=label, zorder=2)
+        else:
+            ax.bar(at, shown, width=width, color=colour, label=label, zorder=2)
+        for j in np.flatnonzero(cut & (v > (y_max if cut else np.inf))):
+            text = f"{v[j]:.3g}"
+            if horizontal:
+                ax.annotate(text, (y_max, at[j]), xytext=(2, 0), textcoords="offset points", va="center", fontsize=7)
+            else:
+                ax.annotate(text, (at[j], y_max), xytext=(0, 2), textcoords="offset points", ha="center", fontsize=7)
+    for k, (label, level) in enumerate((lines or {}).items()):
+        if log and not float(level) > 0:
+            continue  # a level of 0 has no place on a log axis
+        style = dict(color=colour_of(label, n_series + k), ls="--", lw=1.0, label=label, zorder=3)
+        (ax.axvline if horizontal else ax.axhline)(float(level), **style)
+    if horizontal:
+        ax.set_yticks(pos, names)
+        ax.invert_yaxis()  # the first category on top, as in a table
+        ax.set_xlabel(y_label)
+        ax.grid(axis="y", visible=False)
+        if log:
+            ax.set_xscale("log")
+        elif cut:
+            ax.set_xlim(0, 1.12 * y_max)
+    else:
+        ax.set_xticks(pos, names)
+        ax.set_ylabel(y_label)
+        ax.grid(axis="x", visible=False)
+        if log:
+            ax.set_yscale("log")
+        elif cut:
+            ax.set_ylim(0, 1.12 * y_max)
+    ax.set_title(title)
+    _shared_legend(fig, [(ax, Panel(title, "", y_label))])
+    return save(fig, png_path)
 
 
 # ---------------------------------------------------------------- path helpers
@@ -283,12 +321,31 @@ def _segments(passes, n: int) -> list[np.ndarray]:
     return [np.flatnonzero(passes == p) for p in dict.fromkeys(passes.tolist())]
 
 
+
 def _model_series(x, values, name, k, passes, kind="line") -> list[Series]:
     out = []
     for i, idx in enumerate(_segments(passes, len(x))):
         order = idx[np.argsort(x[idx], kind="stable")]
-        out.append(Series(x[order], values[order], name if i == 0 else "", kind=kind, colour=_colour(name, k)))
+        out.append(Series(x[order], values[order], name if i == 0 else "", kind=kind, colour=colour_of(name, k)))
     return out
+
+
+def _pass_rows(passes, n: int) -> list[tuple[str, np.ndarray]]:
+    """(row title prefix, indices) per pass: one row of panels per pass, so that passes are never stacked."""
+    segments = _segments(passes, n)
+    if len(segments) == 1:
+        return [("", segments[0])]
+    labels = list(dict.fromkeys(np.asarray(passes).ravel().tolist()))
+    return [(f"pass {p}, ", idx) for p, idx in zip(labels, segments)]
+
+
+def _common_range(values: list[np.ndarray], pad: float = 0.06):
+    finite = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.array([])
+    if not finite.size:
+        return None
+    lo, hi = float(finite.min()), float(finite.max())
+    span = hi - lo or abs(hi) or 1.0
+    return lo - pad * span, hi + pad * span
 
 
 def resistance_figure(
@@ -304,7 +361,9 @@ def resistance_figure(
 ) -> Path:
     """Resistance U/I of each receiver against position: bench, models, corrected bench.
 
-    The paper's figures 6 to 8 (x in m, resistance in ohm), one panel per receiver.
+    The paper's figures 6 to 8 (x in m, resistance in ohm): one panel per
+    receiver, and one row of panels per pass when there are several (same y
+    range down a column).
 
     Parameters
     ----------
@@ -319,21 +378,29 @@ def resistance_figure(
     corrected_bench_ohm : (P, m) array, optional
         The bench after the conductivity correction.
     passes : (P,) array, optional
-        Pass labels: model curves are drawn pass by pass.
+        Pass labels.
     """
     x = np.asarray(x_m, dtype=float).ravel()
-    panels = []
-    for j, k in enumerate(receivers):
-        series = []
-        for m, (name, R) in enumerate(models_ohm.items()):
-            series += _model_series(x, np.asarray(R, dtype=float)[:, j], name.upper(), m, passes)
-        if corrected_bench_ohm is not None:
-            series.append(Series(x, np.asarray(corrected_bench_ohm)[:, j], "bench (corrected)", "scatter",
-                                 COLOURS["bench (corrected)"], marker_size=7, marker="d"))
-        if bench_ohm is not None:
-            series.append(Series(x, np.asarray(bench_ohm)[:, j], "bench", "scatter", COLOURS["bench"], marker_size=7))
-        panels.append(Panel(f"{title_prefix}receiver {k}", x_label, "resistance U/I (ohm)", series, legend_loc="upper centre"))
-    return curves_figure(panels, png_path)
+    rows = _pass_rows(passes, len(x))
+    grid = []
+    for prefix, idx in rows:
+        order = idx[np.argsort(x[idx], kind="stable")]
+        row = []
+        for j, k in enumerate(receivers):
+            series = [Series(x[order], np.asarray(R, dtype=float)[order, j], name.upper(), "line",
+                             colour_of(name, m)) for m, (name, R) in enumerate(models_ohm.items())]
+            if corrected_bench_ohm is not None:
+                series.append(Series(x[order], np.asarray(corrected_bench_ohm)[order, j], "bench (corrected)",
+                                     "scatter", COLOURS["bench (corrected)"], marker="d", marker_size=3.5))
+            if bench_ohm is not None:
+                series.append(Series(x[order], np.asarray(bench_ohm)[order, j], "bench", "scatter", COLOURS["bench"]))
+            row.append(Panel(f"{title_prefix}{prefix}receiver {k}", x_label, "resistance U/I (ohm)", series))
+        grid.append(row)
+    for j in range(len(receivers)):  # one y range down each receiver's column
+        span = _common_range([s.y for row in grid for s in row[j].series])
+        for row in grid:
+            row[j].y_range = span
+    return curves_figure([p for row in grid for p in row], png_path, ncols=len(receivers))
 
 
 def relative_error_figure(
@@ -345,38 +412,62 @@ def relative_error_figure(
     passes=None,
     title_prefix: str = "",
     percent: bool = True,
+    y_label: str = RELATIVE_ERROR_LABEL,
+    noise=None,
 ) -> Path:
-    """Relative error against position, one panel per receiver, one curve per comparison.
+    """Relative error against position, one panel per receiver (and per pass), one curve per comparison.
 
     Curves are coloured by model (the first word of the label); comparisons
-    against the BEM are dashed, those after a conductivity correction
-    ("corrected" in the label) dash-dotted.
+    against the BEM ("... / BEM" or "... vs BEM") are dashed, those after a
+    conductivity correction ("corrected" in the label) dash-dotted.
 
     Parameters
     ----------
     errors : dict
-        Label (e.g. ``"BEM vs bench"``) -> (P, m) relative errors (fractions).
+        Label (e.g. ``"BEM / bench - 1"``) -> (P, m) relative errors
+        (fractions, simulation / reference - 1).
     percent : bool
         Plot in percent (default).
+    y_label : str
+        The axis (default :data:`.style.RELATIVE_ERROR_LABEL`).
+    noise : float, optional
+        Noise level (fraction, 1 sigma): drawn as a grey band +-noise.
     """
     x = np.asarray(x_m, dtype=float).ravel()
     scale = 100.0 if percent else 1.0
+    band = None if noise is None else (-scale * noise, scale * noise, "noise (1 sigma)")
     panels = []
-    for j, k in enumerate(receivers):
-        series = []
-        for m, (name, e) in enumerate(errors.items()):
-            style = "--" if name.lower().endswith("vs bem") else ("-." if "corrected" in name.lower() else "-")
-            for s in _model_series(x, scale * np.asarray(e, dtype=float)[:, j], name, m, passes):
-                s.style = style
-                series.append(s)
-        series.append(Series([x.min(), x.max()], [0.0, 0.0], "", "line", "#444444", width=1.0))
-        unit = "relative error (%)" if percent else "relative error"
-        panels.append(Panel(f"{title_prefix}receiver {k}", x_label, unit, series))
-    return curves_figure(panels, png_path)
+    for prefix, idx in _pass_rows(passes, len(x)):
+        order = idx[np.argsort(x[idx], kind="stable")]
+        for j, k in enumerate(receivers):
+            series = []
+            for m, (name, e) in enumerate(errors.items()):
+                low = name.lower()
+                style = "--" if ("vs bem" in low or "/ bem" in low) else ("-." if "corrected" in low else "-")
+                series.append(Series(x[order], scale * np.asarray(e, dtype=float)[order, j], name, "line",
+                                     colour_of(name, m), style=style))
+            label = y_label if percent or not y_label.endswith("(%)") else y_label[:-4]
+            panels.append(Panel(f"{title_prefix}{prefix}receiver {k}", x_label, label, series, zero_line=True,
+                                band=band))
+    span = _common_range([s.y for p in panels for s in p.series] + ([np.array(band[:2])] if band else []))
+    for p in panels:
+        p.y_range = span
+    return curves_figure(panels, png_path, ncols=len(receivers))
 
 
 # ------------------------------------------------------------------ 3D figures
-def _polydata(mesh) -> "pv.PolyData":
+def _pv():
+    """pyvista, once an offscreen backend is chosen (:class:`meshes.render.RenderUnavailable` without one)."""
+    from meshes.render import require_3d
+
+    require_3d()
+    import pyvista
+
+    return pyvista
+
+
+def _polydata(mesh):
+    pv = _pv()
     faces = np.hstack([np.full((mesh.faces.shape[0], 1), 3), mesh.faces]).ravel()
     poly = pv.PolyData(np.asarray(mesh.vertices_m, dtype=float), faces)
     poly.cell_data["electrode"] = np.asarray(mesh.electrode)
@@ -394,7 +485,7 @@ def _add_sensor(plotter, sensor_mesh, pose=None, emitter=None):
     present = [int(k) for k in np.unique(labels)]
     for k in present:
         edge = "#a0a0a0" if k == 0 else "#404040"
-        plotter.add_mesh(poly.extract_cells(np.flatnonzero(labels == k)), color=electrode_colour(k), show_edges=True,
+        plotter.add_mesh(poly.extract_cells(np.flatnonzero(labels == k)), color=electrode_colour(k, emitter), show_edges=True,
                          edge_color=edge, line_width=0.5)
     return [list(entry) for entry in electrode_legend([k for k in present if k > 0], emitter)]
 
@@ -417,6 +508,7 @@ def scene_figure(
     window_size=(1800, 900),
     passes=None,
     emitter: int | None = None,
+    value_floor: float = 0.0,
 ) -> Path:
     """The 3D scene: tank, sensor mesh (electrodes coloured), path coloured by ``values``.
 
@@ -440,7 +532,11 @@ def scene_figure(
         Pass labels: each pass is drawn as its own line.
     emitter : int, optional
         1-based emitter, named in the sensor's legend.
+    value_floor : float
+        The colour scale of ``values`` runs from 0 to at least this (e.g. the
+        noise level), so that noise is not stretched into structure.
     """
+    pv = _pv()
     has_closeup = sensor_mesh is not None
     plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
     plotter.set_background("white")
@@ -470,7 +566,10 @@ def scene_figure(
         if values is not None:
             path.point_data[value_label] = np.asarray(values, dtype=float).ravel()
             tube = path.tube(radius=0.006) if cells else path
-            plotter.add_mesh(tube, scalars=value_label, cmap="viridis", scalar_bar_args=_scalar_bar(value_label))
+            v = path.point_data[value_label]
+            top = max(float(np.nanmax(v)) if np.isfinite(v).any() else 0.0, float(value_floor)) or 1.0
+            plotter.add_mesh(tube, scalars=value_label, cmap="viridis", clim=(0.0, top),
+                             scalar_bar_args=_scalar_bar(value_label))
         else:
             plotter.add_mesh(path, color="black", line_width=4)
             legend.append(["sensor path", "black"])
@@ -492,7 +591,9 @@ def scene_figure(
         length = float(np.ptp(sensor_mesh.vertices_m[:, 0]))
         plotter.add_text(f"sensor mesh: {sensor_mesh.n_triangles} triangles, {length * 100:.1f} cm, head (1) at +x",
                          position="lower_edge", font_size=14, color="black")
-        plotter.camera_position = [(0.0, -1.0, 0.45), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+        from meshes.render import facing_emitter
+
+        plotter.view_vector(facing_emitter(sensor_mesh, emitter, base=(0.35, -1.0, 0.45)), viewup=(0.0, 0.0, 1.0))
         plotter.reset_camera()
         plotter.camera.zoom(0.92)
     png_path = Path(png_path)
@@ -539,6 +640,17 @@ def current_lines(x_m, y_m, field_V_per_m, seeds_m, step_m: float | None = None,
     return lines
 
 
+def _fill_outside(values: np.ndarray) -> np.ndarray:
+    """NaN cells given the value of the nearest finite cell (so that colours run smoothly up to a body's outline)."""
+    from scipy.ndimage import distance_transform_edt
+
+    missing = ~np.isfinite(values)
+    if not missing.any():
+        return values
+    _, (iy, ix) = distance_transform_edt(missing, return_indices=True)
+    return values[iy, ix]
+
+
 def potential_figure(
     png_path,
     x_m,
@@ -549,27 +661,41 @@ def potential_figure(
     seeds_m=None,
     walls_m=(),
     title: str = "",
-    window_size=(1700, 820),
+    window_size=(7.0, 3.9),
     n_isolines: int = 16,
+    emitter: int | None = None,
 ) -> Path:
     """Potential on a horizontal plane (colour map and equipotentials) with current lines.
+
+    The sensor is drawn by its exact outline (filled, over the map), so that
+    the grid cells left NaN inside it never show as blocks; the colours run
+    smoothly up to the outline.
 
     Parameters
     ----------
     x_m, y_m : (nx,), (ny,) arrays
         Grid lines of the plane (tank frame), metres.
     potential_V : (ny, nx) array
-        Potential at the grid points; NaN inside the sensor (left blank).
+        Potential at the grid points; NaN inside the sensor.
     sensor_outline_m : (k, 2) array, optional
         Closed polygon of the sensor's cut by the plane.
     electrode_segments : sequence of ((k, 2) array, label)
-        The electrodes' traces on the outline, coloured and named in the legend.
+        The electrodes' traces on the outline (electrode k is the k-th),
+        coloured as in :mod:`meshes.render` and named in the legend.
     seeds_m : (s, 2) array, optional
         Start points of the current lines (e.g. around the emitter); the lines
         follow E = -grad(potential), the direction of the current density.
     walls_m : sequence of (2, 2) arrays
         Insulating tank walls crossing the picture, drawn as thick lines.
+    window_size : (float, float)
+        Inches (or pixels of the PNG when larger than 40).
+    emitter : int, optional
+        The emitter electrode (its colour); default: read from the labels.
     """
+    from matplotlib.patches import Polygon
+
+    from meshes.render import electrode_colour
+
     x = np.asarray(x_m, dtype=float)
     y = np.asarray(y_m, dtype=float)
     phi = np.asarray(potential_V, dtype=float)
@@ -580,78 +706,66 @@ def potential_figure(
         raise ValueError("the potential has no finite value to draw")
     gy, gx = np.gradient(phi, y, x)  # NaN next to the body: lines stop there
     E = np.stack([-gx, -gy], axis=-1)
-    grid = pv.RectilinearGrid(x, y, np.array([0.0]))
-    grid.point_data["potential (V)"] = phi.ravel()
-    plotter = pv.Plotter(off_screen=True, window_size=window_size)
-    plotter.set_background("white")
     lo, hi = np.percentile(finite, [1, 99])
-    plotter.add_mesh(
-        grid, scalars="potential (V)", cmap="coolwarm", clim=(lo, hi), nan_opacity=0.0,
-        scalar_bar_args={"title": "potential (V)", "title_font_size": 24, "label_font_size": 20,
-                         "color": "black", "vertical": True, "position_x": 0.87, "position_y": 0.12,
-                         "height": 0.72, "width": 0.05, "fmt": "%.2f"},
-    )
-    lift = 1e-3 * max(np.ptp(x), np.ptp(y))  # draw lines just above the coloured plane
-    legend = []
-    filled = grid.copy()
-    filled.point_data["potential (V)"] = np.where(np.isfinite(phi), phi, np.nanmax(phi) + 10 * (hi - lo)).ravel()
-    contours = filled.contour(isosurfaces=np.linspace(lo, hi, n_isolines)[1:-1], scalars="potential (V)")
-    if contours.n_points:
-        contours.points[:, 2] += lift
-        plotter.add_mesh(contours, color="#505050", line_width=1.5)
-        legend.append(["equipotentials", "#505050"])
+    if hi <= lo:
+        lo, hi = lo - 0.5, hi + 0.5
+    smooth = _fill_outside(phi)
+    fig, axes = new_figure(1, 1, _px_to_in(window_size))
+    ax = axes[0, 0]
+    ax.grid(False)
+    image = ax.pcolormesh(x, y, smooth, shading="gouraud", cmap="viridis", vmin=lo, vmax=hi, rasterized=True,
+                          zorder=0)
+    fig.colorbar(image, ax=ax, label="potential (V)", shrink=0.9, pad=0.02)
+    handles = []
+    from matplotlib.lines import Line2D
+
+    levels = np.linspace(lo, hi, n_isolines)[1:-1]
+    ax.contour(x, y, smooth, levels=levels, colors="white", linewidths=0.5, alpha=0.8, zorder=1)
+    handles.append(Line2D([], [], color="#9a9a9a", lw=0.8, label="equipotentials"))
     if seeds_m is not None:
         lines = current_lines(x, y, E, seeds_m)
+        for line in lines:
+            ax.plot(line[:, 0], line[:, 1], color="black", lw=0.8, zorder=2)
+            mid = len(line) // 2
+            if mid + 1 < len(line):
+                ax.annotate("", line[mid + 1], line[mid], zorder=2,
+                            arrowprops=dict(arrowstyle="-|>", color="black", lw=0.6, mutation_scale=7))
         if lines:
-            for line in lines:
-                pts = np.column_stack([line, np.full(len(line), 2 * lift)])
-                plotter.add_mesh(pv.lines_from_points(pts), color="black", line_width=2.5)
-            legend.append(["current lines", "black"])
+            handles.append(Line2D([], [], color="black", lw=0.8, label="current lines"))
     if sensor_outline_m is not None:
-        o = np.asarray(sensor_outline_m, dtype=float)
-        pts = np.column_stack([o, np.full(len(o), 3 * lift)])
-        plotter.add_mesh(pv.lines_from_points(np.vstack([pts, pts[:1]])), color="#808080", line_width=4)
-        legend.append(["sensor (insulating)", "#808080"])
+        ax.add_patch(Polygon(np.asarray(sensor_outline_m, dtype=float), closed=True, facecolor="#d0d0d0",
+                             edgecolor="#606060", lw=0.8, zorder=3))
+        handles.append(Polygon([[0, 0]], facecolor="#d0d0d0", edgecolor="#606060", label="sensor (insulating)"))
     for wall in walls_m:
-        pts = np.column_stack([np.asarray(wall, dtype=float), np.full(2, 3 * lift)])
-        plotter.add_mesh(pv.lines_from_points(pts), color="#1b2a49", line_width=10)
+        wall = np.asarray(wall, dtype=float)
+        ax.plot(wall[:, 0], wall[:, 1], color="#1b2a49", lw=4, solid_capstyle="butt", zorder=4)
     if len(walls_m):
-        legend.append(["tank wall (insulating)", "#1b2a49"])
-    from meshes.render import electrode_colour
-
-    for k, (seg, label) in enumerate(electrode_segments, start=1):
-        colour = electrode_colour(k)
+        handles.append(Line2D([], [], color="#1b2a49", lw=4, label="tank wall (insulating)"))
+    segments = list(electrode_segments)
+    if emitter is None:
+        emitter = next((k for k, (_, label) in enumerate(segments, 1) if "emitter" in str(label)), None)
+    for k, (seg, label) in enumerate(segments, start=1):
+        colour = electrode_colour(k, emitter)
         seg = np.asarray(seg, dtype=float)
-        for piece in np.split(seg, np.flatnonzero(np.isnan(seg[:, 0]))):
-            piece = piece[np.isfinite(piece[:, 0])]
-            if len(piece) > 1:
-                pts = np.column_stack([piece, np.full(len(piece), 4 * lift)])
-                plotter.add_mesh(pv.lines_from_points(pts), color=colour, line_width=9)
-        legend.append([label, colour])
-    if legend:
-        plotter.add_legend(legend, bcolor="white", border=True, size=(0.17, 0.045 * len(legend) + 0.02),
-                           loc="upper left", face="rectangle")
+        ax.plot(seg[:, 0], seg[:, 1], color=colour, lw=3.5, solid_capstyle="butt", zorder=5)  # NaN breaks a ring
+        handles.append(Line2D([], [], color=colour, lw=3.5, label=label))
+    ax.set_xlim(x[0], x[-1])
+    ax.set_ylim(y[0], y[-1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
     if title:
-        plotter.add_text(title, position="upper_edge", font_size=16, color="black")
-    plotter.show_bounds(xtitle="x (m)", ytitle="y (m)", font_size=20, color="black", location="outer",
-                        grid=False, ticks="outside", n_xlabels=5, n_ylabels=5, fmt="%.2f", show_zaxis=False,
-                        show_zlabels=False, bounds=(x[0], x[-1], y[0], y[-1], 0.0, 0.0))
-    plotter.view_xy()
-    plotter.camera.zoom(1.25)
-    shift = -0.07 * (x[-1] - x[0])  # make room on the left for the legend
-    cam = plotter.camera
-    cam.focal_point = (cam.focal_point[0] + shift, *cam.focal_point[1:])
-    cam.position = (cam.position[0] + shift, *cam.position[1:])
-    png_path = Path(png_path)
-    png_path.parent.mkdir(parents=True, exist_ok=True)
-    plotter.screenshot(str(png_path))
-    plotter.close()
-    return png_path
+        ax.set_title(title)
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3))
+    return save(fig, png_path)
 
 
 def png_is_blank(png_path, tolerance: int = 0) -> bool:
     """True when every pixel of the image is (nearly) the same colour."""
-    img = np.asarray(pv.read(str(png_path)).point_data.active_scalars)
-    if img.ndim == 1:
-        img = img[:, None]
+    from matplotlib.image import imread
+
+    img = np.asarray(imread(str(png_path)))
+    if img.dtype != np.uint8:
+        img = np.round(255 * img).astype(int)
+    img = img.reshape(-1, img.shape[-1]) if img.ndim == 3 else img.reshape(-1, 1)
     return bool(np.all(np.ptp(img.astype(int), axis=0) <= tolerance))

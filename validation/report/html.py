@@ -26,8 +26,9 @@ from typing import Sequence
 __all__ = ["Table", "Figure", "Section", "write_html", "format_number"]
 
 _STYLE = """
-body { font-family: Helvetica, Arial, sans-serif; max-width: 1400px; margin: 2em auto; padding: 0 1em;
+body { font-family: Helvetica, Arial, sans-serif; max-width: 72em; margin: 1.5em auto; padding: 0 1em;
        color: #222; line-height: 1.45; }
+.table-wrap { max-width: 100%; overflow-x: auto; }
 h1 { border-bottom: 2px solid #305080; padding-bottom: .2em; }
 h2 { color: #305080; margin-top: 2em; border-bottom: 1px solid #ccd; }
 h3 { color: #444; }
@@ -38,10 +39,12 @@ th { background: #eef1f7; }
 td:first-child, th:first-child { text-align: left; }
 tr:nth-child(even) td { background: #f8f9fb; }
 figure { margin: 1.5em 0; }
-figure img { max-width: 100%; border: 1px solid #ddd; }
+figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
+figure a.vector { font-size: 0.85em; }
 figcaption { font-size: 0.95em; color: #444; margin-top: .3em; }
 .side-by-side { display: flex; gap: 1em; flex-wrap: wrap; align-items: flex-start; }
-.side-by-side figure { flex: 1 1 45%; }
+.side-by-side figure { flex: 1 1 24em; min-width: 0; }
+@media (max-width: 40em) { body { padding: 0 .4em; } th, td { padding: .2em .4em; } }
 .note { background: #fff8e0; border-left: 4px solid #e0b000; padding: .5em 1em; }
 pre { background: #f4f4f4; padding: .6em; overflow-x: auto; }
 footer { margin-top: 3em; font-size: 0.85em; color: #777; }
@@ -84,7 +87,8 @@ class Table:
             for row in self.rows
         )
         cap = f"<caption>{html.escape(self.caption)}</caption>" if self.caption else ""
-        return f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table>"
+        return (f'<div class="table-wrap"><table>{cap}<thead><tr>{head}</tr></thead><tbody>\n{body}\n'
+                "</tbody></table></div>")
 
 
 @dataclass
@@ -102,7 +106,12 @@ class Figure:
             src = "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode()
         else:
             src = Path(os.path.relpath(path.resolve(), page_folder.resolve())).as_posix()
-        cap = f"<figcaption>{html.escape(self.caption)}</figcaption>" if self.caption else ""
+        vector = [v for v in (path.with_suffix(".pdf"), path.with_suffix(".svg")) if v.exists()]
+        link = ""
+        if vector and not embed:  # the vector copy for a paper, beside the PNG
+            href = Path(os.path.relpath(vector[0].resolve(), page_folder.resolve())).as_posix()
+            link = f' <a class="vector" href="{html.escape(href)}">({vector[0].suffix[1:].upper()})</a>'
+        cap = f"<figcaption>{html.escape(self.caption)}{link}</figcaption>" if self.caption or link else ""
         alt = html.escape(self.caption or path.stem)
         return f'<figure><img src="{html.escape(src)}" alt="{alt}">{cap}</figure>'
 
@@ -173,6 +182,7 @@ def write_html(path, title: str, sections: Sequence[Section], intro: str | Seque
     )
     page = (
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">\n"
         f"<title>{html.escape(title)}</title>\n<style>{_STYLE}</style>\n</head>\n<body>\n"
         f"<h1>{html.escape(title)}</h1>\n"
         + "".join(f"<p>{html.escape(p)}</p>" for p in paragraphs if p)

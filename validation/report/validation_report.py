@@ -107,8 +107,11 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
     """
     from meshes.pose import Pose
 
+    from meshes.render import RenderUnavailable
+
     from .figures import (bar_figure, path_coordinate, potential_figure, relative_error_figure, resistance_figure,
                           scene_figure)
+    from .style import RELATIVE_ERROR_LABEL
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -128,24 +131,32 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
     corr_note = (f" The corrected bench is the bench divided by the {first.upper()} conductivity factor "
                  f"s = {result.corrections[first].scale:.4f}." if result.corrections else "")
     figures.append(Figure(p, f"{result.label}: resistance U/I of each receiver against position; bench (dots), "
-                             f"models (lines).{corr_note}"))
-    errors = {f"{m.upper()} vs bench": c.error for m, c in result.comparisons.items()}
-    errors.update({f"{m.upper()} corrected vs bench": c.error for m, c in result.corrected.items()})
+                             f"models (lines){', one row per pass' if passes is not None else ''}.{corr_note}"))
+    errors = {f"{m.upper()} / bench - 1": c.error for m, c in result.comparisons.items()}
+    errors.update({f"{m.upper()} corrected / bench - 1": c.error for m, c in result.corrected.items()})
     if result.model_difference is not None:
-        errors["PSM vs BEM"] = result.model_difference.error
-    p = relative_error_figure(x, errors, receivers, folder / f"error_{slug}.png", x_label=x_label, passes=passes)
-    figures.append(Figure(p, f"{result.label}: relative error of the receiver currents, (model - reference) / "
-                             "reference, in percent; PSM vs BEM dashed."))
+        errors["PSM / BEM - 1"] = result.model_difference.error
+    noise = _noise(result.comparisons[first].error, log)
+    p = relative_error_figure(x, errors, receivers, folder / f"error_{slug}.png", x_label=x_label, passes=passes,
+                              y_label=RELATIVE_ERROR_LABEL.replace("bench", "reference"), noise=noise)
+    figures.append(Figure(p, f"{result.label}: relative error of the receiver currents, simulation / reference - 1 "
+                             "in percent (positive: the simulation predicts more current); the reference is the "
+                             "bench, or the BEM for PSM / BEM (dashed); the grey band is the bench's noise "
+                             "(1 sigma, from the scatter along the path)."))
     regions = list(dict.fromkeys(result.comparisons[first].by_region))
     bars = {}
-    for name, c in list(result.comparisons.items()) + ([("PSM vs BEM", result.model_difference)]
+    for name, c in list(result.comparisons.items()) + ([("PSM / BEM", result.model_difference)]
                                                        if result.model_difference is not None else []):
         by = c.by_region
-        label = name.upper() + " vs bench" if name in result.comparisons else name
-        bars[label] = [100 * by[r]["all"]["mean_abs"] for r in regions]
+        label = name.upper() + " / bench" if name in result.comparisons else name
+        bars[label] = [np.nan if by[r]["all"]["mean_abs"] is None else 100 * by[r]["all"]["mean_abs"]
+                       for r in regions]
+    counts = [int(result.comparisons[first].by_region[r]["all"]["n"]) for r in regions]
     p = bar_figure(regions, bars, folder / f"regions_{slug}.png", f"{result.label}: error by region of the path",
-                   "mean abs. relative error (%)")
-    figures.append(Figure(p, f"{result.label}: mean absolute relative error by region of the path."))
+                   "mean |simulation / reference - 1| (%)", counts=counts,
+                   lines={"noise (1 sigma)": 100 * noise} if noise else None)
+    figures.append(Figure(p, f"{result.label}: mean absolute relative error by region of the path; n is the number "
+                             "of samples (poses x receivers) in the region."))
     err = 100 * np.abs(result.comparisons[first].error).mean(axis=1)
     worst = int(np.argmax(err)) if potential_pose_index is None else int(potential_pose_index)
     pose = Pose.from_array(log.poses[worst])
@@ -164,13 +175,17 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
             object_meshes = [mesh_object(o) for o in result.objects]
         except Exception as exc:
             notes.append(f"objects not drawn: {exc}")
-    p = scene_figure(folder / f"scene_{slug}.png", sensor_mesh, pose, log.tank, log.poses[:, :3], err,
-                     value_label=f"{first.upper()} mean abs. error (%)", object_meshes=object_meshes,
-                     title=f"{result.label}: path coloured by {first.upper()} error", passes=passes,
-                     emitter=log.emitter)
-    figures.append(Figure(p, f"{result.label}: the scene; the sensor is drawn at the pose of largest "
-                             f"{first.upper()} error (x = {pose.x_m:.3f} m), the path coloured by the "
-                             "mean abs. error over receivers."))
+    try:
+        p = scene_figure(folder / f"scene_{slug}.png", sensor_mesh, pose, log.tank, log.poses[:, :3], err,
+                         value_label=f"{first.upper()} mean abs. error (%)", object_meshes=object_meshes,
+                         title=f"{result.label}: path coloured by {first.upper()} error", passes=passes,
+                         emitter=log.emitter, value_floor=0.0 if noise is None else 100 * noise)
+        figures.append(Figure(p, f"{result.label}: the scene; the sensor is drawn at the pose of largest "
+                                 f"{first.upper()} error (x = {pose.x_m:.3f} m), the path coloured by the "
+                                 "mean abs. error over receivers (the scale starts at 0 and spans at least the "
+                                 "noise level)."))
+    except RenderUnavailable as exc:
+        notes.append(f"3D scene left out: {exc}")
     if potential:
         try:
             from .field import (electrode_seeds_xy, electrode_segments_xy, mid_plane_potential, sensor_outline_xy,
@@ -186,7 +201,7 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
                                   tolerance_m=1.5 * spacing)
             p = potential_figure(folder / f"potential_{slug}.png", plane.x_m, plane.y_m, plane.potential_V,
                                  sensor_outline_xy(sensor, pose), electrode_segments_xy(sensor, pose), seeds_m=seeds,
-                                 walls_m=walls,
+                                 walls_m=walls, emitter=sensor.emitter,
                                  title=f"BEM potential on the mid-plane, emitter at {U0:g} V, x = {pose.x_m:.3f} m")
             figures.append(Figure(p, f"{result.label}: BEM potential on the sensor's horizontal mid-plane at the "
                                      "pose of largest error, equipotentials and current lines from the emitter "
@@ -196,6 +211,19 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
         except Exception as exc:  # a picture must not sink the report; say why it is missing
             notes.append(f"potential figure skipped: {type(exc).__name__}: {exc}")
     return figures, notes
+
+
+def _noise(error, log) -> float | None:
+    """The bench's relative noise (1 sigma) from the scatter of ``error`` (P, m) along each pass; None if too short."""
+    from validation.diagnosis.fitting import noise_level
+
+    groups = [np.flatnonzero(np.asarray(log.passes) == p) for p in log.pass_numbers]
+    if sum(max(len(g) - 2, 0) for g in groups) < 8:  # too few second differences for a spread
+        return None
+    try:
+        return noise_level(np.asarray(error, dtype=float), groups)
+    except ValueError:
+        return None
 
 
 def validation_sections(results: Sequence, folder, potential: bool = True, potential_n: int = 81,

@@ -1,10 +1,11 @@
-"""Tank maps: what each receiver reads over the tank, as pyvista images with the tank outline.
+"""Tank maps: what each receiver reads over the tank, as matplotlib maps with the tank outline.
 
 For a grid sweep (:func:`validation.sweep.store.as_map`), one panel per
 receiver shows over (x, y), at one heading, either the resistance U/I (ohm) or
 the relative current change against the pose nearest the middle of the tank
-(percent), with the tank walls drawn, axes in metres, a colour bar with units
-and a title per receiver. Rendering is offscreen (no display needed).
+(percent, on a colour scale symmetric around 0), with the tank walls drawn,
+axes in metres, a colour bar with units and a title per receiver; a PDF is
+written beside the PNG. No display and no OpenGL are needed.
 
 Example
 -------
@@ -15,7 +16,6 @@ Example
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -54,16 +54,9 @@ def tank_map_values(ds, quantity: str = "resistance", yaw_index: int = 0):
     return values, x, y, float(m.yaw_rad.values[yaw_index]), m.receiver.values
 
 
-def _tank_outline(tank_m, z):
-    import pyvista as pv
-
-    lx, ly = tank_m[0] / 2, tank_m[1] / 2
-    corners = np.array([[-lx, -ly, z], [lx, -ly, z], [lx, ly, z], [-lx, ly, z]])
-    return pv.MultipleLines(np.vstack([corners, corners[:1]]))
-
-
-def plot_tank_map(ds, png_path, quantity: str = "resistance", yaw_index: int = 0, panel_px: int = 640) -> Path:
-    """Write the tank map of every receiver as one PNG (panels side by side).
+def plot_tank_map(ds, png_path, quantity: str = "resistance", yaw_index: int = 0, panel_px: int = 640,
+                  floor_percent: float = 0.01) -> Path:
+    """Write the tank map of every receiver as one PNG (panels side by side) and a PDF beside it.
 
     Parameters
     ----------
@@ -74,10 +67,16 @@ def plot_tank_map(ds, png_path, quantity: str = "resistance", yaw_index: int = 0
     yaw_index : int
         Which heading of the grid to show.
     panel_px : int
-        Width and height of one panel in pixels.
+        Width of one panel in pixels of the PNG.
+    floor_percent : float
+        For ``current_change``: the colour scale, symmetric around 0, spans at
+        least +-this (%), so that round-off over an empty tank is not shown as
+        structure.
     """
-    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
-    import pyvista as pv
+    from matplotlib.patches import Rectangle
+    from matplotlib.ticker import MaxNLocator
+
+    from validation.report.style import DPI, new_figure, save, symmetric_limit
 
     values, x, y, yaw, receivers = tank_map_values(ds, quantity, yaw_index)
     z = float(json.loads(ds.attrs["grid"])["z_m"]) if isinstance(ds.attrs.get("grid"), str) else 0.0
@@ -85,39 +84,35 @@ def plot_tank_map(ds, png_path, quantity: str = "resistance", yaw_index: int = 0
     unit_label, what = QUANTITIES[quantity]
     model = str(ds.attrs.get("model", "model")).upper()
     sensor = ds.attrs.get("sensor_name", "")
-
-    plotter = pv.Plotter(off_screen=True, shape=(1, len(receivers)), window_size=(panel_px * len(receivers), panel_px),
-                         border=False)
+    if tank:
+        extent = (-tank[0] / 2, tank[0] / 2, -tank[1] / 2, tank[1] / 2)
+    else:
+        extent = (float(x.min()), float(x.max()), float(y.min()), float(y.max()))
+    width_in = panel_px / DPI
+    height_in = width_in * (extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-12) + 0.9
+    fig, axes = new_figure(1, len(receivers), (width_in, height_in))
     for k, receiver in enumerate(receivers):
-        plotter.subplot(0, k)
-        grid = pv.RectilinearGrid(x, y, np.array([z]))
-        label = unit_label.format(k=receiver)  # unique per panel: pyvista keys colour bars by title
-        grid.point_data[label] = values[k].ravel()  # x fastest, as VTK wants
-        plotter.add_mesh(
-            grid,
-            scalars=label,
-            cmap="viridis",
-            show_scalar_bar=True,
-            scalar_bar_args={"title": label, "vertical": True, "fmt": "%.4g", "title_font_size": 14,
-                             "label_font_size": 12, "position_x": 0.80, "position_y": 0.15, "width": 0.08,
-                             "height": 0.65, "color": "black"},
-        )
-        bounds_z = [z, z]
-        if tank:
-            plotter.add_mesh(_tank_outline(tank, z), color="black", line_width=3)
-            bounds = [-tank[0] / 2, tank[0] / 2, -tank[1] / 2, tank[1] / 2] + bounds_z
+        ax = axes[0, k]
+        ax.grid(False)
+        if quantity == "current_change":
+            top = symmetric_limit(values[k], floor=floor_percent)
+            image = ax.pcolormesh(x, y, values[k], shading="nearest", cmap="RdBu_r", vmin=-top, vmax=top,
+                                  rasterized=True)
         else:
-            bounds = [x.min(), x.max(), y.min(), y.max()] + bounds_z
-        plotter.show_bounds(bounds=bounds, xtitle="x (m)", ytitle="y (m)", show_zaxis=False, show_zlabels=False,
-                            location="outer", ticks="outside", font_size=10, color="black", fmt="%.2f")
-        plotter.add_text(f"{model} {sensor}, receiver {receiver}\n{what}, yaw {yaw:.3g} rad, z {z:.3g} m",
-                         position="upper_edge", font_size=10, color="black")
-        plotter.set_background("white")
-        plotter.view_xy()
-        plotter.camera.zoom(0.8)
-        plotter.camera.position = np.add(plotter.camera.position, [0.08 * bounds[1], 0, 0])
-        plotter.camera.focal_point = np.add(plotter.camera.focal_point, [0.08 * bounds[1], 0, 0])
-    png_path = Path(png_path)
-    plotter.screenshot(str(png_path))
-    plotter.close()
-    return png_path
+            image = ax.pcolormesh(x, y, values[k], shading="nearest", cmap="viridis", rasterized=True)
+        clipped = values[k].max() > image.norm.vmax or values[k].min() < image.norm.vmin
+        bar = fig.colorbar(image, ax=ax, label=unit_label.format(k=receiver), location="bottom", shrink=0.9,
+                           extend="both" if clipped else "neither")
+        bar.locator = MaxNLocator(nbins=4)
+        bar.update_ticks()
+        if tank:
+            ax.add_patch(Rectangle((extent[0], extent[2]), tank[0], tank[1], fill=False, color="black", lw=1.5))
+        pad = 0.03 * max(extent[1] - extent[0], extent[3] - extent[2])
+        ax.set_xlim(extent[0] - pad, extent[1] + pad)
+        ax.set_ylim(extent[2] - pad, extent[3] + pad)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_title(f"receiver {receiver}")
+    fig.suptitle(f"{model} {sensor}: {what}, yaw {yaw:.3g} rad, z {z:.3g} m")
+    return save(fig, png_path)
