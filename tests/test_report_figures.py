@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from meshes.pose import Pose
+from meshes.render import can_render_3d
 from meshes.sensor import preset
 from meshes.tank import Tank
 from validation.report import Figure, Section, Table, write_html
@@ -33,13 +34,11 @@ def test_resistance_and_error_figures(tmp_path):
 
 
 def test_blank_detector(tmp_path):
-    import pyvista as pv
+    from validation.report.style import new_figure, save
 
-    pl = pv.Plotter(off_screen=True, window_size=(50, 40))
-    pl.set_background("white")
-    pl.screenshot(str(tmp_path / "blank.png"))
-    pl.close()
-    assert png_is_blank(tmp_path / "blank.png")
+    fig, axes = new_figure(1, 1)
+    axes[0, 0].set_axis_off()
+    assert png_is_blank(save(fig, tmp_path / "blank.png", vector=None))
 
 
 def test_series_and_panel_errors(tmp_path):
@@ -64,6 +63,7 @@ def test_path_coordinate():
     assert "distance" in label
 
 
+@pytest.mark.skipif(not can_render_3d(), reason="no offscreen OpenGL (EGL or OSMesa) for VTK here")
 def test_scene_figure(tmp_path):
     from meshes.sensor_mesh import mesh_sensor
 
@@ -143,3 +143,88 @@ def test_field_helpers_geometry():
     pts = pose.to_sensor(np.column_stack([seeds, np.zeros(len(seeds))]))
     assert not inside_sensor(sensor, pts).any()  # seeds lie in the water
     assert inside_sensor(sensor, np.zeros((1, 3))).all()
+
+
+def test_figures_come_with_a_vector_copy_and_the_legend_off_the_data(tmp_path):
+    """A PDF beside each PNG; the shared legend sits above every panel, never over the curves."""
+    from validation.report.figures import Panel, Series
+    from validation.report.style import new_figure
+
+    x, R = _curves()
+    p = resistance_figure(x, 1.02 * R, {"bem": R, "psm": 1.01 * R}, (1, 2), tmp_path / "r.png")
+    assert p.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"
+    # the same drawing, kept in memory: the legend's box lies above the axes' boxes
+    from validation.report import figures
+
+    fig, axes = new_figure(1, 2)
+    panels = [Panel(f"receiver {k}", "x (m)", "U/I (ohm)", [Series(x, R[:, j], "BEM", colour="b"),
+                                                              Series(x, R[:, j], "a much longer label")])
+              for j, k in enumerate((1, 2))]
+    for ax, panel in zip(axes.flat, panels):
+        figures._draw_panel(ax, panel)
+    figures._shared_legend(fig, list(zip(axes.flat, panels)))
+    fig.canvas.draw()
+    legend = fig.legends[0].get_window_extent()
+    for ax in axes.flat:
+        box = ax.get_window_extent()
+        assert legend.y0 >= box.y1 - 1  # above the data
+    assert legend.x0 >= 0 and legend.x1 <= fig.bbox.x1 + 1  # not clipped at the sides
+
+
+def test_passes_get_a_row_each(tmp_path):
+    x = np.tile(np.linspace(-0.3, 0.3, 8), 3)
+    passes = np.repeat([0, 1, 2], 8)
+    R = np.column_stack([600 + 100 * x**2, 700 + 100 * x**2])
+    p = relative_error_figure(x, {"BEM / bench - 1": R / R.mean() - 1}, (1, 2), tmp_path / "e.png", passes=passes,
+                              noise=0.001)
+    from matplotlib.image import imread
+
+    img = imread(str(p))
+    assert img.shape[0] > img.shape[1]  # three rows of two panels (one row would be wide and low)
+    assert not png_is_blank(p)
+
+
+def test_bar_figure_counts_log_scale_and_horizontal_labels(tmp_path):
+    p = bar_figure(["near wall_x-", "mid-tank"], {"BEM / bench": [0.01, 2.0]}, tmp_path / "b.png", "by region",
+                   "mean |simulation / bench - 1| (%)", counts=[12, 40], lines={"noise (1 sigma)": 0.05})
+    assert not png_is_blank(p) and p.with_suffix(".pdf").exists()
+    names = [f"candidate_{i}" for i in range(9)]
+    p = bar_figure(names, {"held-out gap (%)": np.geomspace(0.05, 400, 9)}, tmp_path / "rank.png", "ranking",
+                   "held-out RMS gap (%)", lines={"noise": 0.06})
+    from matplotlib.image import imread
+
+    h, w = imread(str(p)).shape[:2]
+    assert h > 300 and w > 600
+    with pytest.raises(ValueError, match="2 counts for 3 categories"):
+        bar_figure(["a", "b", "c"], {"v": [1, 2, 3]}, tmp_path / "x.png", "t", "y", counts=[1, 2])
+
+
+def test_symmetric_colour_range_has_a_noise_floor():
+    from validation.report.style import symmetric_limit
+
+    rng = np.random.default_rng(3)
+    noise = 1e-6 * rng.standard_normal(500)
+    assert symmetric_limit(noise, floor=0.01) == 0.01  # round-off is not stretched over the whole scale
+    signal = np.r_[noise, -3.0, 5.0]
+    assert symmetric_limit(signal, floor=0.01, percentile=100) == 5.0
+
+
+def test_potential_figure_masks_the_sensor_by_its_outline(tmp_path):
+    """The cells left NaN inside the body are covered by the exact outline, not drawn as blocks."""
+    from validation.report.figures import _fill_outside, potential_figure
+
+    sensor = preset("angels-2")
+    from validation.report.field import electrode_segments_xy, inside_sensor, sensor_outline_xy
+
+    pose = Pose(0.0, 0.0, 0.0, 0.0)
+    x = np.linspace(-0.15, 0.15, 31)
+    y = np.linspace(-0.1, 0.1, 21)
+    X, Y = np.meshgrid(x, y)
+    phi = X.copy()
+    inside = inside_sensor(sensor, np.stack([X, Y, 0 * X], axis=-1), margin_m=0.002)
+    phi[inside] = np.nan
+    filled = _fill_outside(phi)
+    assert np.isfinite(filled).all() and np.array_equal(filled[~inside], phi[~inside])
+    p = potential_figure(tmp_path / "phi.png", x, y, phi, sensor_outline_xy(sensor, pose),
+                         electrode_segments_xy(sensor, pose), emitter=sensor.emitter)
+    assert not png_is_blank(p) and p.with_suffix(".pdf").exists()
