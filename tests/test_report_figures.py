@@ -228,3 +228,13 @@ def test_potential_figure_masks_the_sensor_by_its_outline(tmp_path):
     p = potential_figure(tmp_path / "phi.png", x, y, phi, sensor_outline_xy(sensor, pose),
                          electrode_segments_xy(sensor, pose), emitter=sensor.emitter)
     assert not png_is_blank(p) and p.with_suffix(".pdf").exists()
+
+
+def test_path_coordinate_restarts_at_each_pass():
+    t = np.linspace(0, 0.3, 4)
+    leg = np.column_stack([t, t, 0 * t, 0 * t])
+    poses = np.vstack([leg, leg + [0.0, 0.05, 0, 0]])
+    s, label = path_coordinate(poses, passes=np.repeat([1, 2], 4))
+    assert label == "distance along the pass (m)"
+    np.testing.assert_allclose(s[:4], s[4:])
+    assert s[0] == 0.0

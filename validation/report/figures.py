@@ -297,13 +297,22 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
 
 
 # ---------------------------------------------------------------- path helpers
-def path_coordinate(poses) -> tuple[np.ndarray, str]:
+def path_coordinate(poses, passes=None) -> tuple[np.ndarray, str]:
     """The abscissa for plots along a path: x, y, or the arc length (m), with its label.
 
     x (or y) when the path runs mainly along it (its range is at least 5 times
-    the others'), otherwise the distance travelled.
+    the others'), otherwise the distance travelled, counted from the start of
+    each pass when ``passes`` (P,) labels them.
     """
     poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    if passes is not None and len(_segments(passes, len(poses))) > 1:
+        x, label = path_coordinate(poses)
+        if label.startswith("distance"):
+            x = np.empty(len(poses))
+            for idx in _segments(passes, len(poses)):
+                x[idx] = path_coordinate(poses[idx])[0] if len(idx) > 1 else 0.0
+            label = "distance along the pass (m)"
+        return x, label
     span = np.ptp(poses[:, :3], axis=0) if len(poses) else np.zeros(3)
     for axis, name in ((0, "x"), (1, "y")):
         others = np.delete(span, axis)
@@ -721,7 +730,10 @@ def potential_figure(
 
     levels = np.linspace(lo, hi, n_isolines)[1:-1]
     ax.contour(x, y, smooth, levels=levels, colors="white", linewidths=0.5, alpha=0.8, zorder=1)
-    handles.append(Line2D([], [], color="#9a9a9a", lw=0.8, label="equipotentials"))
+    from matplotlib.patheffects import withStroke
+
+    handles.append(Line2D([], [], color="white", lw=0.8, label="equipotentials",
+                          path_effects=[withStroke(linewidth=2.2, foreground="#6a6a6a")]))
     if seeds_m is not None:
         lines = current_lines(x, y, E, seeds_m)
         for line in lines:
@@ -756,7 +768,7 @@ def potential_figure(
     ax.set_ylabel("y (m)")
     if title:
         ax.set_title(title)
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3))
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4))
     return save(fig, png_path)
 
 

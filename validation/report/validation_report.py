@@ -117,8 +117,8 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
     folder.mkdir(parents=True, exist_ok=True)
     log = result.log
     slug = _slug(result.label)
-    x, x_label = path_coordinate(log.poses)
     passes = log.passes if len(log.pass_numbers) > 1 else None
+    x, x_label = path_coordinate(log.poses, passes)
     receivers = result.receivers
     figures, notes = [], []
     U = log.U_V[:, None]
