@@ -1,11 +1,13 @@
-"""Reports: pyvista figures (:mod:`.figures`) and a static offline HTML page (:mod:`.html`).
+"""Reports: figures (:mod:`.figures`; 2D with matplotlib in the style of :mod:`.style`, PNG with a PDF beside
+it; 3D scenes with pyvista) and a static offline HTML page (:mod:`.html`).
 
 Reusable pieces (plain arrays in, PNG or HTML out):
 
 * :func:`.figures.curves_figure` with :class:`.figures.Panel` / :class:`.figures.Series`: a grid of
-  2D charts (lines, markers, dashed styles, legends, axis labels with units);
+  2D plots (lines, markers, dashed styles, one legend above the panels, axis labels with units);
 * :func:`.figures.bar_figure`: grouped bars over named categories (e.g. regions of a path);
-* :func:`.figures.scene_figure`: tank, sensor mesh with its electrodes coloured, a path coloured by a value;
+* :func:`.figures.scene_figure`: tank, sensor mesh with its electrodes coloured, a path coloured by a value
+  (needs an offscreen OpenGL, see :func:`meshes.render.can_render_3d`);
 * :func:`.figures.potential_figure`: a potential map with equipotentials and current lines;
 * :func:`.figures.png_is_blank`: for tests;
 * :func:`.html.write_html` with :class:`.html.Section`, :class:`.html.Table`, :class:`.html.Figure`.

@@ -500,8 +500,10 @@ def _add_sensor(plotter, sensor_mesh, pose=None, emitter=None):
 
 
 def _scalar_bar(title: str, fmt: str = "%.2f") -> dict:
-    return {"title": title, "title_font_size": 22, "label_font_size": 20, "color": "black", "vertical": False,
-            "position_x": 0.2, "position_y": 0.03, "height": 0.06, "width": 0.6, "fmt": fmt, "n_labels": 5}
+    # vertical, at the panel's right edge: its title above, its labels beside it (a horizontal bar in VTK
+    # writes both above the bar, where they overlap)
+    return {"title": title, "title_font_size": 20, "label_font_size": 18, "color": "black", "vertical": True,
+            "position_x": 0.82, "position_y": 0.12, "height": 0.6, "width": 0.07, "fmt": fmt, "n_labels": 5}
 
 
 def scene_figure(

@@ -38,7 +38,8 @@ def _summary_table(results) -> Table:
     return Table(
         ["log", "comparison", "mean abs. error (%)", "max abs. error (%)", "RMS (%)", "bias (%)", "samples"],
         validation_summary_rows(results),
-        caption="Relative error of the receiver currents, all receivers (error = (model - reference) / reference)",
+        caption="Relative error of the receiver currents, all receivers: simulation / reference - 1 (positive: "
+                "the simulation predicts more current)",
         digits=3,
     )
 
@@ -235,8 +236,9 @@ def validation_sections(results: Sequence, folder, potential: bool = True, poten
     """
     sections = [Section(
         "Summary",
-        ["Receiver currents simulated at every logged pose and compared with the bench. Errors are relative: "
-         "(model - bench) / bench, and (PSM - BEM) / BEM for the models' difference on the same poses. "
+        ["Receiver currents simulated at every logged pose and compared with the bench. Errors are relative, "
+         "with one sign in every table and figure: simulation / bench - 1, and PSM / BEM - 1 for the models' "
+         "difference on the same poses (positive: the simulation predicts more current). "
          "'mean abs.' is the paper's mean relative error."],
         tables=[_summary_table(results)],
     )]
