@@ -160,6 +160,11 @@ def _shared_legend(fig, axes_panels):
         # entries per row that fit the figure's width (8 pt text: about 0.062 inch a character)
         entry_in = 0.75 + 0.062 * max(len(label) for label in entries)
         per_row = max(1, min(len(entries), 4, int(fig.get_figwidth() // entry_in)))
+        if math.ceil(len(entries) / per_row) > 2:  # a narrow figure: the legend beside it, not over its height
+            fig.set_figwidth(fig.get_figwidth() + entry_in)
+            fig.legend(list(entries.values()), list(entries), loc="outside right upper", handlelength=2.2,
+                       markerscale=1.5)
+            return
         fig.legend(list(entries.values()), list(entries), loc="outside upper center", ncols=per_row,
                    handlelength=2.2, markerscale=1.5)
 
