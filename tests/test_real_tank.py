@@ -29,7 +29,7 @@ def test_random_cylinder_tank_mesh_is_closed_and_electrodes_have_their_area():
     n = int(rng.integers(4, 9))
     es = _ring(rng, n, R, tank.floor_z_m + 0.3 * tank.water_depth_m, 0.05 * R) + [
         DiscElectrode((0.0, 0.0, tank.floor_z_m), 0.05 * R), PlateElectrode("free_surface")]
-    m = mesh_cylinder_tank(tank, es, edge_length_m=R / 3, edge_fraction=0.5, electrode_grading=1.0)
+    m = mesh_cylinder_tank(tank, es, edge_length_m=R / 3, edge_fraction=0.25, electrode_grading=1.0)
     check_mesh(m, min_angle_deg=1.0, max_aspect_ratio=60.0)
     assert m.to_trimesh().is_watertight
     assert m.electrodes == tuple(range(1, n + 3))
