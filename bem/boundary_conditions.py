@@ -133,10 +133,13 @@ class WaterBoundary:
 
         Parameters
         ----------
-        sensor : LabelledMesh
-            Closed mesh with electrode labels, normals into the water.
+        sensor : LabelledMesh or None
+            Closed mesh with electrode labels, normals into the water; ``None``
+            for a scene without a sensor (electrodes on the tank or objects).
         tank : LabelledMesh, optional
             The water box, normals out of the water; ``None``: unbounded water.
+            Its electrode labels (wall and floor electrodes) are kept, as are
+            the objects'; electrode numbers run 1..n over the whole scene.
         objects : tuple of LabelledMesh
             Closed object meshes, normals into the water.
         conducting : tuple of bool
@@ -145,24 +148,27 @@ class WaterBoundary:
             Refuse open, badly oriented or degenerate meshes and unusable electrodes.
         """
         conducting = tuple(conducting) + (False,) * (len(objects) - len(conducting))
+        parts = ([] if sensor is None else [sensor]) + ([] if tank is None else [tank]) + list(objects)
+        names = (([] if sensor is None else ["sensor"]) + ([] if tank is None else ["tank"])
+                 + [f"object_{i}" for i in range(1, len(objects) + 1)])
+        flip = ([] if sensor is None else [True]) + ([] if tank is None else [False]) + [True] * len(objects)
+        if not parts:
+            raise BoundaryError("nothing bounds the water: no sensor, no tank, no object")
         if check:
             from meshes.quality import check_mesh
 
-            check_mesh(sensor, min_angle_deg=1.0, max_aspect_ratio=60.0, name="sensor mesh")
-            check_electrodes(sensor, emitter)
-            if tank is not None:
-                check_mesh(tank, min_angle_deg=1.0, max_aspect_ratio=60.0, name="tank mesh")
-            for i, obj in enumerate(objects, start=1):
-                check_mesh(obj, min_angle_deg=1.0, max_aspect_ratio=60.0, name=f"object_{i} mesh")
-        parts = [sensor] + ([] if tank is None else [tank]) + list(objects)
-        names = ["sensor"] + ([] if tank is None else ["tank"]) + [f"object_{i}" for i in range(1, len(objects) + 1)]
-        flip = [True] + ([] if tank is None else [False]) + [True] * len(objects)
+            for mesh, name in zip(parts, names):
+                check_mesh(mesh, min_angle_deg=1.0, max_aspect_ratio=60.0, name=f"{name} mesh")
+            if sensor is not None and len(parts) == 1:
+                check_electrodes(sensor, emitter)
+            else:  # electrodes anywhere in the scene: numbered 1..n over all parts
+                check_electrodes(concatenate(parts), emitter, name="scene")
         tris, electrode, conductor, part = [], [], [], []
         conductor_names = []
         for p, (mesh, reverse) in enumerate(zip(parts, flip)):
             t = mesh.triangles_m
             tris.append(t[:, ::-1] if reverse else t)
-            electrode.append(mesh.electrode if p == 0 else np.zeros(mesh.n_triangles, np.int64))
+            electrode.append(mesh.electrode)
             c = -1
             if p >= len(parts) - len(objects) and conducting[p - (len(parts) - len(objects))]:
                 c = len(conductor_names)
@@ -177,7 +183,7 @@ class WaterBoundary:
             part_names=tuple(names),
             unbounded=tank is None,
             mesh=concatenate(parts),
-            n_sensor=sensor.n_triangles,
+            n_sensor=0 if sensor is None else sensor.n_triangles,
             n_conductors=len(conductor_names),
             conductor_names=tuple(conductor_names),
         )

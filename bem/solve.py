@@ -290,11 +290,18 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
 
         check_object_materials(scene.objects)
         sm = mesh_scene(scene, edge_length_m, **mesh_options)
+        emitter = scene.sensor.emitter if scene.sensor is not None else 1
         boundary = WaterBoundary.from_meshes(
             sm.sensor_in_tank, sm.tank, sm.objects, tuple(o.is_conducting for o in scene.objects),
-            emitter=scene.sensor.emitter)
-        emitter = scene.sensor.emitter
+            emitter=emitter)
         t_mesh = time.perf_counter() - t0
+        if scene.sensor is None:  # electrodes on the tank only: the plain surface solve
+            solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+            solution.info["mesh_s"] = t_mesh
+            solution.info["seconds"] = time.perf_counter() - t0
+            if contact_impedance_ohm_m2 is not None:
+                solution.info["contact_impedance_ohm_m2"] = solution.z_c.tolist()
+            return solution
     from .axisymmetric import is_axisymmetric_sensor, solve_axisymmetric
 
     if axisymmetric is None:
@@ -310,7 +317,7 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     else:
         solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
     solution.info["mesh_s"] = t_mesh
-    if edge_correction and not isinstance(scene, LabelledMesh):
+    if edge_correction and not isinstance(scene, LabelledMesh) and not scene.electrodes:
         from .edge_correction import free_space_correction
 
         t1 = time.perf_counter()

@@ -1,4 +1,8 @@
-"""A scene: the sensor at a pose, optionally in a tank, with objects.
+"""A scene: the sensor at a pose, optionally in a tank, with objects and electrodes of its own.
+
+The sensor may be absent (``None``): a tank with field electrodes in its
+walls (:mod:`meshes.surface_electrodes`) is a scene too. Scene electrodes are
+numbered after the sensor's electrodes.
 
 A scene is geometry only. The water's conductivity and the electrodes'
 contact impedance are physics and are passed to the solvers separately.
@@ -20,6 +24,8 @@ from dataclasses import dataclass, field, replace
 from .objects import SceneObject
 from .pose import Pose
 from .sensor import SensorDescription
+from .cylinder_tank import CylinderTank
+from .surface_electrodes import SurfaceElectrode
 from .tank import Tank
 
 __all__ = ["Scene"]
@@ -27,12 +33,29 @@ __all__ = ["Scene"]
 
 @dataclass(frozen=True)
 class Scene:
-    """Sensor + pose (tank frame) + optional tank (``None``: unbounded water) + objects."""
+    """Sensor (or ``None``) + pose (tank frame) + optional tank (``None``: unbounded water) + objects + electrodes."""
 
-    sensor: SensorDescription
+    sensor: SensorDescription | None
     pose: Pose = field(default_factory=Pose)
-    tank: Tank | None = None
+    tank: Tank | CylinderTank | None = None
     objects: tuple[SceneObject, ...] = ()
+    electrodes: tuple[SurfaceElectrode, ...] = ()
+
+    def __post_init__(self):
+        object.__setattr__(self, "electrodes", tuple(self.electrodes))
+        if self.sensor is None and not self.electrodes:
+            raise ValueError("a scene needs a sensor or electrodes of its own")
+        if self.electrodes and self.tank is None:
+            raise ValueError("scene electrodes sit on a tank's boundary: the scene has no tank")
+
+    @property
+    def n_sensor_electrodes(self) -> int:
+        return 0 if self.sensor is None else self.sensor.n_electrodes
+
+    @property
+    def n_electrodes(self) -> int:
+        """All electrodes: the sensor's (1..n_s) and the scene's (n_s + 1...)."""
+        return self.n_sensor_electrodes + len(self.electrodes)
 
     @property
     def is_unbounded(self) -> bool:

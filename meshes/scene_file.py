@@ -64,12 +64,14 @@ from .objects import Box, Cylinder, Sphere, parse_material
 from .pose import Pose
 from .scene import Scene
 from .sensor import load_sensor
+from .cylinder_tank import CylinderTank
+from .surface_electrodes import DiscElectrode, PlateElectrode
 from .tank import Tank
 
 __all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
 
 #: tables that carry physics or run settings rather than geometry; passed through
-SETTINGS_TABLES = ("water", "bem", "psm", "contact")
+SETTINGS_TABLES = ("water", "bem", "psm", "contact", "protocol")
 
 _SHAPES = {
     "sphere": (Sphere, {"radius_m"}),
@@ -116,21 +118,90 @@ def load_scene(path: str | Path) -> Scene:
     """
     path = Path(path)
     data = _read_toml(path)
-    _unknown(path, "the file", data, {"tank", "sensor", "objects", *SETTINGS_TABLES})
+    _unknown(path, "the file", data, {"tank", "sensor", "objects", "electrodes", "electrode_ring", *SETTINGS_TABLES})
     try:
         tank = None
-        if "tank" in data:
+        if "tank" in data and str(data["tank"].get("shape", "box")) == "cylinder":
             t = data["tank"]
-            _unknown(path, "[tank]", t, {"size_m", "water_depth_m"})
+            _unknown(path, "[tank]", t, {"shape", "radius_m", "height_m", "water_depth_m"})
+            for key in ("radius_m", "height_m"):
+                if key not in t:
+                    raise SceneFileError(f"{path}: a cylindrical [tank] needs {key}")
+            depth = t.get("water_depth_m")
+            tank = CylinderTank(_floats(path, "[tank] radius_m", t["radius_m"], 1)[0],
+                                _floats(path, "[tank] height_m", t["height_m"], 1)[0],
+                                None if depth is None else _floats(path, "[tank] water_depth_m", depth, 1)[0])
+        elif "tank" in data:
+            t = data["tank"]
+            _unknown(path, "[tank]", t, {"shape", "size_m", "water_depth_m"})
+            if str(t.get("shape", "box")) != "box":
+                raise SceneFileError(f"{path}: [tank] shape {t.get('shape')!r}: expected box or cylinder")
             if "size_m" not in t:
                 raise SceneFileError(f"{path}: [tank] needs size_m = [Lx, Ly, Lz] (inner size, m)")
             depth = t.get("water_depth_m")
             tank = Tank(_floats(path, "[tank] size_m", t["size_m"], 3),
                         None if depth is None else _floats(path, "[tank] water_depth_m", depth, 1)[0])
 
+        electrodes = _scene_electrodes(path, data, tank)
         if "sensor" not in data:
-            raise SceneFileError(f"{path}: a [sensor] table is needed (preset = \"angels-4\" or file = \"...\")")
-        s = data["sensor"]
+            if not electrodes:
+                raise SceneFileError(f"{path}: a [sensor] table is needed (preset = \"angels-4\" or file = \"...\"), "
+                                     "or electrodes of the scene ([[electrodes]], [electrode_ring])")
+            sensor, pose = None, Pose()
+        else:
+            sensor, pose = _sensor(path, data["sensor"])
+        objects = _objects(path, data)
+        return Scene(sensor=sensor, pose=pose, tank=tank, objects=tuple(objects), electrodes=tuple(electrodes))
+    except SceneFileError:
+        raise
+    except ValueError as exc:  # from the geometry types: prefix the file
+        raise SceneFileError(f"{path}: {exc}") from None
+
+
+def _scene_electrodes(path, data, tank) -> list:
+    """``[electrode_ring]`` (n discs evenly round a cylindrical tank's wall) then ``[[electrodes]]``, in order."""
+    out = []
+    if "electrode_ring" in data:
+        r = data["electrode_ring"]
+        _unknown(path, "[electrode_ring]", r, {"n", "z_m", "radius_m", "first_angle_rad", "clockwise", "name"})
+        if not isinstance(tank, CylinderTank):
+            raise SceneFileError(f"{path}: [electrode_ring] needs a cylindrical [tank] (shape = \"cylinder\")")
+        for key in ("n", "z_m", "radius_m"):
+            if key not in r:
+                raise SceneFileError(f"{path}: [electrode_ring] needs {key}")
+        n = int(r["n"])
+        if n < 1:
+            raise SceneFileError(f"{path}: [electrode_ring] n must be >= 1, got {n}")
+        sign = -1.0 if r.get("clockwise", False) else 1.0
+        phi = float(r.get("first_angle_rad", 0.0)) + sign * 2 * math.pi * np.arange(n) / n
+        z = _floats(path, "[electrode_ring] z_m", r["z_m"], 1)[0]
+        a = _floats(path, "[electrode_ring] radius_m", r["radius_m"], 1)[0]
+        name = str(r.get("name", "ring"))
+        R = tank.radius_m
+        out += [DiscElectrode((R * math.cos(p), R * math.sin(p), z), a, f"{name} {k}") for k, p in enumerate(phi, 1)]
+    entries = data.get("electrodes", [])
+    if not isinstance(entries, list):
+        raise SceneFileError(f"{path}: electrodes must be an array of tables ([[electrodes]])")
+    for i, e in enumerate(entries, start=1):
+        where = f"[[electrodes]] number {i}"
+        _unknown(path, where, e, {"shape", "centre_m", "radius_m", "region", "name"})
+        shape = str(e.get("shape", "disc"))
+        if shape == "disc":
+            if "centre_m" not in e or "radius_m" not in e:
+                raise SceneFileError(f"{path}: {where} (disc) needs centre_m and radius_m")
+            out.append(DiscElectrode(_floats(path, f"{where} centre_m", e["centre_m"], 3),
+                                     _floats(path, f"{where} radius_m", e["radius_m"], 1)[0], str(e.get("name", ""))))
+        elif shape == "plate":
+            if "region" not in e:
+                raise SceneFileError(f"{path}: {where} (plate) needs region = \"floor\" (a tank region)")
+            out.append(PlateElectrode(str(e["region"]), str(e.get("name", ""))))
+        else:
+            raise SceneFileError(f"{path}: {where} has shape {shape!r}; expected disc or plate")
+    return out
+
+
+def _sensor(path, s):
+    if True:
         _unknown(path, "[sensor]", s, {"preset", "file", "pose", "emitter"})
         if ("preset" in s) == ("file" in s):
             raise SceneFileError(f"{path}: [sensor] needs exactly one of preset = \"...\" or file = \"...\"")
@@ -138,7 +209,11 @@ def load_scene(path: str | Path) -> Scene:
         if "emitter" in s:
             sensor = sensor.with_emitter(int(s["emitter"]))
         pose = Pose(*_floats(path, "[sensor] pose", s.get("pose", [0, 0, 0, 0]), 4))
+    return sensor, pose
 
+
+def _objects(path, data) -> list:
+    if True:
         objects = []
         entries = data.get("objects", [])
         if not isinstance(entries, list):
@@ -160,11 +235,7 @@ def load_scene(path: str | Path) -> Scene:
                 value = _floats(path, f"{where} {key}", o[key], n)
                 kwargs[key] = value if n == 3 else value[0]
             objects.append(cls(**kwargs))
-        return Scene(sensor=sensor, pose=pose, tank=tank, objects=tuple(objects))
-    except SceneFileError:
-        raise
-    except ValueError as exc:  # from the geometry types: prefix the file
-        raise SceneFileError(f"{path}: {exc}") from None
+    return objects
 
 
 def load_scene_settings(path: str | Path) -> dict:

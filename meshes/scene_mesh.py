@@ -38,6 +38,7 @@ from .object_mesh import mesh_object
 from .objects import Box, Cylinder, Sphere
 from .pose import Pose
 from .scene import Scene
+from .cylinder_tank import CylinderTank
 from .tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
@@ -152,8 +153,10 @@ def scene_problems(scene: Scene) -> list[str]:
     """Every reason why the scene cannot be simulated (empty list: the scene is fine)."""
     problems = []
     s = scene.sensor
-    core = sensor_axis_points_m(scene)
     tank = scene.tank
+    if s is None:
+        return _sensorless_problems(scene)
+    core = sensor_axis_points_m(scene)
     if tank is not None:
         # the capsule is inside the (convex) water box iff both core ends are >= radius from every plane
         gap = tank.distance_to_boundary_m(core).min(axis=0) - s.radius_m
@@ -184,14 +187,32 @@ def scene_problems(scene: Scene) -> list[str]:
     return problems
 
 
+def _sensorless_problems(scene: Scene) -> list[str]:
+    """Objects out of the water or touching each other, in a scene without a sensor."""
+    problems = []
+    tank = scene.tank
+    names = tank.region_names if hasattr(tank, "region_names") else TANK_REGIONS
+    for i, obj in enumerate(scene.objects, start=1):
+        gap = tank.distance_to_boundary_m(_object_extreme_points_m(obj)).min(axis=0)
+        crossings = _boundary_crossings(gap, names)
+        if crossings:
+            problems.append(f"{_object_name(i, obj)} {crossings}")
+    for i, a in enumerate(scene.objects, start=1):
+        for j, b in enumerate(scene.objects[i:], start=i + 1):
+            if isinstance(a, Sphere) and isinstance(b, Sphere):
+                if np.linalg.norm(np.subtract(a.centre_m, b.centre_m)) <= a.radius_m + b.radius_m + _TOUCH_M:
+                    problems.append(f"{_object_name(i, a)} and {_object_name(j, b)} intersect or touch")
+    return problems
+
+
 #: gaps (m) below this count as contact: a solver cannot separate touching surfaces
 _TOUCH_M = 1e-9
 
 
-def _boundary_crossings(gap_m: np.ndarray) -> str:
+def _boundary_crossings(gap_m: np.ndarray, names=TANK_REGIONS) -> str:
     """'is out of the water across the wall_x+ (by 0.01 m) and touches the floor', or ''."""
-    out = [f"the {name} (by {-g:.3g} m)" for name, g in zip(TANK_REGIONS, gap_m) if g < -_TOUCH_M]
-    touch = [f"the {name}" for name, g in zip(TANK_REGIONS, gap_m) if abs(g) <= _TOUCH_M]
+    out = [f"the {name} (by {-g:.3g} m)" for name, g in zip(names, gap_m) if g < -_TOUCH_M]
+    touch = [f"the {name}" for name, g in zip(names, gap_m) if abs(g) <= _TOUCH_M]
     text = []
     if out:
         text.append("is out of the water across " + ", ".join(out))
@@ -230,23 +251,25 @@ class SceneMesh:
         One mesh per object, tank frame, regions ``"object_1"``, ...
     """
 
-    sensor: LabelledMesh
+    sensor: LabelledMesh | None
     pose: Pose
     tank: LabelledMesh | None = None
     objects: tuple[LabelledMesh, ...] = ()
 
     @property
-    def sensor_in_tank(self) -> LabelledMesh:
-        """The sensor mesh moved to its pose (tank frame)."""
-        return self.sensor.transformed(self.pose)
+    def sensor_in_tank(self) -> LabelledMesh | None:
+        """The sensor mesh moved to its pose (tank frame); ``None`` without a sensor."""
+        return None if self.sensor is None else self.sensor.transformed(self.pose)
 
     @property
     def n_triangles(self) -> int:
-        return self.sensor.n_triangles + (self.tank.n_triangles if self.tank else 0) + sum(o.n_triangles for o in self.objects)
+        return ((self.sensor.n_triangles if self.sensor is not None else 0) + (self.tank.n_triangles if self.tank else 0)
+                + sum(o.n_triangles for o in self.objects))
 
     def combined(self) -> LabelledMesh:
         """All parts in the tank frame: the sensor first, then the tank, then the objects."""
-        parts = [self.sensor_in_tank] + ([self.tank] if self.tank is not None else []) + list(self.objects)
+        parts = (([] if self.sensor is None else [self.sensor_in_tank]) + ([self.tank] if self.tank is not None else [])
+                 + list(self.objects))
         return concatenate(parts)
 
 
@@ -286,6 +309,9 @@ def mesh_scene(scene: Scene, edge_length_m: float | None = None, *, tank_edge_le
 
     if check:
         check_scene(scene)
+    if scene.sensor is None or isinstance(scene.tank, CylinderTank) or scene.electrodes:
+        return _mesh_electrode_scene(scene, edge_length_m, tank_edge_length_m, tank_grading, tank_focus_m,
+                                     object_edge_length_m, **sensor_options)
     sensor = mesh_sensor(scene.sensor, edge_length_m=edge_length_m, **sensor_options)
     if sensor.region_names != ("sensor",) and len(sensor.region_names) == 1:
         sensor = sensor.with_region_names(("sensor",))
@@ -294,6 +320,38 @@ def mesh_scene(scene: Scene, edge_length_m: float | None = None, *, tank_edge_le
         focus = sensor_axis_points_m(scene, 9) if tank_focus_m is None else tank_focus_m
         h_tank = default_tank_edge_length_m(scene.sensor) if tank_edge_length_m is None else tank_edge_length_m
         tank = mesh_tank(scene.tank, h_tank, focus, grading=tank_grading)
+    objects = tuple(
+        mesh_object(obj, object_edge_length_m, region_name=f"object_{i}") for i, obj in enumerate(scene.objects, start=1)
+    )
+    return SceneMesh(sensor=sensor, pose=scene.pose, tank=tank, objects=objects)
+
+
+def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_grading, tank_focus_m,
+                          object_edge_length_m, edge_fraction=None, electrode_grading=None,
+                          **sensor_options) -> SceneMesh:
+    """A scene with electrodes on its tank, or a cylindrical tank, or no sensor."""
+    from .cylinder_tank_mesh import mesh_cylinder_tank
+    from .sensor_mesh import mesh_sensor
+    from .surface_electrodes import DEFAULT_EDGE_FRACTION, DEFAULT_ELECTRODE_GRADING
+
+    sensor = None
+    focus = [] if tank_focus_m is None else [np.asarray(tank_focus_m, float).reshape(-1, 3)]
+    if scene.sensor is not None:
+        sensor = mesh_sensor(scene.sensor, edge_length_m=edge_length_m, **sensor_options)
+        if sensor.region_names != ("sensor",) and len(sensor.region_names) == 1:
+            sensor = sensor.with_region_names(("sensor",))
+        if tank_focus_m is None:
+            focus.append(sensor_axis_points_m(scene, 9))
+    if tank_focus_m is None:
+        focus += [_object_extreme_points_m(o) for o in scene.objects]
+    if not isinstance(scene.tank, CylinderTank):
+        raise SceneError([f"electrodes on a {type(scene.tank).__name__} are not meshed yet: use a cylindrical tank"])
+    tank = mesh_cylinder_tank(
+        scene.tank, scene.electrodes, tank_edge_length_m, np.concatenate(focus) if focus else None,
+        grading=tank_grading if tank_grading != DEFAULT_TANK_GRADING else 0.5,
+        edge_fraction=DEFAULT_EDGE_FRACTION if edge_fraction is None else edge_fraction,
+        electrode_grading=DEFAULT_ELECTRODE_GRADING if electrode_grading is None else electrode_grading,
+        first_label=scene.n_sensor_electrodes + 1)
     objects = tuple(
         mesh_object(obj, object_edge_length_m, region_name=f"object_{i}") for i, obj in enumerate(scene.objects, start=1)
     )

@@ -153,7 +153,8 @@ def _unique_edges(tri: np.ndarray) -> np.ndarray:
 
 
 def mesh_convex_polygon(boundary_uv: np.ndarray, size_uv: Callable[[np.ndarray], np.ndarray],
-                        n_smoothing: int = 25) -> tuple[np.ndarray, np.ndarray]:
+                        n_smoothing: int = 25, fixed_uv: np.ndarray | None = None,
+                        allowed_uv: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Triangulate a convex polygon whose boundary nodes are given and kept.
 
     Parameters
@@ -165,22 +166,33 @@ def mesh_convex_polygon(boundary_uv: np.ndarray, size_uv: Callable[[np.ndarray],
         Target edge length at points (N, 2).
     n_smoothing : int
         Distmesh smoothing steps for the interior nodes.
+    fixed_uv : (M, 2) array, optional
+        Interior nodes that are kept exactly (e.g. the rim of an electrode);
+        they follow ``boundary_uv`` in the output.
+    allowed_uv : callable, optional
+        True where a free interior node may lie (e.g. not too near a fixed
+        rim); free nodes elsewhere are dropped or stay where they were.
 
     Returns
     -------
     points_uv : (N, 2) array
-        ``boundary_uv`` followed by the interior nodes.
+        ``boundary_uv``, then ``fixed_uv``, then the free interior nodes.
     triangles : (T, 3) int array
         Counter-clockwise triangles.
     """
-    boundary = np.asarray(boundary_uv, dtype=float)
+    sides = _polygon_corners(np.asarray(boundary_uv, dtype=float))
+    fixed = np.zeros((0, 2)) if fixed_uv is None else np.asarray(fixed_uv, dtype=float).reshape(-1, 2)
+    boundary = np.concatenate([np.asarray(boundary_uv, dtype=float), fixed])
     n_fix = len(boundary)
-    sides = _polygon_corners(boundary)
     lo, hi = boundary.min(axis=0), boundary.max(axis=0)
     interior = _quadtree_points(lo, hi, size_uv)
 
+    def ok_place(p):
+        ok = _signed_distance_inside(p, sides) > 0.45 * size_uv(p)
+        return ok & allowed_uv(p) if allowed_uv is not None and len(p) else ok
+
     def keep_clear(p):  # interior nodes too close to the boundary make slivers
-        return p[_signed_distance_inside(p, sides) > 0.45 * size_uv(p)] if len(p) else p
+        return p[ok_place(p)] if len(p) else p
 
     interior = keep_clear(interior)
     bars = None
@@ -200,6 +212,8 @@ def mesh_convex_polygon(boundary_uv: np.ndarray, size_uv: Callable[[np.ndarray],
         moved = interior + 0.2 * total[n_fix:]
         # a node that would leave the polygon (or come too close to its sides) stays where it was
         ok = _signed_distance_inside(moved, sides) > 0.2 * size_uv(moved)
+        if allowed_uv is not None:
+            ok &= allowed_uv(moved)
         interior = np.where(ok[:, None], moved, interior)
     interior = keep_clear(interior)
     points = np.concatenate([boundary, interior])

@@ -44,6 +44,10 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
 
     Example: esense diagnose run.csv --model psm -o diag/
     """
+    from validation.transfer.cli import all_transfer_logs, run_transfer_logs  # transfer logs: their own diagnosis
+
+    if all_transfer_logs(logs):
+        return run_transfer_logs(logs, outdir, positions=True)
     from validation.diagnosis.observations import DiagnosisInputError, from_bench_logs
     from validation.diagnosis.pipeline import diagnose as run_diagnosis
     from validation.diagnosis.pipeline import parse_effects

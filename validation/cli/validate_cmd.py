@@ -133,6 +133,10 @@ def print_summary(results, paths, echo=click.echo) -> None:
 def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_length, stride, near_wall,
              near_object, no_potential, outdir, quiet):
     """Compare BEM and PSM receiver currents with bench LOGS (bench-log CSV files); write a report to OUTDIR."""
+    from validation.transfer.cli import all_transfer_logs, run_transfer_logs  # transfer logs: their own comparison
+
+    if all_transfer_logs(logs):
+        return run_transfer_logs(logs, outdir, positions=False)
     import sys
 
     from meshes.render import offscreen_backend

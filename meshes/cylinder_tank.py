@@ -1,0 +1,74 @@
+"""A cylindrical tank: radius, height and water depth, axis vertical.
+
+Tank frame: the axis is the z axis, the origin at mid-height of the tank's
+inner volume (as for the box :class:`meshes.tank.Tank`), floor at
+``z = -height/2``, free surface at ``-height/2 + water_depth``. Walls, floor
+and free surface are insulating unless a scene puts electrodes on them
+(:mod:`meshes.surface_electrodes`).
+
+Example
+-------
+>>> from meshes.cylinder_tank import CylinderTank
+>>> t = CylinderTank(radius_m=0.15, height_m=0.3, water_depth_m=0.3)
+>>> t.floor_z_m, t.free_surface_z_m, t.region_names
+(-0.15, 0.15, ('wall', 'floor', 'free_surface'))
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["CylinderTank", "CYLINDER_TANK_REGIONS"]
+
+#: names of the cylindrical tank's boundary regions, in the order of the face labels
+CYLINDER_TANK_REGIONS = ("wall", "floor", "free_surface")
+
+
+@dataclass(frozen=True)
+class CylinderTank:
+    """Inner radius and height (m) of a vertical cylindrical tank, and its water depth (default: full)."""
+
+    radius_m: float
+    height_m: float
+    water_depth_m: float | None = None
+
+    def __post_init__(self):
+        r, h = float(self.radius_m), float(self.height_m)
+        if not (np.isfinite(r) and np.isfinite(h) and r > 0 and h > 0):
+            raise ValueError(f"cylindrical tank: radius and height must be positive (m), got {self.radius_m}, "
+                             f"{self.height_m}")
+        object.__setattr__(self, "radius_m", r)
+        object.__setattr__(self, "height_m", h)
+        depth = h if self.water_depth_m is None else float(self.water_depth_m)
+        if not 0 < depth <= h + 1e-12:
+            raise ValueError(f"cylindrical tank: water depth {depth} m must lie in (0, height = {h}]")
+        object.__setattr__(self, "water_depth_m", depth)
+
+    @property
+    def region_names(self) -> tuple[str, ...]:
+        return CYLINDER_TANK_REGIONS
+
+    @property
+    def floor_z_m(self) -> float:
+        return -0.5 * self.height_m
+
+    @property
+    def free_surface_z_m(self) -> float:
+        return self.floor_z_m + self.water_depth_m
+
+    @property
+    def water_bounds_m(self) -> np.ndarray:
+        """(2, 3): lower and upper corners of the water's bounding box."""
+        r = self.radius_m
+        return np.array([[-r, -r, self.floor_z_m], [r, r, self.free_surface_z_m]])
+
+    def distance_to_boundary_m(self, points_m: np.ndarray) -> np.ndarray:
+        """Distance (..., 3) of each point to the wall, floor and free surface (negative: outside)."""
+        p = np.asarray(points_m, dtype=float)
+        return np.stack([self.radius_m - np.hypot(p[..., 0], p[..., 1]), p[..., 2] - self.floor_z_m,
+                         self.free_surface_z_m - p[..., 2]], axis=-1)
+
+    def contains(self, points_m: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+        """True where the points lie in the water at least ``margin_m`` from every boundary."""
+        return np.all(self.distance_to_boundary_m(points_m) >= margin_m, axis=-1)

@@ -1,0 +1,141 @@
+"""Electrodes on the boundaries of a scene: discs flush with a tank's wall or floor, and plates.
+
+A sensor carries its own electrodes (:mod:`meshes.sensor`). A scene may also
+have electrodes of its own, on the tank (field electrodes in the walls, a
+ground electrode on the floor, a plate covering a whole wall):
+
+* :class:`DiscElectrode`: a disc of ``radius_m`` centred at ``centre_m`` (tank
+  frame), flush with the boundary the centre lies on. A screw head or a small
+  button is modelled by the disc of its wetted radius.
+* :class:`PlateElectrode`: a whole boundary region of the tank (``"floor"``,
+  ``"wall_x+"``, ``"free_surface"`` ...) is one electrode.
+
+Scene electrodes are numbered after the sensor's: with a sensor of n
+electrodes, the scene's first electrode is n + 1 (1 without a sensor).
+
+Meshes are graded towards every electrode edge, where the current density is
+singular (~ r^-1/2): :func:`electrode_size_function` gives the target edge
+length ``h(p) = min(h_far, min_k(h_k + grading * d_k(p)))`` with ``d_k`` the
+distance to electrode k's rim and ``h_k = edge_fraction * radius_k``.
+
+Example
+-------
+>>> import numpy as np
+>>> from meshes.surface_electrodes import DiscElectrode, electrode_size_function
+>>> e = DiscElectrode(centre_m=(0.15, 0.0, -0.05), radius_m=0.004)
+>>> h = electrode_size_function([e], h_far_m=0.03)
+>>> h(np.array([[0.15, 0.004, -0.05], [0.15, 0.1, 0.1]])).round(4).tolist()
+[0.001, 0.03]
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+__all__ = ["DiscElectrode", "PlateElectrode", "SurfaceElectrode", "electrode_size_function",
+           "DEFAULT_EDGE_FRACTION", "DEFAULT_ELECTRODE_GRADING", "disc_rim_nodes", "rim_offsets"]
+
+#: edge length at an electrode's rim, as a fraction of its radius
+DEFAULT_EDGE_FRACTION = 0.25
+#: growth of the edge length per metre away from an electrode rim
+DEFAULT_ELECTRODE_GRADING = 0.5
+
+
+@dataclass(frozen=True)
+class DiscElectrode:
+    """A disc electrode of radius ``radius_m`` flush with the tank boundary at ``centre_m`` (tank frame)."""
+
+    centre_m: tuple[float, float, float]
+    radius_m: float
+    name: str = ""
+
+    def __post_init__(self):
+        c = tuple(float(v) for v in self.centre_m)
+        if len(c) != 3 or not all(np.isfinite(c)):
+            raise ValueError(f"disc electrode {self.name!r}: centre_m must be 3 finite numbers, got {self.centre_m}")
+        object.__setattr__(self, "centre_m", c)
+        r = float(self.radius_m)
+        if not (np.isfinite(r) and r > 0):
+            raise ValueError(f"disc electrode {self.name!r}: radius_m must be positive, got {self.radius_m}")
+        object.__setattr__(self, "radius_m", r)
+
+
+@dataclass(frozen=True)
+class PlateElectrode:
+    """A whole boundary region of the tank (``"floor"``, ``"wall_x+"``, ``"free_surface"``...) as one electrode."""
+
+    region: str
+    name: str = ""
+
+
+SurfaceElectrode = DiscElectrode | PlateElectrode
+
+
+def electrode_size_function(electrodes: Sequence, h_far_m: float, edge_fraction: float = DEFAULT_EDGE_FRACTION,
+                            grading: float = DEFAULT_ELECTRODE_GRADING,
+                            base: Callable[[np.ndarray], np.ndarray] | None = None):
+    """Target edge length h(p) (m) at points (..., 3), graded towards every disc electrode's rim.
+
+    ``base`` (another size function) is combined by the minimum; plates add
+    no grading here (their edges are the region's edges).
+    """
+    discs = [e for e in electrodes if isinstance(e, DiscElectrode)]
+    if not h_far_m > 0:
+        raise ValueError(f"h_far_m must be positive, got {h_far_m}")
+    centres = np.array([d.centre_m for d in discs], float).reshape(-1, 3)
+    radii = np.array([d.radius_m for d in discs], float)
+    h_edge = edge_fraction * radii
+
+    def h(p):
+        p = np.asarray(p, dtype=float)
+        q = p.reshape(-1, 3)
+        out = np.full(len(q), float(h_far_m))
+        if len(discs):
+            d = np.abs(np.linalg.norm(q[:, None, :] - centres[None], axis=2) - radii[None])
+            out = np.minimum(out, np.min(h_edge[None] + grading * d, axis=1))
+        if base is not None:
+            out = np.minimum(out, base(q))
+        return out.reshape(p.shape[:-1])
+
+    return h
+
+
+#: radial size of the first element row at a rim, as a fraction of the rim's edge length
+DEFAULT_RIM_FIRST = 1.0 / 8
+#: growth of the radial sizes of the rows away from the rim
+DEFAULT_RIM_GROWTH = 2.0
+
+
+def rim_offsets(h_edge_m: float, first: float = DEFAULT_RIM_FIRST, growth: float = DEFAULT_RIM_GROWTH) -> np.ndarray:
+    """Distances (m) from a rim of the rows of nodes that resolve the edge singularity across it.
+
+    Rows of thin elements (radial size ``first * h_edge`` at the rim, growing
+    geometrically up to about ``h_edge``) follow the rim on both sides: the
+    current density varies as r^-1/2 across the rim and not along it, so the
+    mesh is fine across and ``h_edge`` along it.
+    """
+    out, d, step = [], 0.0, first * h_edge_m
+    while d + step < 0.75 * h_edge_m:
+        d += step
+        out.append(d)
+        step *= growth
+    return np.array(out)
+
+
+def disc_rim_nodes(centre_uv, radius_m: float, h_edge_m: float, n_min: int = 12, rows: bool = True) -> np.ndarray:
+    """(R, N, 2) rows of nodes along a disc's rim in its surface's (u, v) plane; row 0 is the rim.
+
+    The rim polygon's vertices lie on the circle whose inscribed N-gon has the
+    disc's area, so the polygonal electrode has the true area; the further
+    rows (:func:`rim_offsets`) lie inside and outside at the same angles.
+    """
+    n = max(n_min, int(np.ceil(2 * np.pi * radius_m / h_edge_m)))
+    r_eq = radius_m * np.sqrt(2 * np.pi / (n * np.sin(2 * np.pi / n)))
+    t = 2 * np.pi * np.arange(n) / n
+    d = rim_offsets(h_edge_m) if rows else np.zeros(0)
+    d = d[d < 0.5 * r_eq]
+    radii = np.r_[r_eq, r_eq - d, r_eq + d]
+    unit = np.stack([np.cos(t), np.sin(t)], axis=1)
+    return np.asarray(centre_uv, float) + radii[:, None, None] * unit[None]

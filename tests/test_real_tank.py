@@ -1,0 +1,127 @@
+"""Electrodes on a tank, protocols from one K, transfer logs and the EIT .mat reader (small files made here)."""
+import numpy as np
+import pytest
+import scipy.io
+
+from bem.boundary_conditions import WaterBoundary
+from bem.closed_forms import newman_disc_resistance_ohm
+from bem.protocol import adjacent_protocol, drive_impedances_ohm, involves_drive, transfer_impedances_ohm
+from bem.solve import solve, solve_scene
+from meshes import Scene
+from meshes.cylinder_tank import CylinderTank
+from meshes.cylinder_tank_mesh import mesh_cylinder_tank
+from meshes.quality import check_mesh
+from meshes.surface_electrodes import DiscElectrode, PlateElectrode
+from validation.benchlog.errors import BenchLogError
+from validation.transfer import read_transfer_log, write_transfer_log
+from validation.transfer.eit_mat import read_eit_mat
+
+
+def _ring(rng, n, R, z, a):
+    phi = rng.uniform(0, 2 * np.pi) + 2 * np.pi * np.arange(n) / n
+    return [DiscElectrode((R * np.cos(p), R * np.sin(p), z), a) for p in phi]
+
+
+def test_random_cylinder_tank_mesh_is_closed_and_electrodes_have_their_area():
+    rng = np.random.default_rng(3)
+    R, H = rng.uniform(0.08, 0.2), rng.uniform(0.1, 0.3)
+    tank = CylinderTank(R, H, H * rng.uniform(0.7, 1.0))
+    n = int(rng.integers(4, 9))
+    es = _ring(rng, n, R, tank.floor_z_m + 0.3 * tank.water_depth_m, 0.05 * R) + [
+        DiscElectrode((0.0, 0.0, tank.floor_z_m), 0.05 * R), PlateElectrode("free_surface")]
+    m = mesh_cylinder_tank(tank, es, edge_length_m=R / 3, edge_fraction=0.25, electrode_grading=1.0)
+    check_mesh(m, min_angle_deg=1.0, max_aspect_ratio=60.0)
+    assert m.to_trimesh().is_watertight
+    assert m.electrodes == tuple(range(1, n + 3))
+    np.testing.assert_allclose(m.electrode_areas_m2()[:n + 1], np.pi * (0.05 * R) ** 2, rtol=5e-3)  # wall discs: chords of the curved wall
+
+
+def test_electrode_off_the_boundary_is_refused():
+    with pytest.raises(ValueError, match="not on the tank's boundary"):
+        mesh_cylinder_tank(CylinderTank(0.1, 0.1), [DiscElectrode((0.05, 0.0, 0.0), 0.01)])
+
+
+def test_disc_in_plane_against_newman():
+    from validation.studies.disc_electrode import hemisphere_cell
+
+    a, b = 0.01, 0.2
+    cell = hemisphere_cell(a, b, edge_fraction=0.35, grading=0.5, h_far_m=0.05)
+    sol = solve(WaterBoundary.from_meshes(None, tank=cell), 1.0)
+    R = 1 / sol.conductance.K_S[0, 0]
+    assert abs(R / newman_disc_resistance_ohm(a, 1.0, b) - 1) < 0.012
+
+
+def test_protocol_reciprocity_signs_and_contact_impedance():
+    rng = np.random.default_rng(5)
+    tank = CylinderTank(0.1, 0.12)
+    es = _ring(rng, 8, 0.1, -0.01, 0.006)
+    scene = Scene(None, tank=tank, electrodes=es)
+    opts = dict(tank_edge_length_m=0.04, edge_fraction=0.5, electrode_grading=1.0)
+    K = solve_scene(scene, 1.0, **opts).conductance.K_S
+    d, m = adjacent_protocol(range(1, 9))
+    Z = transfer_impedances_ohm(K, d, m)
+    np.testing.assert_allclose(Z, Z.T, rtol=5e-3)   # reciprocity (collocation: K symmetric to ~1e-3)
+    assert np.all(Z[~involves_drive(d, m)] < 0)   # V(m) - V(m+1) < 0 away from the drive
+    zc = 0.01
+    Kc = solve_scene(scene, 1.0, contact_impedance_ohm_m2=zc, **opts).conductance.K_S
+    extra = drive_impedances_ohm(Kc, d) - drive_impedances_ohm(K, d)
+    # two electrodes in series, each z_c / area (the current density is not uniform: within 10 %)
+    np.testing.assert_allclose(extra, 2 * zc / (np.pi * 0.006 ** 2), rtol=0.1)
+    Zc = transfer_impedances_ohm(Kc, d, m)
+    off = ~involves_drive(d, m)
+    assert np.max(np.abs(Zc[off] / Z[off] - 1)) < 0.05   # four-electrode readings hardly see z_c
+
+
+def _mat(tmp_path, n=6, swap=True):
+    rng = np.random.default_rng(1)
+    vv = rng.uniform(0.1, 1.0, (n, n))
+    for k in range(n):
+        for mm in range(n):
+            if {k, (k + 1) % n} & {mm, (mm + 1) % n}:
+                vv[k, mm] = 0.0
+    cur = np.full((n, 1), 4.6e-3) * (1 + 1e-4 * rng.standard_normal((n, 1)))
+    volt = rng.uniform(2.9, 3.9, (n, 1))
+    p = tmp_path / "ph.mat"
+    scipy.io.savemat(p, {"vvRef": vv.reshape(-1, 1), ("voltsRef" if swap else "currRef"): cur,
+                         ("currRef" if swap else "voltsRef"): volt, "description": "test"})
+    return p, vv, cur.ravel(), volt.ravel()
+
+
+def test_eit_mat_reader_conventions(tmp_path):
+    p, vv, cur, volt = _mat(tmp_path)
+    rows, meta = read_eit_mat(p)
+    assert meta["current_field"]["Ref"] == "voltsRef"
+    n = 6
+    assert len(rows) == n + n * (n - 3)
+    drive_rows = [r for r in rows if r[1:3] == r[3:5]]
+    np.testing.assert_allclose([r[5] for r in drive_rows], volt)
+    r = [r for r in rows if r[1:3] == (1, 2) and r[3:5] == (5, 4)][0]   # measurement m=4 -> V5 - V4
+    assert r[5] == vv[0, 3] and r[6] == cur[0]
+    write_transfer_log(tmp_path / "t.csv", {"scene": "pail.toml", **meta}, rows)
+    log = read_transfer_log(tmp_path / "t.csv")
+    assert len(log.V_V) == len(rows) and log.setups == ("Ref",)
+
+
+def test_eit_mat_reader_refuses_a_nonzero_drive_entry(tmp_path):
+    p, vv, cur, volt = _mat(tmp_path)
+    vv[0, 0] = 0.5
+    scipy.io.savemat(p, {"vvRef": vv.reshape(-1, 1), "voltsRef": cur[:, None], "currRef": volt[:, None]})
+    with pytest.raises(BenchLogError, match="touches a drive electrode"):
+        read_eit_mat(p)
+
+
+@pytest.mark.parametrize("line,reason", [("Ref,1,1,3,4,0.1,0.001", "itself"), ("Ref,1,2,3,4,nan,0.001", "finite"),
+                                         ("Ref,1,2,3,4,0.1,-1", "I_A"), ("Ref,0,2,3,4,0.1,0.001", "electrode number")])
+def test_transfer_log_reader_is_strict(tmp_path, line, reason):
+    p = tmp_path / "bad.csv"
+    p.write_text('# esense-transfer-log 1\n# meta: {"scene": "s.toml"}\n'
+                 "setup,drive_plus,drive_minus,meas_plus,meas_minus,V_V,I_A\n" + line + "\n")
+    with pytest.raises(BenchLogError, match=reason) as err:
+        read_transfer_log(p)
+    assert err.value.line == 4
+
+
+def test_transfer_log_scene_cannot_leave_its_folder(tmp_path):
+    p = write_transfer_log(tmp_path / "t.csv", {"scene": "../../etc/x.toml"}, [("Ref", 1, 2, 3, 4, 0.1, 1.0)])
+    with pytest.raises(BenchLogError, match="outside"):
+        read_transfer_log(p).scene_path()
