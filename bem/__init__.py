@@ -14,9 +14,6 @@ single_layer, double_layer
 
 A sensor alone in unbounded water is solved by the axisymmetric reduction
 (:mod:`bem.axisymmetric`, within 1e-4 of the full collocation).
-
-The numba kernels (:mod:`bem.operators`) load on first use, so
-``import bem.conductance`` stays light for the PSM.
 """
 from .conductance import ConductanceMatrix, K_from_S, S_from_K, isolate
 from .boundary_conditions import BoundaryError, WaterBoundary

@@ -34,6 +34,13 @@ import time
 import numpy as np
 
 from .boundary_conditions import WaterBoundary
+from .linear_solve import SingularSystemError
+from .operators import TriangleSet, mixed_system_reduced
+from .solution import unit_solutions
+from .system import BemSystem, column_coefficients, contact_impedances
+
+#: collocation points per ring class in :func:`bem.solve.solve_scene`: K within 6e-6 of all of them (angels-4)
+AXISYMMETRIC_TARGETS_PER_CLASS = 16
 
 __all__ = ["ring_classes", "is_axisymmetric_sensor", "solve_axisymmetric"]
 
@@ -73,15 +80,12 @@ def is_axisymmetric_sensor(boundary: WaterBoundary, tol: float = 1e-9) -> bool:
 
 def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                        emitter: int | None = None, targets_per_class: int | None = None):
-    """The BEM solution by the axisymmetric reduction (a :class:`bem.solve.BemSolution`).
+    """The BEM solution by the axisymmetric reduction (a :class:`bem.solution.BemSolution`).
 
     ``targets_per_class``: collocate at that many triangles of each class
     (``None``: all of them, the area-weighted average of the full collocation
     equations; 4 is three times faster and within about 3e-4).
     """
-    from .operators import TriangleSet, mixed_system_reduced
-    from .solve import BemSolution, SingularSystemError, _finish
-    from .system import BemSystem, column_coefficients, contact_impedances
 
     t0 = time.perf_counter()
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
@@ -117,7 +121,7 @@ def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_im
     x = y[cls]
     t2 = time.perf_counter()
     system = BemSystem(matrix=None, rhs=None, scale_m=scale, z_c=z_c, n_conductors=0)
-    solution = _finish(boundary, sigma_S_per_m, system, x, emitter,
+    solution = unit_solutions(boundary, sigma_S_per_m, system, x, emitter,
                        {"assembly_s": t1 - t0, "solve_s": t2 - t1, "method": "axisymmetric reduction",
                         "axisymmetric_classes": n_cls,
                         "collocation_points": int(len(targets))})

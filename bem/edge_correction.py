@@ -39,6 +39,11 @@ import hashlib
 
 import numpy as np
 
+from .axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from .boundary_conditions import WaterBoundary
+from .meridian import meridian_conductance, mesh_meridian
+from .solution import solve
+
 __all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING"]
 
 #: grading of the meridian used for the correction (angels-4: 970 elements, 1.2e-4 of converged, 0.3-0.6 s)
@@ -59,12 +64,10 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         the one the scene is solved with.
     targets_per_class : int, optional
         Collocation points per ring class of the axisymmetric reduction
-        (default: :data:`bem.solve.AXISYMMETRIC_TARGETS_PER_CLASS`).
+        (default: :data:`bem.axisymmetric.AXISYMMETRIC_TARGETS_PER_CLASS`).
     surface_K_S : (n, n) array, optional
         The mesh's free-space K when the caller has just solved it (saves that solve).
     """
-    from .solve import AXISYMMETRIC_TARGETS_PER_CLASS
-
     z = contact_impedance_ohm_m2
     if z is not None:
         z = float(z) if np.ndim(z) == 0 else tuple(np.asarray(z, float).tolist())   # hashable, as given
@@ -89,10 +92,6 @@ def clear_cache() -> None:
 
 
 def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):
-    from .axisymmetric import is_axisymmetric_sensor, solve_axisymmetric
-    from .boundary_conditions import WaterBoundary
-    from .meridian import mesh_meridian, meridian_conductance
-
     if surface_K_S is not None:
         surface = np.asarray(surface_K_S, float)
     else:
@@ -101,8 +100,6 @@ def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):
         if is_axisymmetric_sensor(wb):
             surface = solve_axisymmetric(wb, sigma, z_list, sensor.emitter, targets_per_class=targets_per_class).K_S
         else:   # not ring by ring (not mesh_sensor's): the full collocation of the same mesh
-            from .solve import solve
-
             surface = solve(wb, sigma, z_list, sensor.emitter).K_S
     reference = meridian_conductance(sensor, sigma, z if np.ndim(z) == 0 else list(z),
                                      mesh=mesh_meridian(sensor, grading=MERIDIAN_GRADING)).K_S

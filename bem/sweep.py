@@ -52,10 +52,14 @@ from meshes.pose import Pose, poses_array, rotation_z
 
 from .boundary_conditions import WaterBoundary
 from .conductance import ConductanceMatrix, isolate
+from .edge_correction import free_space_correction
 from .low_rank import right_singular_vectors
 from .memory import check_memory
 from .operators import TriangleSet, mixed_system
-from .solve import factorise, solve_refined
+from .axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from .linear_solve import factorise, solve_refined
+from .solution import solve
+from .solve import check_object_materials
 from .system import column_coefficients, contact_impedances
 
 __all__ = ["PoseSweep"]
@@ -109,7 +113,6 @@ class PoseSweep:
 
         if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
             raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
-        from .solve import check_object_materials
 
         check_object_materials(objects)
         self.sensor = sensor
@@ -139,7 +142,6 @@ class PoseSweep:
         self.timings["sensor_block_s"] = time.perf_counter() - t0
         self._K_correction = np.zeros((self.n, self.n))
         if edge_correction:
-            from .edge_correction import free_space_correction
 
             t0 = time.perf_counter()
             self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
@@ -149,8 +151,6 @@ class PoseSweep:
     def _prepare_free(self):
         """Alone in unbounded water K does not depend on the pose: one solve, as :func:`bem.solve.solve_scene`
         does it (the axisymmetric reduction for a sensor of revolution), and no sensor block at all."""
-        from .axisymmetric import is_axisymmetric_sensor, solve_axisymmetric
-        from .solve import AXISYMMETRIC_TARGETS_PER_CLASS, solve
 
         wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter)
         self.sensor_boundary = wb
