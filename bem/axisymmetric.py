@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 
+from .conductance import check_conductivity
 from .boundary_conditions import WaterBoundary
 from .linear_solve import SingularSystemError
 from .operators import TriangleSet, mixed_system_reduced
@@ -88,8 +89,7 @@ def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_im
     """
 
     t0 = time.perf_counter()
-    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
-        raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    sigma_S_per_m = check_conductivity(sigma_S_per_m)
     n = boundary.n_electrodes
     emitter = n if emitter is None else int(emitter)
     z_c = contact_impedances(contact_impedance_ohm_m2, n)

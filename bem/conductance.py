@@ -44,7 +44,26 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["ConductanceMatrix", "K_from_S", "S_from_K", "isolate"]
+__all__ = ["check_conductivity", "ConductanceMatrix", "K_from_S", "S_from_K", "isolate"]
+
+
+def check_conductivity(sigma_S_per_m, name: str = "sigma_S_per_m") -> float:
+    """The water conductivity as a float, or a ``ValueError`` naming ``name`` if it is not finite and positive.
+
+    >>> check_conductivity(0.0354)
+    0.0354
+    >>> check_conductivity(-1.0, "--sigma")
+    Traceback (most recent call last):
+    ...
+    ValueError: --sigma must be a positive, finite conductivity (S/m), got -1.0
+    """
+    try:
+        sigma = float(sigma_S_per_m)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a conductivity in S/m, got {sigma_S_per_m!r}") from None
+    if not (np.isfinite(sigma) and sigma > 0):
+        raise ValueError(f"{name} must be a positive, finite conductivity (S/m), got {sigma_S_per_m}")
+    return sigma
 
 
 def S_from_K(K: np.ndarray, emitter: int) -> np.ndarray:

@@ -54,7 +54,7 @@ from scipy.special import ellipe, ellipkm1
 from meshes.sensor import SensorDescription
 from meshes.sensor_mesh import SensorProfile, graded_arc_lengths
 
-from .conductance import ConductanceMatrix, isolate
+from .conductance import ConductanceMatrix, check_conductivity, isolate
 from .system import contact_impedances
 
 __all__ = ["MeridianMesh", "mesh_meridian", "ring_single_layer", "ring_double_layer",
@@ -250,8 +250,7 @@ def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contac
         ``info`` holds the element count and seconds.
     """
     t0 = time.perf_counter()
-    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
-        raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    sigma_S_per_m = check_conductivity(sigma_S_per_m)
     mesh = mesh_meridian(sensor) if mesh is None else mesh
     n = len(sensor.electrodes)
     z = contact_impedances(contact_impedance_ohm_m2, n)

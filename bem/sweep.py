@@ -51,7 +51,7 @@ import scipy.linalg
 from meshes.pose import Pose, poses_array, rotation_z
 
 from .boundary_conditions import WaterBoundary
-from .conductance import ConductanceMatrix, isolate
+from .conductance import ConductanceMatrix, check_conductivity, isolate
 from .edge_correction import free_space_correction
 from .low_rank import right_singular_vectors
 from .memory import check_memory
@@ -111,8 +111,7 @@ class PoseSweep:
                  edge_correction: bool = True, tank_grading: float | None = None, **sensor_mesh_options):
         from meshes.sensor_mesh import mesh_sensor
 
-        if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
-            raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+        sigma_S_per_m = check_conductivity(sigma_S_per_m)
 
         check_object_materials(objects)
         self.sensor = sensor

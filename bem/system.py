@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .conductance import check_conductivity
 from .boundary_conditions import BoundaryError, WaterBoundary
 from .memory import check_memory
 
@@ -95,8 +96,7 @@ def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     """Assemble the dense mixed system on ``boundary`` (refusing what does not fit in memory)."""
     from .operators import FAR, TriangleSet, mixed_system  # numba kernels, loaded on first use
 
-    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
-        raise ValueError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    sigma_S_per_m = check_conductivity(sigma_S_per_m)
     n = boundary.n_electrodes
     n_f, n_c = boundary.n_triangles, boundary.n_conductors
     check_memory(n_f + n_c, 1.1)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bem.conductance import ConductanceMatrix
+from bem.conductance import ConductanceMatrix, check_conductivity
 from meshes.pose import poses_array
 from meshes.tank import TANK_REGIONS, Tank
 
@@ -131,9 +131,7 @@ def conductance_array(model, poses, sigma_S_per_m, tank=None, images="complete",
     """K (P, n, n) as an array (float, or complex for complex poses) and an info dict; see :func:`conductance`."""
     if images not in IMAGE_KINDS:
         raise ValueError(f"images={images!r}: expected one of {', '.join(IMAGE_KINDS)}")
-    sigma = float(sigma_S_per_m)
-    if not (np.isfinite(sigma) and sigma > 0):
-        raise ValueError(f"sigma_S_per_m must be positive, got {sigma_S_per_m}")
+    sigma = check_conductivity(sigma_S_per_m)
     poses = np.asarray(poses)
     if not np.iscomplexobj(poses):
         poses = poses_array(poses)
