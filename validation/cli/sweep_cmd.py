@@ -44,6 +44,33 @@ def _objects_description(objects) -> list:
     return [{"shape": type(o).__name__.lower(), **asdict(o)} for o in objects]
 
 
+def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: int, attrs: dict, ours: bool,
+                overwrite: bool):
+    """Resume the store of this very sweep, or start over where the folder holds another one.
+
+    ``ours``: the store is the hidden ``.partial.zarr`` of a .csv/.nc output, so a different sweep in it
+    (an earlier run with other arguments) is replaced, with a word. A ``.zarr`` output is the user's: a
+    different sweep in it is replaced only with ``--overwrite``, else the message says how to go on.
+    """
+    from validation.sweep.store import StoreError, SweepStore, remove_store
+
+    def open_():
+        return SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
+                                         chunk_poses, attrs)
+
+    try:
+        return open_()
+    except StoreError as exc:
+        if not store_path.exists():
+            raise
+        if not (ours or overwrite):
+            raise StoreError(f"{exc}; or pass --overwrite to replace it with this sweep") from None
+        click.echo(f"starting over: {store_path} {'held an earlier, different run' if ours else 'is replaced'} "
+                   f"({str(exc).split('(', 1)[-1].split(')')[0]})")
+        remove_store(store_path)
+        return open_()
+
+
 def _bench_log_frame(C, poses):
     """The bench-log table of a sweep: t_s (pose index), pose, U_V = 1, I<k>_A, R<k>_ohm."""
     import numpy as np
@@ -95,7 +122,9 @@ def _bench_log_frame(C, poses):
 @click.option("--plot", "plot_png", type=click.Path(dir_okay=False), help="Also write the tank map (grid sweeps) as PNG.")
 @click.option("--plot-quantity", type=click.Choice(["resistance", "current_change"]), default="resistance",
               show_default=True, help="What the tank map shows.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing .csv/.nc output (a .zarr store is resumed instead).")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing output: a .csv/.nc file, or a .zarr store of another sweep (a store of the "
+                   "same sweep is resumed without it).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="out.csv (bench log with R<k>_ohm columns), out.zarr (resumable store) or out.nc (netCDF).")
@@ -114,6 +143,12 @@ def sweep(**options):
 
     try:
         _sweep(SimpleNamespace(**options))
+    except KeyboardInterrupt:
+        out = Path(options["output"])
+        store = out if out.suffix == ".zarr" else out.with_name(out.name + ".partial.zarr")
+        kept = f"the poses computed so far are kept in {store}; " if store.exists() else ""
+        click.echo(f"\nesense sweep: interrupted (Ctrl-C); {kept}run the same command again to resume", err=True)
+        raise SystemExit(130) from None
     except click.ClickException:
         raise
     except (ValueError, GridError, FileExistsError) as exc:
@@ -167,6 +202,8 @@ def _sweep(o):
     if final is not None and final.exists() and not o.overwrite:
         raise click.ClickException(f"{final} exists; pass --overwrite to replace it")
     store_path = out if final is None else out.with_name(out.name + ".partial.zarr")
+    if final is not None and final.exists() and o.overwrite and store_path.exists():
+        remove_store(store_path)  # --overwrite: the run starts over, not from an older partial run
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     if o.tank_edge_length_m is not None:
@@ -202,8 +239,12 @@ def _sweep(o):
     if workers is None and model == "psm" and len(poses) <= PSM_POSES_PER_EXTRA_WORKER:
         workers = 1
     n_workers = workers or local_cores()
-    store = SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
-                                      o.chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
+    # the model is set up (and may refuse) before any store exists, so a refusal leaves nothing behind
+    evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
+                               poses=poses, **bem_options)
+    chunk_poses = o.chunk_poses or default_chunk_poses(len(poses), n_workers)
+    store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
+                        overwrite=o.overwrite)
     pending = store.pending_chunks()
     if pending:
         n_left = sum(b - a for a, b in pending)
@@ -211,8 +252,6 @@ def _sweep(o):
             click.echo(f"resuming {store_path}: {len(poses) - n_left} of {len(poses)} poses already computed")
         click.echo(f"{model.upper()}: {sensor.name}, {'unbounded water' if tank is None else f'tank {tank.size_m} m'}, "
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
-        evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
-                                   poses=poses, **bem_options)
         result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
         C = result.conductance
         click.echo(f"computed {result.n_computed} poses in {result.seconds:.1f} s "
