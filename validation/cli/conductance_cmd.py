@@ -2,8 +2,8 @@
 
 Examples::
 
-    esense conductance --sensor angels-4 --unbounded --sigma 0.0354 --json angels4.json
-    esense conductance --sensor angels-2 --tank 1,1,1 --pose 0.3,0,0,0 --sigma 0.0354
+    esense conductance --sensor angels-4 --unbounded --json angels4.json
+    esense conductance --sensor angels-2 --tank 1,1,1 --pose 0.3,0,0,0 --sigma 0.05
     esense conductance --mesh my_sensor.vtp --sigma 1 --contact-impedance 0.001
     esense conductance --scene bench.toml --vtp surface.vtp
 
@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import parse_tank
+from validation.defaults import NOMINAL_SIGMA_S_PER_M
+
+from ._parsing import check_edge_length, finite_float, parse_tank
 
 
 def _table(g) -> str:
@@ -41,7 +43,7 @@ def _table(g) -> str:
 @click.option("--tank", "tank_text", default=None, help="Tank inner size LX,LY,LZ in metres (water fills it).")
 @click.option("--unbounded", is_flag=True, help="Unbounded water (no tank), the default without --tank or --scene.")
 @click.option("--pose", "pose_text", default=None, help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame.")
-@click.option("--sigma", "sigma", type=float, default=None, help="Water conductivity in S/m (default 1, or the scene file's).")
+@click.option("--sigma", "sigma", type=finite_float(positive=True), default=None, help=f"Water conductivity in S/m (default: the scene file's, else {NOMINAL_SIGMA_S_PER_M}).")
 @click.option("--contact-impedance", "z_c", type=float, default=None, help="Electrode contact impedance in ohm m^2.")
 @click.option("--edge-length", "edge_length", type=float, default=None,
               help="Sensor mesh edge length far from electrode edges, in metres "
@@ -75,6 +77,16 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
             from meshes.io import read_mesh
 
             target = read_mesh(mesh_file)
+            from meshes.quality import overlapping_shells
+
+            overlaps = overlapping_shells(target)
+            if overlaps:
+                a, b, n = overlaps[0]
+                raise click.BadParameter(
+                    f"{mesh_file}: its closed surfaces intersect or lie inside one another ({n} vertices of surface "
+                    f"{b + 1} are inside surface {a + 1}; {len(overlaps)} such pair(s)): solids must have water "
+                    "between them, else the BEM solves another problem; fix the mesh",
+                    param_hint="--mesh")
             if tank_text or pose_text:
                 raise click.UsageError("--mesh is solved in unbounded water; --tank and --pose do not apply")
         else:
@@ -100,11 +112,16 @@ def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_t
                 scene = replace(scene, tank=parse_tank(tank_text))
             if unbounded:
                 scene = replace(scene, tank=None)
+            if pose_text and scene.tank is None:
+                raise click.UsageError("--pose places the sensor in a tank, but the water is unbounded here (no "
+                                       "--tank, no tank in the scene): every pose gives the same K; add --tank "
+                                       "LX,LY,LZ")
             if emitter is not None:
                 scene = replace(scene, sensor=scene.sensor.with_emitter(emitter))
+            check_edge_length(scene.sensor, edge_length)
             target = scene
         if sigma is None:
-            sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
+            sigma = float(settings.get("water", {}).get("sigma_S_per_m", NOMINAL_SIGMA_S_PER_M))
         if z_c is None and "contact" in settings:
             z_c = settings["contact"].get("impedance_ohm_m2")
         solution = solve_scene(target, sigma, z_c, edge_length, edge_correction=not no_edge_correction)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import click
 
+from ._parsing import check_edge_length
+
 _MESH_SUFFIXES = (".vtp", ".vtk", ".ply", ".stl")
 
 
@@ -94,6 +96,7 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
             description = description.with_emitter(emitter)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="SENSOR") from None
+    check_edge_length(description, edge_length_m)
     m = mesh_sensor(description, edge_length_m=edge_length_m)
     _finish(m, output, png, f"{description.name}: {m.n_triangles} triangles", description.emitter)
 

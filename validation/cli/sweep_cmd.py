@@ -20,10 +20,12 @@ from pathlib import Path
 
 import click
 
-from ._parsing import parse_tank
+from validation.defaults import NOMINAL_SIGMA_S_PER_M as DEFAULT_SIGMA_S_PER_M
+from validation.defaults import NOMINAL_TANK_M
+
+from ._parsing import check_edge_length, parse_tank
 
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
-DEFAULT_SIGMA_S_PER_M = 0.0354  # the paper's tank water
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
 
 
@@ -180,9 +182,10 @@ def _sweep(o):
         raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
     tank = parse_tank(o.tank_text) if o.tank_text else None
     if scene is None and tank is None and not o.unbounded:
-        tank = Tank((1.0, 1.0, 1.0))
+        tank = Tank(NOMINAL_TANK_M)
     scene = apply_overrides(scene, sensor=o.sensor_spec, tank=tank, unbounded=o.unbounded)
     sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+    check_edge_length(sensor, edge_length_m)
     if sigma is None:
         sigma = float(settings.get("water", {}).get("sigma_S_per_m", DEFAULT_SIGMA_S_PER_M))
 
