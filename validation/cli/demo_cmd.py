@@ -143,6 +143,8 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
             args += ["--bem-correction", str(bem_poses)]
             if edge_length_m:
                 args += ["--edge-length", str(edge_length_m)]
+        echo(f"diagnosis of {Path(path).name}: fitting the candidate effects"
+             + (f" on a PSM corrected by the BEM at ~{bem_poses} poses" if bem_poses else "") + " ...")
         chatter = io.StringIO()  # the command's own step-by-step output; the demo prints a summary line
         try:
             with contextlib.redirect_stdout(chatter):
