@@ -20,10 +20,9 @@ from pathlib import Path
 
 import click
 
-from validation.defaults import NOMINAL_SIGMA_S_PER_M as DEFAULT_SIGMA_S_PER_M
 from validation.defaults import NOMINAL_TANK_M
 
-from ._parsing import check_edge_length, parse_tank
+from ._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
 
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
@@ -96,13 +95,7 @@ def _bench_log_frame(C, poses):
               help="bem: the boundary-element reference; psm: the poly-spherical model.")
 @click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False),
               help="PSM model file (from `esense calibrate`); default: calibrate on the sensor's free-space BEM (cached).")
-@click.option("--sensor", "sensor_spec", help="Sensor preset (angels-2, angels-4) or sensor file; default: the scene's.")
-@click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False),
-              help="Scene file (TOML): sensor, tank, objects, and [water] sigma_S_per_m; flags override it.")
-@click.option("--tank", "tank_text", help="Tank inner size LX,LY,LZ in m (default: the scene's, else 1,1,1).")
-@click.option("--unbounded", is_flag=True, help="Unbounded water (no tank).")
-@click.option("--sigma", "sigma", type=float,
-              help=f"Water conductivity in S/m (default: the scene's [water], else {DEFAULT_SIGMA_S_PER_M}).")
+@scene_options(pose=False, tank_default="1,1,1")
 @click.option("--from", "from_xy", help="Line start X0,Y0 (m, tank frame).")
 @click.option("--to", "to_xy", help="Line end X1,Y1 (m).")
 @click.option("--steps", type=int, help="Number of poses on the line, both ends included.")
@@ -111,11 +104,10 @@ def _bench_log_frame(C, poses):
 @click.option("--z", "z_m", type=float, default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
-@click.option("--edge-length", "edge_length_m", type=float,
-              help="BEM sensor mesh edge length in m (default: the mesher's); with the PSM, of its calibration BEM.")
-@click.option("--tank-edge-length", "tank_edge_length_m", type=float,
+@click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True),
               help="BEM tank mesh edge length nearest the poses, in m (default: the BEM's).")
-@click.option("--contact-impedance", "contact_impedance", type=float, help="Electrode contact impedance in ohm m^2.")
+@click.option("--contact-impedance", "contact_impedance", type=finite_float(),
+              help="Electrode contact impedance in ohm m^2.")
 @click.option("--scheduler", help="dask scheduler address (tcp://host:port); default: Dask config, else this machine.")
 @click.option("--workers", type=int,
               help="Local workers (1: in this process). Default: this machine's cores for the BEM; for the PSM, "
@@ -160,34 +152,22 @@ def sweep(**options):
 
 
 def _sweep(o):
-    from meshes.scene_file import apply_overrides, load_scene, load_scene_settings
     from meshes.tank import Tank
     from validation.models import code_version, pose_evaluator
     from validation.sweep.grid import line_poses, parse_grid, parse_xy
     from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
     from validation.sweep.store import SweepStore, export_netcdf, open_sweep, remove_store
 
-    model, psm_file, sigma, workers, out = o.model, o.psm_file, o.sigma, o.workers, Path(o.output)
+    model, psm_file, workers, out = o.model, o.psm_file, o.workers, Path(o.output)
     images, edge_length_m, contact_impedance = o.images, o.edge_length_m, o.contact_impedance
     # ------------------------------------------------------------ what to run
     if out.suffix not in _OUTPUT_SUFFIXES:
         raise click.BadParameter(f"{out}: the output must end in {', '.join(_OUTPUT_SUFFIXES)}", param_hint="-o")
     if psm_file and model != "psm":
         raise click.BadParameter("--psm goes with --model psm", param_hint="--psm")
-    if o.unbounded and o.tank_text:
-        raise click.BadParameter("give either --tank or --unbounded", param_hint="--tank")
-    scene = load_scene(o.scene_file) if o.scene_file else None
-    settings = load_scene_settings(o.scene_file) if o.scene_file else {}
-    if scene is None and o.sensor_spec is None:
-        raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
-    tank = parse_tank(o.tank_text) if o.tank_text else None
-    if scene is None and tank is None and not o.unbounded:
-        tank = Tank(NOMINAL_TANK_M)
-    scene = apply_overrides(scene, sensor=o.sensor_spec, tank=tank, unbounded=o.unbounded)
+    scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
+                                         default_tank=Tank(NOMINAL_TANK_M))
     sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
-    check_edge_length(sensor, edge_length_m)
-    if sigma is None:
-        sigma = float(settings.get("water", {}).get("sigma_S_per_m", DEFAULT_SIGMA_S_PER_M))
 
     grid = None
     if o.grid_text:
