@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import check_edge_length
+from ._parsing import check_edge_length, finite_float
 
 _MESH_SUFFIXES = (".vtp", ".vtk", ".ply", ".stl")
 
@@ -78,7 +78,7 @@ def mesh():
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Mesh file to write: .vtp (labels and region names), .ply (labels) or .stl (geometry only).")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the mesh (PNG).")
-@click.option("--edge-length", "edge_length_m", type=float, default=None,
+@click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None,
               help="Far-field edge length in metres (default: from the sensor's size); the mesh is graded finer "
                    "towards every electrode edge.")
 @click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the sensor's, the last one).")
@@ -106,17 +106,17 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
               help="Scene file (TOML: tank, sensor, pose, objects); the flags below override it.")
 @click.option("--sensor", default=None, help="Sensor preset (angels-2, angels-4) or sensor file.")
 @click.option("--tank", default=None, help="Tank inner size LX,LY,LZ in metres.")
-@click.option("--depth", "depth_m", type=float, default=None, help="Water depth in metres (default: LZ).")
+@click.option("--depth", "depth_m", type=finite_float(positive=True), default=None, help="Water depth in metres (default: LZ).")
 @click.option("--unbounded", is_flag=True, help="No tank: unbounded water (drops the scene file's tank).")
 @click.option("--pose", default=None, help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame.")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Mesh file of the whole scene in the tank frame: .vtp, .ply or .stl.")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the scene (PNG).")
-@click.option("--edge-length", "edge_length_m", type=float, default=None, help="Sensor edge length in metres.")
-@click.option("--tank-edge-length", "tank_edge_length_m", type=float, default=None,
+@click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None, help="Sensor edge length in metres.")
+@click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True), default=None,
               help="Tank edge length nearest the sensor in metres (default: a twentieth of the sensor length); "
                    "it grows away from the sensor.")
-@click.option("--tank-grading", type=float, default=0.25, show_default=True,
+@click.option("--tank-grading", type=finite_float(), default=0.25, show_default=True,
               help="Growth of the tank's edge length per metre of distance from the sensor.")
 def mesh_scene_cmd(scene_file, sensor, tank, depth_m, unbounded, pose, output, png, edge_length_m,
                    tank_edge_length_m, tank_grading):

@@ -100,8 +100,8 @@ def _bench_log_frame(C, poses):
 @click.option("--to", "to_xy", help="Line end X1,Y1 (m).")
 @click.option("--steps", type=int, help="Number of poses on the line, both ends included.")
 @click.option("--grid", "grid_text", help="Grid X0:X1:NX,Y0:Y1:NY[,YAW0:YAW1:NYAW] (m, m, rad; ends included).")
-@click.option("--yaw", type=float, default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
-@click.option("--z", "z_m", type=float, default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
+@click.option("--yaw", type=finite_float(), default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
+@click.option("--z", "z_m", type=finite_float(), default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True),
