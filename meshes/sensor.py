@@ -270,7 +270,9 @@ def load_sensor(spec: str | Path, relative_to: str | Path | None = None) -> Sens
         Preset name (see ``PRESETS``) or a file path.
     relative_to : str or Path, optional
         Folder a relative path is taken from (the folder of the log or scene
-        file that names it).
+        file that names it). The path must then stay inside that folder: an
+        absolute path, or one that climbs out with ``..`` or a link, is
+        refused (a path in a user's file is data, never a way out).
 
     Examples
     --------
@@ -286,8 +288,15 @@ def load_sensor(spec: str | Path, relative_to: str | Path | None = None) -> Sens
     if spec_str in PRESETS:
         return preset(spec_str)
     path = Path(spec_str)
-    if relative_to is not None and not path.is_absolute():
-        path = Path(relative_to) / path
+    if relative_to is not None:
+        folder = Path(relative_to)
+        if path.is_absolute() or not (folder / path).resolve().is_relative_to(folder.resolve()):
+            raise ValueError(
+                f"sensor {spec_str!r} leads outside the folder of the file that names it ({folder}): a sensor file "
+                "named in a log or scene file must lie in that folder or below it (give a relative path without "
+                "'..', or a preset name)"
+            )
+        path = folder / path
     if not path.exists():
         raise ValueError(f"sensor {spec_str!r} is neither a preset ({', '.join(sorted(PRESETS))}) nor an existing file")
     text = _read_regular_file(path, "sensor")

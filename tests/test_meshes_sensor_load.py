@@ -80,3 +80,23 @@ def test_a_log_naming_a_directory_is_refused_with_line(tmp_path):
     meta = {"sensor": "sub", "emitter": 2, "tank_m": [1, 1, 1], "sigma_S_per_m": 0.0354}
     with pytest.raises((BenchLogError, ValueError), match="directory"):
         interpret_meta(meta, "log.csv", folder=tmp_path)
+
+
+@pytest.mark.parametrize("spec", ["../s.json", "sub/../../s.json", "ABS"])
+def test_a_path_in_a_file_never_leads_out_of_its_folder(tmp_path, spec):
+    s = _random_sensor(np.random.default_rng(2))
+    save_sensor(s, tmp_path / "s.json")
+    (tmp_path / "logs" / "sub").mkdir(parents=True)
+    spec = str(tmp_path / "s.json") if spec == "ABS" else spec
+    with pytest.raises(ValueError, match="outside the folder"):
+        load_sensor(spec, relative_to=tmp_path / "logs")
+    assert load_sensor(str(tmp_path / "s.json")) == s  # typed by the user on the command line: taken
+
+
+def test_a_link_out_of_the_folder_is_refused(tmp_path):
+    s = _random_sensor(np.random.default_rng(4))
+    save_sensor(s, tmp_path / "s.json")
+    (tmp_path / "logs").mkdir()
+    os.symlink(tmp_path / "s.json", tmp_path / "logs" / "link.json")
+    with pytest.raises(ValueError, match="outside the folder"):
+        load_sensor("link.json", relative_to=tmp_path / "logs")
