@@ -14,6 +14,7 @@ folder's ``index.html`` is printed at the end.
 """
 from __future__ import annotations
 
+import io
 import time
 from pathlib import Path
 
@@ -113,6 +114,23 @@ def _format_params(params: dict, uncertainty: dict | None) -> str:
     return "; ".join(parts)
 
 
+class _Indented(io.TextIOBase):
+    """A text stream that hands each complete line to ``echo`` with a prefix (a command's steps inside a bar)."""
+
+    def __init__(self, echo, prefix: str):
+        self.echo, self.prefix, self._part = echo, prefix, ""
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        *lines, self._part = (self._part + text).split("\n")
+        for line in lines:
+            if line.strip():
+                self.echo(self.prefix + line)
+        return len(text)
+
+
 def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses: int = 0, edge_length_m=None):
     """Run ``esense diagnose`` on each log into folder/diagnosis/<log>; a summary Section with its figures.
 
@@ -122,7 +140,6 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
     """
     import contextlib
     import importlib
-    import io
     import json
 
     from validation.report.html import Figure, Section, Table
@@ -145,7 +162,7 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
                 args += ["--edge-length", str(edge_length_m)]
         echo(f"diagnosis of {Path(path).name}: fitting the candidate effects"
              + (f" on a PSM corrected by the BEM at ~{bem_poses} poses" if bem_poses else "") + " ...")
-        chatter = io.StringIO()  # the command's own step-by-step output; the demo prints a summary line
+        chatter = _Indented(echo, f"  {stem}: ")  # the command's own steps, shown as they come (minutes of work)
         try:
             with contextlib.redirect_stdout(chatter):
                 command.main(args, standalone_mode=False)
