@@ -115,10 +115,16 @@ def _format_params(params: dict, uncertainty: dict | None) -> str:
 
 
 class _Indented(io.TextIOBase):
-    """A text stream that hands each complete line to ``echo`` with a prefix (a command's steps inside a bar)."""
+    """A text stream that hands each complete line to ``echo`` with a prefix (a command's steps inside a bar).
+
+    ``echo(line, file=...)`` is called with the standard output of the moment the stream was made, so that
+    it can stand in for ``sys.stdout`` (``contextlib.redirect_stdout``) without writing to itself.
+    """
 
     def __init__(self, echo, prefix: str):
-        self.echo, self.prefix, self._part = echo, prefix, ""
+        import sys
+
+        self.echo, self.prefix, self._part, self._out = echo, prefix, "", sys.stdout
 
     def writable(self) -> bool:
         return True
@@ -127,7 +133,7 @@ class _Indented(io.TextIOBase):
         *lines, self._part = (self._part + text).split("\n")
         for line in lines:
             if line.strip():
-                self.echo(self.prefix + line)
+                self.echo(self.prefix + line, file=self._out)
         return len(text)
 
 
