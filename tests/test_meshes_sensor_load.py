@@ -1,5 +1,4 @@
 """load_sensor: a path is data; it names a regular file or is refused with a clear message."""
-import json
 import os
 
 import numpy as np

@@ -29,11 +29,10 @@ from __future__ import annotations
 
 import codecs
 import datetime as _dt
-import os
 import sys
 import threading
 import time
-from dataclasses import dataclass, field, fields as dc_fields
+from dataclasses import dataclass, fields as dc_fields
 from pathlib import Path
 
 from validation.benchlog import BenchLogWriter, standard_columns

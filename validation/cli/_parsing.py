@@ -81,13 +81,13 @@ SCENE_OPTION_NAMES = ("scene_file", "sensor_spec", "tank_text", "unbounded", "de
                       "edge_length_m")
 
 
-def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = True,
+def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = True, sigma: bool = True,
                   tank_default: str = "no tank (unbounded water)"):
     """Decorator: the options every simulating command shares, spelt and explained once.
 
     ``--scene``, ``--sensor``, ``--tank``, ``--unbounded``, ``--depth``,
     ``--pose``, ``--sigma``, ``--edge-length`` (``pose``, ``depth``,
-    ``edge_length`` False leave those out). Read them with
+    ``edge_length``, ``sigma`` False leave those out). Read them with
     :func:`scene_from_options`.
     """
     from validation.defaults import NOMINAL_SIGMA_S_PER_M
@@ -109,9 +109,10 @@ def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = 
         if pose:
             opts.append(click.option("--pose", "pose_text", default=None,
                                      help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame (needs a tank)."))
-        opts.append(click.option("--sigma", "sigma", type=finite_float(positive=True), default=None,
-                                 help=f"Water conductivity in S/m (default: the scene's [water], else "
-                                      f"{NOMINAL_SIGMA_S_PER_M}, the paper's tank water)."))
+        if sigma:
+            opts.append(click.option("--sigma", "sigma", type=finite_float(positive=True), default=None,
+                                     help=f"Water conductivity in S/m (default: the scene's [water], else "
+                                          f"{NOMINAL_SIGMA_S_PER_M}, the paper's tank water)."))
         if edge_length:
             opts.append(click.option("--edge-length", "edge_length_m", type=finite_float(positive=True),
                                      default=None, help="BEM sensor mesh edge length far from the electrode edges, "
@@ -155,7 +156,7 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--sensor") from None
     if scene is None and sensor is None:
-        raise click.UsageError("give --sensor (a preset or a sensor file) or --scene")
+        raise click.UsageError("no sensor: give --sensor (a preset or a sensor file) or --scene")
     tank = parse_tank(tank_text) if tank_text else None
     if tank is None and scene is None and not unbounded and default_tank is not None:
         tank = default_tank

@@ -156,7 +156,7 @@ def _sweep(o):
     from validation.models import code_version, pose_evaluator
     from validation.sweep.grid import line_poses, parse_grid, parse_xy
     from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
-    from validation.sweep.store import SweepStore, export_netcdf, open_sweep, remove_store
+    from validation.sweep.store import export_netcdf, open_sweep, remove_store
 
     model, psm_file, workers, out = o.model, o.psm_file, o.workers, Path(o.output)
     images, edge_length_m, contact_impedance = o.images, o.edge_length_m, o.contact_impedance

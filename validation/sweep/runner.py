@@ -30,8 +30,6 @@ Example
 """
 from __future__ import annotations
 
-import contextlib
-
 import logging
 import math
 import os
