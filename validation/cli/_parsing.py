@@ -176,7 +176,7 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
             raise click.BadParameter(str(exc), param_hint="--depth") from None
     if pose_text and scene.tank is None:
         raise click.UsageError("--pose places the sensor in a tank, but the water is unbounded here (no --tank, no "
-                               "tank in the scene): every pose gives the same K; add --tank LX,LY,LZ")
+                               "tank in the scene), where every pose is the same problem; add --tank LX,LY,LZ")
     if edge_length_m is not None:
         check_edge_length(scene.sensor, edge_length_m)
     if sigma is None:
