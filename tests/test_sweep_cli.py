@@ -171,3 +171,29 @@ def test_a_zarr_of_another_sweep_says_how_to_go_on_and_overwrite_replaces_it(tmp
     assert other.exit_code != 0 and "--overwrite" in other.output
     again = _run(*args, "--sigma", 0.5, "--overwrite", "-o", tmp_path / "s.zarr")
     assert again.exit_code == 0 and "starting over" in again.output
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path, psm_file):
+    """SIGINT to the whole process group, as a terminal sends it: no worker tracebacks, the store kept."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "map.csv"
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from validation.cli import main; main()",
+           "sweep", "--model", "psm", "--psm", str(psm_file), "--sensor", "angels-4", "--unbounded",
+           "--grid", "-0.3:0.3:1200,-0.3:0.3:1200", "--workers", "2", "--quiet", "-o", str(out)]
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    store = tmp_path / "map.csv.partial.zarr"
+    t0 = time.monotonic()
+    while not store.exists() and time.monotonic() - t0 < 60 and p.poll() is None:
+        time.sleep(0.2)
+    time.sleep(3)
+    os.killpg(p.pid, signal.SIGINT)
+    output, _ = p.communicate(timeout=60)
+    assert p.returncode == 130, output
+    assert "Traceback" not in output and "KeyboardInterrupt" not in output
+    assert "interrupted (Ctrl-C)" in output and "run the same command again to resume" in output
+    assert store.exists() and not out.exists()
