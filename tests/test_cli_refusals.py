@@ -64,3 +64,15 @@ def test_a_mesh_whose_shells_intersect_is_refused(tmp_path):
     write_mesh(LabelledMesh(both.vertices, both.faces, labels), tmp_path / "bad.vtp")
     res = _run("conductance", "--mesh", tmp_path / "bad.vtp")
     assert res.exit_code != 0 and "--mesh" in res.output and "intersect" in res.output
+
+
+@pytest.mark.parametrize("args, option", [
+    (("--tank", "1,1"), "--tank"),
+    (("--tank", "none", "--depth", "0.5"), "--depth"),
+    (("--depth", "2"), "--depth"),
+    (("--emitter", "9"), "--emitter"),
+    (("--sigma", "nan"), "--sigma"),
+])
+def test_bench_sim_names_the_option(tmp_path, args, option):
+    r = _run("bench-sim", "-o", tmp_path / "r.csv", "--path", "wall-to-wall:5", *args)
+    assert r.exit_code != 0 and option in r.output and not (tmp_path / "r.csv").exists(), r.output

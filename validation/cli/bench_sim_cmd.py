@@ -5,7 +5,7 @@ import click
 
 from validation.defaults import NOMINAL_SIGMA_S_PER_M
 
-from ._parsing import finite_float
+from ._parsing import finite_float, parse_tank
 
 
 @click.command("bench-sim")
@@ -82,9 +82,25 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         raise click.UsageError("choose one of --pty, --port and -o")
     try:
         sens = load_sensor(sensor)
-        if emitter is not None:
-            sens = sens.with_emitter(emitter)
-        tank_obj = None if tank.strip().lower() == "none" else Tank(tuple(float(v) for v in tank.split(",")), depth)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--sensor") from None
+    if emitter is not None and not 1 <= emitter <= sens.n_electrodes:
+        raise click.BadParameter(f"{emitter} is not an electrode of {sens.name} (1..{sens.n_electrodes})",
+                                 param_hint="--emitter")
+    if emitter is not None:
+        sens = sens.with_emitter(emitter)
+    if tank.strip().lower() == "none":
+        if depth is not None:
+            raise click.UsageError("--depth needs a tank; --tank none is unbounded water")
+        tank_obj = None
+    else:
+        tank_obj = parse_tank(tank)
+        if depth is not None:
+            try:
+                tank_obj = Tank(tank_obj.size_m, depth)
+            except ValueError as exc:
+                raise click.BadParameter(str(exc), param_hint="--depth") from None
+    try:
         fx = Effects.parse(effects)
         plan = FaultPlan.parse(faults, disconnect_s)
         poses, pass_numbers = repeat_passes(parse_path(path_spec, tank_obj.size_m if tank_obj else None), passes)
