@@ -465,6 +465,8 @@ class Logger:
             return
         now = time.monotonic()
         interval = 0.25 if self._status_tty else self.status_interval_s
+        if not self._status_tty and not self._status_shown:
+            self._status_shown = now  # the first line after one interval, not "0 records" at once
         if not force and now - self._status_shown < interval:
             return
         self._status_shown = now
