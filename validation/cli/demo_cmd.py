@@ -3,7 +3,7 @@
 Example::
 
     esense demo -o esense-demo
-    esense demo --quick -o /tmp/demo      # reduced settings (coarse meshes, few poses)
+    esense demo --quick -o demo-quick     # reduced settings (coarse meshes, few poses)
 
 Steps: mesh the paper's sensors (those named by the bundled logs), compute
 their free-space BEM conductance matrices, calibrate the PSM on them, validate
