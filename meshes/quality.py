@@ -29,7 +29,8 @@ import numpy as np
 
 from .labelled_mesh import LabelledMesh
 
-__all__ = ["MeshQuality", "MeshError", "mesh_quality", "check_mesh", "triangle_angles_deg", "aspect_ratios"]
+__all__ = ["MeshQuality", "MeshError", "mesh_quality", "check_mesh", "triangle_angles_deg", "aspect_ratios",
+           "overlapping_shells"]
 
 
 def triangle_angles_deg(mesh: LabelledMesh) -> np.ndarray:
@@ -235,3 +236,61 @@ def check_mesh(mesh: LabelledMesh, min_angle_deg: float = 5.0, max_aspect_ratio:
     if problems:
         raise MeshError(problems, name)
     return q
+
+
+def _winding_numbers(points: np.ndarray, triangles: np.ndarray, block: int = 256) -> np.ndarray:
+    """(P,) winding number of a closed triangle surface around each point (1 inside, 0 outside).
+
+    The solid angle of each triangle seen from the point (Van Oosterom and
+    Strackee), summed and divided by 4 pi; blocks of points keep memory small.
+    """
+    out = np.empty(len(points))
+    for a in range(0, len(points), block):
+        r = triangles[None, :, :, :] - points[a:a + block, None, None, :]  # (p, F, 3, 3)
+        n = np.linalg.norm(r, axis=-1)
+        det = np.einsum("pfi,pfi->pf", r[:, :, 0], np.cross(r[:, :, 1], r[:, :, 2]))
+        dots = (n[:, :, 0] * n[:, :, 1] * n[:, :, 2]
+                + np.einsum("pfi,pfi->pf", r[:, :, 0], r[:, :, 1]) * n[:, :, 2]
+                + np.einsum("pfi,pfi->pf", r[:, :, 1], r[:, :, 2]) * n[:, :, 0]
+                + np.einsum("pfi,pfi->pf", r[:, :, 2], r[:, :, 0]) * n[:, :, 1])
+        out[a:a + block] = 2 * np.arctan2(det, dots).sum(axis=1) / (4 * np.pi)
+    return out
+
+
+def overlapping_shells(mesh: LabelledMesh) -> list[tuple[int, int, int]]:
+    """Pairs of closed shells of which one has vertices inside the other: ``[(a, b, n_inside), ...]``.
+
+    Shells are numbered as connected components of the faces. ``b``'s
+    vertices inside shell ``a``: the two solids intersect, or ``b`` lies in
+    ``a``. A sensor's or an object's solids must be apart: water between them.
+
+    Example
+    -------
+    >>> import trimesh
+    >>> from meshes.labelled_mesh import LabelledMesh
+    >>> a, b = trimesh.creation.icosphere(2, 0.01), trimesh.creation.icosphere(2, 0.01)
+    >>> both = trimesh.util.concatenate([a, b.apply_translation([0.015, 0, 0])])
+    >>> m = LabelledMesh(both.vertices, both.faces, np.zeros(len(both.faces), dtype=int))
+    >>> [(i, j) for i, j, _ in overlapping_shells(m)]
+    [(0, 1), (1, 0)]
+    """
+    _, _, face_of, inverse, _ = _edge_table(mesh.faces)
+    shell = _shells(mesh.n_triangles, inverse, face_of)
+    tris = mesh.triangles_m
+    found = []
+    n_shells = int(shell.max()) + 1 if len(shell) else 0
+    for a in range(n_shells):
+        faces_a = np.flatnonzero(shell == a)
+        lo, hi = tris[faces_a].reshape(-1, 3).min(axis=0), tris[faces_a].reshape(-1, 3).max(axis=0)
+        for b in range(n_shells):
+            if a == b:
+                continue
+            verts_b = np.unique(mesh.faces[shell == b])
+            points = mesh.vertices_m[verts_b]
+            near = points[np.all((points >= lo) & (points <= hi), axis=1)]  # only those in a's bounding box
+            if len(near) == 0:
+                continue
+            inside = int(np.sum(np.abs(_winding_numbers(near, tris[faces_a])) > 0.5))
+            if inside:
+                found.append((a, b, inside))
+    return found

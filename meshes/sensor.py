@@ -26,7 +26,7 @@ Example
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -216,30 +216,111 @@ def preset(name: str) -> SensorDescription:
         raise ValueError(f"unknown sensor preset {name!r}; known: {', '.join(sorted(PRESETS))}") from None
 
 
+MAX_SENSOR_FILE_BYTES = 1 << 20
+"""Largest sensor file read (bytes): a description is a few hundred bytes."""
+
+
+def _read_regular_file(path: Path, what: str) -> str:
+    """Text of ``path`` if it is a regular file of reasonable size, else ``ValueError``.
+
+    The file is opened without blocking and checked on the open descriptor, so
+    a directory, a FIFO or a device (``/dev/zero``) is refused rather than read
+    (which would raise a traceback, hang, or never end).
+    """
+    import os
+    import stat
+
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except IsADirectoryError:
+        raise ValueError(f"{what} {str(path)!r} is a directory, not a sensor file") from None
+    except OSError as exc:
+        raise ValueError(f"{what} {str(path)!r} cannot be opened: {exc.strerror}") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise ValueError(f"{what} {str(path)!r} is a directory, not a sensor file")
+        if not stat.S_ISREG(st.st_mode):
+            raise ValueError(
+                f"{what} {str(path)!r} is not a regular file (a device, FIFO or socket); give a .json or .toml file"
+            )
+        if st.st_size > MAX_SENSOR_FILE_BYTES:
+            raise ValueError(
+                f"{what} {str(path)!r} is {st.st_size} bytes; a sensor description is a small text file "
+                f"(at most {MAX_SENSOR_FILE_BYTES} bytes read)"
+            )
+        raw = os.read(fd, MAX_SENSOR_FILE_BYTES + 1)
+    finally:
+        os.close(fd)
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{what} {str(path)!r} is not UTF-8 text: {exc}") from None
+
+
 def load_sensor(spec: str | Path, relative_to: str | Path | None = None) -> SensorDescription:
-    """A preset name, or a path to a sensor file (``.json`` or ``.toml``)."""
+    """A preset name, or a path to a sensor file (``.json`` or ``.toml``).
+
+    A path is data: it must name a regular file (not a directory, FIFO or
+    device); anything else is refused with a ``ValueError`` naming the path.
+
+    Parameters
+    ----------
+    spec : str or Path
+        Preset name (see ``PRESETS``) or a file path.
+    relative_to : str or Path, optional
+        Folder a relative path is taken from (the folder of the log or scene
+        file that names it). The path must then stay inside that folder: an
+        absolute path, or one that climbs out with ``..`` or a link, is
+        refused (a path in a user's file is data, never a way out).
+
+    Examples
+    --------
+    >>> load_sensor("angels-4").n_electrodes
+    4
+    >>> try:
+    ...     load_sensor(".")
+    ... except ValueError as exc:
+    ...     print("directory" in str(exc))
+    True
+    """
     spec_str = str(spec)
     if spec_str in PRESETS:
         return preset(spec_str)
     path = Path(spec_str)
-    if relative_to is not None and not path.is_absolute():
-        path = Path(relative_to) / path
+    if relative_to is not None:
+        folder = Path(relative_to)
+        if path.is_absolute() or not (folder / path).resolve().is_relative_to(folder.resolve()):
+            raise ValueError(
+                f"sensor {spec_str!r} leads outside the folder of the file that names it ({folder}): a sensor file "
+                "named in a log or scene file must lie in that folder or below it (give a relative path without "
+                "'..', or a preset name)"
+            )
+        path = folder / path
     if not path.exists():
         raise ValueError(f"sensor {spec_str!r} is neither a preset ({', '.join(sorted(PRESETS))}) nor an existing file")
+    text = _read_regular_file(path, "sensor")
     if path.suffix == ".toml":
         import tomllib
 
-        data = tomllib.loads(path.read_text())
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"{path}: not valid TOML: {exc}") from None
         data = data.get("sensor", data)
     else:
         try:
-            data = json.loads(path.read_text())
+            data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a sensor file holds one object (a table of keys), got {type(data).__name__}")
     try:
         return SensorDescription.from_dict(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    except (TypeError, KeyError) as exc:
+        raise ValueError(f"{path}: not a sensor description: {exc}") from None
 
 
 def save_sensor(sensor: SensorDescription, path: str | Path) -> None:

@@ -54,7 +54,7 @@ import numpy as np
 from .labelled_mesh import LabelledMesh
 from .sensor import SensorDescription
 
-__all__ = ["mesh_sensor", "SensorProfile", "default_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
+__all__ = ["mesh_sensor", "estimate_triangles", "MAX_SENSOR_TRIANGLES", "SensorProfile", "default_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
 
 
 def default_edge_length_m(sensor: SensorDescription) -> float:
@@ -217,57 +217,9 @@ def _zip(ring_a: np.ndarray, angles_a: np.ndarray, ring_b: np.ndarray, angles_b:
     return tris
 
 
-def mesh_sensor(
-    sensor: SensorDescription,
-    edge_length_m: float | None = None,
-    grading: float = 1.15,
-    edge_refinement: float = 30.0,
-    max_aspect: float = 3.0,
-    azimuthal_refinement: float = 2.5,
-    ring_radius: str = "area",
-    uniform_cylinder: bool = False,
-) -> LabelledMesh:
-    """Closed, graded, labelled triangle mesh of a sensor in its own frame.
-
-    Parameters
-    ----------
-    sensor : SensorDescription
-        The sensor (cylinder with hemispherical ends and electrodes).
-    edge_length_m : float, optional
-        Edge length far from electrode edges (m); default
-        :func:`default_edge_length_m`.
-    grading : float
-        Growth ratio of consecutive ring spacings away from an electrode edge (> 1).
-    edge_refinement : float
-        Far edge length divided by the ring spacing at an electrode edge.
-    max_aspect : float
-        Azimuthal edge length at most ``max_aspect`` times the local axial spacing...
-    azimuthal_refinement : float
-        ...but never below ``edge_length_m / azimuthal_refinement``: near the
-        electrode edges the solution varies along the axis, hardly around it,
-        so the rings there are fine axially and only moderately fine around.
-    uniform_cylinder : bool
-        Give every ring of the cylinder the count of the electrode edges'
-        rings (``2 pi R`` over ``edge_length_m / azimuthal_refinement``). The
-        default (False) coarsens the rings away from the edges: 17 % fewer
-        triangles on angels-4 for the same conductance error.
-    ring_radius : {"area", "perimeter", "inscribed"}
-        Where the ring vertices go: on the circle (``"inscribed"``), or further
-        out so that each faceted ring encloses the circle's area (``"area"``,
-        the default: best capacitance per triangle) or has its perimeter.
-
-    Returns
-    -------
-    LabelledMesh
-        Normals into the water, ``electrode`` per face, region ``"sensor"``.
-
-    Example
-    -------
-    >>> from meshes.sensor import preset
-    >>> m = mesh_sensor(preset("angels-2"), edge_length_m=0.004)
-    >>> bool(abs(m.areas_m2.sum() / (2 * 3.14159265 * 0.01 * 0.2) - 1) < 0.01)
-    True
-    """
+def _ring_layout(sensor: SensorDescription, edge_length_m, grading, edge_refinement, max_aspect,
+                 azimuthal_refinement, uniform_cylinder):
+    """The rings of the mesh (axial positions, radii, vertex counts) before any vertex is made."""
     h_far = default_edge_length_m(sensor) if edge_length_m is None else float(edge_length_m)
     if not (np.isfinite(h_far) and h_far > 0):
         raise ValueError(f"mesh_sensor: edge_length_m must be positive, got {edge_length_m}")
@@ -297,6 +249,95 @@ def mesh_sensor(
         counts[on_cylinder] = m_cyl
         counts = np.minimum(counts, m_cyl)
     counts[0] = counts[-1] = 1
+    return profile, x_rings, r_rings, counts
+
+
+MAX_SENSOR_TRIANGLES = 1_000_000
+"""Most triangles :func:`mesh_sensor` makes: a dense BEM of that many would need terabytes."""
+
+
+def estimate_triangles(sensor: SensorDescription, edge_length_m: float | None = None, **options) -> int:
+    """Triangles :func:`mesh_sensor` would make, counted from its rings (cheap: nothing is meshed).
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> estimate_triangles(preset("angels-2"), 0.004) == mesh_sensor(preset("angels-2"), 0.004).n_triangles
+    True
+    """
+    defaults = dict(grading=1.15, edge_refinement=30.0, max_aspect=3.0, azimuthal_refinement=2.5,
+                    uniform_cylinder=False)
+    defaults.update({k: v for k, v in options.items() if k in defaults})
+    counts = _ring_layout(sensor, edge_length_m, **defaults)[3]
+    return int(np.sum(counts[:-1] + counts[1:]) - 2)
+
+
+def mesh_sensor(
+    sensor: SensorDescription,
+    edge_length_m: float | None = None,
+    grading: float = 1.15,
+    edge_refinement: float = 30.0,
+    max_aspect: float = 3.0,
+    azimuthal_refinement: float = 2.5,
+    ring_radius: str = "area",
+    uniform_cylinder: bool = False,
+    max_triangles: int | None = MAX_SENSOR_TRIANGLES,
+) -> LabelledMesh:
+    """Closed, graded, labelled triangle mesh of a sensor in its own frame.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+        The sensor (cylinder with hemispherical ends and electrodes).
+    edge_length_m : float, optional
+        Edge length far from electrode edges (m); default
+        :func:`default_edge_length_m`.
+    grading : float
+        Growth ratio of consecutive ring spacings away from an electrode edge (> 1).
+    edge_refinement : float
+        Far edge length divided by the ring spacing at an electrode edge.
+    max_aspect : float
+        Azimuthal edge length at most ``max_aspect`` times the local axial spacing...
+    azimuthal_refinement : float
+        ...but never below ``edge_length_m / azimuthal_refinement``: near the
+        electrode edges the solution varies along the axis, hardly around it,
+        so the rings there are fine axially and only moderately fine around.
+    uniform_cylinder : bool
+        Give every ring of the cylinder the count of the electrode edges'
+        rings (``2 pi R`` over ``edge_length_m / azimuthal_refinement``). The
+        default (False) coarsens the rings away from the edges: 17 % fewer
+        triangles on angels-4 for the same conductance error.
+    max_triangles : int or None
+        Refuse (``ValueError``), before meshing, an ``edge_length_m`` that would
+        make more triangles (default :data:`MAX_SENSOR_TRIANGLES`; None: no bound).
+    ring_radius : {"area", "perimeter", "inscribed"}
+        Where the ring vertices go: on the circle (``"inscribed"``), or further
+        out so that each faceted ring encloses the circle's area (``"area"``,
+        the default: best capacitance per triangle) or has its perimeter.
+
+    Returns
+    -------
+    LabelledMesh
+        Normals into the water, ``electrode`` per face, region ``"sensor"``.
+
+    Example
+    -------
+    >>> from meshes.sensor import preset
+    >>> m = mesh_sensor(preset("angels-2"), edge_length_m=0.004)
+    >>> bool(abs(m.areas_m2.sum() / (2 * 3.14159265 * 0.01 * 0.2) - 1) < 0.01)
+    True
+    """
+    if max_triangles is not None:
+        n = estimate_triangles(sensor, edge_length_m, grading=grading, edge_refinement=edge_refinement,
+                               max_aspect=max_aspect, azimuthal_refinement=azimuthal_refinement,
+                               uniform_cylinder=uniform_cylinder)
+        if n > max_triangles:
+            raise ValueError(
+                f"mesh_sensor: edge_length_m {edge_length_m} m would make about {n:,} triangles on this sensor; "
+                f"at most {max_triangles:,} are meshed: choose a larger edge length"
+            )
+    profile, x_rings, r_rings, counts = _ring_layout(sensor, edge_length_m, grading, edge_refinement, max_aspect,
+                                                     azimuthal_refinement, uniform_cylinder)
 
     vertices, rings, angles = [], [], []
     n_vertices = 0

@@ -116,7 +116,7 @@ def test_conductance_command(tmp_path, free_solution):
     from validation.cli import main
 
     out = tmp_path / "g.json"
-    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--edge-length", str(H),
+    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--sigma", "1", "--edge-length", str(H),
                                        "--json", str(out)])
     assert result.exit_code == 0, result.output
     assert "R1 =" in result.output
@@ -128,7 +128,7 @@ def test_conductance_command(tmp_path, free_solution):
     assert d["edge_correction"] is True
     np.testing.assert_allclose(d["K_surface_S"], free_solution.K_surface_S, rtol=1e-10)
     raw = tmp_path / "raw.json"
-    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--edge-length", str(H),
+    result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--sigma", "1", "--edge-length", str(H),
                                        "--no-edge-correction", "--json", str(raw)])
     assert result.exit_code == 0, result.output
     assert "no edge correction" in result.output

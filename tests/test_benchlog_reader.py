@@ -200,3 +200,71 @@ def test_several_files_become_passes(tmp_path):
     c = write_bench_log(tmp_path / "c.csv", dict(META_DICT, tank_m=None), _frame(2))
     with pytest.raises(BenchLogError, match="c.csv, line 2: not the same run as a.csv: the meta differs on tank_m"):
         read_bench_logs([a, c])
+
+
+# ------------------------------------------------- the reader never changes a number
+@pytest.mark.parametrize("value, words", [
+    ("1_0", "underscore"),
+    (" 1.0 ", "spaces around it"),
+    ("1.0 ", "spaces around it"),
+    ("0x10", "non-numeric"),
+    ("1e400", "overflows a double"),
+    ("nan", "non-finite"),
+    ("", "empty value"),
+])
+def test_a_number_written_otherwise_than_plainly_is_refused(tmp_path, value, words):
+    row = ROW1.split(",")
+    row[7] = value  # I2_A
+    lines = _good([]) [:-1] + [",".join(row)]
+    with pytest.raises(BenchLogError, match=words) as info:
+        read_bench_log(_write(tmp_path, lines))
+    assert info.value.line == 6
+
+
+@pytest.mark.parametrize("value", ["1", "-0.5", "+.5", "1.", "1.0314e-03", "2E+5"])
+def test_plain_decimal_forms_are_read_exactly(tmp_path, value):
+    row = ROW1.split(",")
+    row[7] = value
+    log = read_bench_log(_write(tmp_path, _good()[:-1] + [",".join(row)]))
+    assert log.currents_A[1, 1] == float(value)
+
+
+def test_a_pass_that_overflows_is_refused_not_warned(tmp_path, recwarn):
+    lines = ["# esense-bench-log 1", META, COLUMNS + ",pass", ROW0 + ",0", ROW1 + ",1e20"]
+    with pytest.raises(BenchLogError, match="out of range") as info:
+        read_bench_log(_write(tmp_path, lines))
+    assert info.value.line == 5 and len(recwarn) == 0
+
+
+def test_a_meta_key_given_twice_is_refused(tmp_path):
+    meta = META[:-1] + ', "sigma_S_per_m": 0.05}'
+    with pytest.raises(BenchLogError, match="'sigma_S_per_m' appears twice") as info:
+        read_bench_log(_write(tmp_path, ["# esense-bench-log 1", meta] + _good()[2:]))
+    assert info.value.line == 2
+
+
+def test_a_byte_order_mark_is_named(tmp_path):
+    p = tmp_path / "bom.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + ("\n".join(_good()) + "\n").encode())
+    with pytest.raises(BenchLogError, match="byte-order mark") as info:
+        read_bench_log(p)
+    assert info.value.line == 1
+    from validation.benchlog import read_header
+    with pytest.raises(BenchLogError, match="byte-order mark"):
+        read_header(p)
+
+
+def test_cr_only_line_ends_are_named(tmp_path):
+    p = tmp_path / "mac.csv"
+    p.write_bytes(("\r".join(_good()) + "\r").encode())
+    with pytest.raises(BenchLogError, match="CR-only"):
+        read_bench_log(p)
+    from validation.benchlog import read_header
+    with pytest.raises(BenchLogError, match="CR-only"):
+        read_header(p)
+
+
+def test_a_trailing_space_on_line_1_is_named_not_called_a_version(tmp_path):
+    with pytest.raises(BenchLogError, match="no trailing space") as info:
+        read_bench_log(_write(tmp_path, ["# esense-bench-log 1 "] + _good()[1:]))
+    assert "version" not in info.value.reason

@@ -69,3 +69,5 @@ def test_demo_quick_with_diagnosis(tmp_path):
     assert "Gap diagnosis" in html
     assert (out / "diagnosis" / "angels-2_line" / "diagnosis.json").exists()
     assert "diagnosis/angels-2_line/index.html" in html
+    assert "diagnosis failed" not in html
+    assert "angels-2_line:   fitting conductivity" in r.output  # the diagnosis's steps shown as they come

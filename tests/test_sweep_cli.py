@@ -145,3 +145,55 @@ def test_bem_sweep_with_an_object_reads_back_and_rises_towards_the_walls(tmp_pat
     R = log.data["R1_ohm"].to_numpy()
     assert R[0] > R[1] and R[2] > R[1]  # insulating walls 5 cm from the tips raise the resistance
     assert abs(R[0] - R[2]) / R[1] < 0.01  # the set-up is mirror symmetric in x
+
+
+def test_a_refused_sweep_leaves_nothing_and_a_different_rerun_is_never_blocked(tmp_path, psm_file):
+    out = tmp_path / "line.csv"
+    partial = tmp_path / "line.csv.partial.zarr"
+    # the PSM's sphere reaches beyond the wall at this pose: refused before any store exists
+    bad = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--tank", "0.3,0.3,0.3",
+               "--from", "-0.15,0", "--to", "0.15,0", "--steps", 5, "--quiet", "-o", out)
+    assert bad.exit_code != 0 and not partial.exists() and not out.exists()
+    # a partial store of another run (an interrupted sweep) is replaced, with a word
+    args = ("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--unbounded", *LINE, "--quiet")
+    r = _run(*args[:-1], "--sigma", 0.2, "--workers", 1, "--quiet", "-o", tmp_path / "other.zarr")
+    assert r.exit_code == 0, r.output
+    (tmp_path / "other.zarr").rename(partial)
+    good = _run(*args, "-o", out)
+    assert good.exit_code == 0, good.output
+    assert "starting over" in good.output and out.exists() and not partial.exists()
+
+
+def test_a_zarr_of_another_sweep_says_how_to_go_on_and_overwrite_replaces_it(tmp_path, psm_file):
+    args = ("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--unbounded", *LINE, "--quiet")
+    assert _run(*args, "-o", tmp_path / "s.zarr").exit_code == 0
+    other = _run(*args, "--sigma", 0.5, "-o", tmp_path / "s.zarr")
+    assert other.exit_code != 0 and "--overwrite" in other.output
+    again = _run(*args, "--sigma", 0.5, "--overwrite", "-o", tmp_path / "s.zarr")
+    assert again.exit_code == 0 and "starting over" in again.output
+
+
+@pytest.mark.slow
+def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path, psm_file):
+    """SIGINT to the whole process group, as a terminal sends it: no worker tracebacks, the store kept."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "map.csv"
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from validation.cli import main; main()",
+           "sweep", "--model", "psm", "--psm", str(psm_file), "--sensor", "angels-4", "--unbounded",
+           "--grid", "-0.3:0.3:1200,-0.3:0.3:1200", "--workers", "2", "--quiet", "-o", str(out)]
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    store = tmp_path / "map.csv.partial.zarr"
+    t0 = time.monotonic()
+    while not store.exists() and time.monotonic() - t0 < 60 and p.poll() is None:
+        time.sleep(0.2)
+    time.sleep(3)
+    os.killpg(p.pid, signal.SIGINT)
+    output, _ = p.communicate(timeout=60)
+    assert p.returncode == 130, output
+    assert "Traceback" not in output and "KeyboardInterrupt" not in output
+    assert "interrupted (Ctrl-C)" in output and "run the same command again to resume" in output
+    assert store.exists() and not out.exists()

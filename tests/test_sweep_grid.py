@@ -95,3 +95,16 @@ def test_tank_map_png(tmp_path):
     assert image.dimensions[0] == 900  # three panels of 300 pixels
     pixels = image.point_data[image.array_names[0]]
     assert len(np.unique(pixels.reshape(len(pixels), -1), axis=0)) > 50  # a coloured map, not a blank canvas
+
+
+def test_a_grid_too_large_for_memory_is_refused_before_allocating():
+    import time
+
+    from validation.sweep.grid import GridError, parse_grid
+
+    t0 = time.perf_counter()
+    with pytest.raises(GridError, match=r"--grid gives 900,000,000 poses"):
+        parse_grid("-0.3:0.3:30000,-0.3:0.3:30000")
+    with pytest.raises(GridError, match="--steps"):
+        line_poses((0, 0), (1, 0), 10**9)
+    assert time.perf_counter() - t0 < 1.0  # nothing was built

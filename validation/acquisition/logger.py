@@ -29,11 +29,10 @@ from __future__ import annotations
 
 import codecs
 import datetime as _dt
-import os
 import sys
 import threading
 import time
-from dataclasses import dataclass, field, fields as dc_fields
+from dataclasses import dataclass, fields as dc_fields
 from pathlib import Path
 
 from validation.benchlog import BenchLogWriter, standard_columns
@@ -75,6 +74,7 @@ class AcquisitionCounters:
     duplicates: int = 0   #: records received twice (same boot and seq)
     gaps: int = 0         #: jumps in the sequence
     missing: int = 0      #: records never received intact (sum of the gaps)
+    missing_while_down: int = 0  #: of ``missing``: records the device sent while no logger ran (``append``)
     incomplete: int = 0   #: lines cut short by a lost port or the end of the acquisition
     restarts: int = 0     #: device restarts (new boot number)
     reconnects: int = 0   #: times the port was lost and opened again
@@ -99,17 +99,21 @@ class AcquisitionSummary:
     seconds: float
     device: str
     stopped_by: str
+    resumed: str = ""  #: with ``append``: how the new records follow the log's last one
 
     def text(self) -> str:
         c = self.counters
+        down = f", {c.missing_while_down} of them while the logger was down" if c.missing_while_down else ""
         lines = [
             f"{c.records} records written to {self.log_path} in {self.seconds:.1f} s (stopped by {self.stopped_by})",
             f"device: {self.device}",
             f"rejected {c.rejected}: checksum {c.corrupt}, framing {c.framing}, noise {c.garbage}, "
             f"refused {c.refused}, duplicates {c.duplicates}, cut short {c.incomplete}",
-            f"sequence: {c.gaps} gaps ({c.missing} records missing), {c.restarts} device restarts, "
+            f"sequence: {c.gaps} gaps ({c.missing} records missing{down}), {c.restarts} device restarts, "
             f"{c.reconnects} reconnects",
         ]
+        if self.resumed:
+            lines.append(self.resumed)
         if c.after_stop:
             lines.append(f"{c.after_stop} lines received after the stop condition kept in the side file, not logged")
         if c.rejected or c.gaps or c.restarts or c.reconnects or c.after_stop:
@@ -144,7 +148,11 @@ class Logger:
     quiet : bool
         No live status line.
     status : file
-        Where the status line goes (default stderr).
+        Where the status line goes (default stderr). On a terminal it is one
+        line updated in place (at most 4 times a second); otherwise (a file,
+        a pipe, a CI log) a full line every ``status_interval_s``.
+    status_interval_s : float
+        Seconds between two status lines when ``status`` is not a terminal.
     fields : sequence of str, optional
         Field names of a record, for a device that does not answer ``ID``;
         default: the hello's fields, or the spec's columns for the sensor.
@@ -164,7 +172,7 @@ class Logger:
                  seconds: float | None = None, append: bool = False, quiet: bool = False, status=None,
                  fields=None, identify_timeout_s: float = 2.0, reconnect_interval_s: float = 0.5,
                  read_timeout_s: float = 0.05, sync_interval_s: float = 0.5, stop: threading.Event | None = None,
-                 start_device: bool = True, voltage_V: float | None = None):
+                 start_device: bool = True, voltage_V: float | None = None, status_interval_s: float = 5.0):
         self.port_url = str(port)
         self.log_path = Path(log_path)
         self.rejected_path = rejected_path(self.log_path)
@@ -176,6 +184,11 @@ class Logger:
         self.samples, self.seconds = samples, seconds
         self.append, self.quiet = append, quiet
         self.status = sys.stderr if status is None else status
+        try:
+            self._status_tty = bool(self.status.isatty())
+        except (AttributeError, ValueError, OSError):
+            self._status_tty = False
+        self.status_interval_s = float(status_interval_s)
         self.fields = tuple(fields) if fields is not None else None
         self.identify_timeout_s = identify_timeout_s
         self.reconnect_interval_s = reconnect_interval_s
@@ -200,6 +213,8 @@ class Logger:
         self._status_shown = 0.0
         self._status_len = 0
         self._stop_reason_text: str | None = None
+        self._resume: tuple[int, int] | None = None  # (boot, seq) of the log's last record, when appending
+        self._resumed_text = ""
 
     def request_stop(self, reason: str = "stop request") -> None:
         """Stop the loop at its next turn (safe from a signal handler or another thread)."""
@@ -297,10 +312,40 @@ class Logger:
         if self._writer.recovered_tail is not None:
             self._side_write("cut-short last line removed from the log before appending",
                              self._writer.recovered_tail.encode("utf-8", "backslashreplace"))
+        if self.append:
+            self._resume_sequence()
         self._start()
         pending, self._pending = self._pending, []
         for record in pending:
             self._take_record(record, raw=None)
+
+    def _resume_sequence(self) -> None:
+        """Appending: go on from the (boot, seq) of the log's last record, so that what was lost counts.
+
+        Records the device sent while no logger ran show up as a gap before
+        the first new record of the same boot; another boot (announced by the
+        hello or by the first record) is a restart of the device.
+        """
+        last = self._writer.last_row
+        if not last or "boot" not in last or "seq" not in last:
+            self._resumed_text = "appending: the log's last record has no boot/seq; losses before now are unknown"
+            return
+        try:
+            boot, seq = int(last["boot"]), int(last["seq"])
+        except ValueError:
+            self._resumed_text = (f"appending: the log's last record has boot {last['boot']!r} seq {last['seq']!r}; "
+                                  "losses before now are unknown")
+            return
+        self._resume = (boot, seq)
+        self._resumed_text = f"appending after the log's last record: boot {boot} seq {seq}"
+        announced = self._tracker.boot
+        if announced is not None and announced != boot:
+            self.counters.restarts += 1
+            self._resumed_text += f"; the device restarted meanwhile (now boot {announced})"
+            self._event(f"device restarted since the log's last record: boot {boot} -> {announced} (records sent "
+                        f"by boot {boot} after seq {seq} are unknown)")
+        else:
+            self._tracker.boot, self._tracker.seq = boot, seq
 
     def _shifted(self, text: str, offset: float) -> str:
         """``text`` (a time in s) plus ``offset``, with as many decimals as the device wrote."""
@@ -328,7 +373,14 @@ class Logger:
         elif event == "gap":
             self.counters.gaps += 1
             self.counters.missing += n
-            self._event(f"gap: {n} record{'s' if n > 1 else ''} missing before boot {record.boot} seq {record.seq}")
+            down = ""
+            if self._resume is not None and self.counters.records == 0 and self._resume[0] == record.boot:
+                self.counters.missing_while_down += n
+                down = " (sent while the logger was down, after the log's last record)"
+            self._event(f"gap: {n} record{'s' if n > 1 else ''} missing before boot {record.boot} seq {record.seq}"
+                        + down)
+        if event == "restart" and self._resume is not None and self.counters.records == 0:
+            self._resumed_text += f"; the device restarted meanwhile (now boot {record.boot})"
         values = list(record.values)
         t_index = self._columns.index("t_s")
         if record.boot != self._offset_boot:
@@ -373,6 +425,8 @@ class Logger:
             if self._tracker.note_hello(message.boot):
                 self.counters.restarts += 1
                 self._event(f"device restarted: hello with boot {message.boot}")
+                if self._resume is not None and self.counters.records == 0:
+                    self._resumed_text += f"; the device restarted meanwhile (now boot {message.boot})"
                 if self._writer is not None:
                     self._start()
             if self._writer is None:
@@ -406,16 +460,23 @@ class Logger:
         return text
 
     def _show_status(self, t0: float, waiting: bool = False, force: bool = False) -> None:
+        """The live status: updated in place on a terminal, a line every ``status_interval_s`` elsewhere."""
         if self.quiet:
             return
         now = time.monotonic()
-        if not force and now - self._status_shown < 0.25:
+        interval = 0.25 if self._status_tty else self.status_interval_s
+        if not self._status_tty and not self._status_shown:
+            self._status_shown = now  # the first line after one interval, not "0 records" at once
+        if not force and now - self._status_shown < interval:
             return
         self._status_shown = now
         text = self.status_text(t0, waiting)
-        pad = max(0, self._status_len - len(text))
-        self._status_len = len(text)
-        self.status.write("\r" + text + " " * pad)
+        if self._status_tty:
+            pad = max(0, self._status_len - len(text))
+            self._status_len = len(text)
+            self.status.write("\r" + text + " " * pad)
+        else:
+            self.status.write(f"[{now - t0:7.1f} s] {text}\n")
         self.status.flush()
 
     # ------------------------------------------------------------------- loop
@@ -487,12 +548,13 @@ class Logger:
                 self._writer.close()
             if not self.quiet:
                 self._show_status(t0, force=True)
-                self.status.write("\n")
+                if self._status_tty:
+                    self.status.write("\n")
                 self.status.flush()
             if self._side is not None:
                 self._side.close()
         return AcquisitionSummary(self.log_path, self.rejected_path, self.counters, time.monotonic() - t0,
-                                  self.device, stopped_by)
+                                  self.device, stopped_by, self._resumed_text)
 
     def _stop_reason(self, t0: float) -> str:
         if self.samples is not None and self.counters.records >= self.samples:

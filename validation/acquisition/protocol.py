@@ -164,9 +164,12 @@ def _unframe(line: bytes) -> tuple[bytes, str]:
         raise FrameError("content", "non-ASCII bytes in a checked line") from None
 
 
-def _integer(text: str, what: str) -> int:
-    if not text.isdigit():
+def _integer(text: str, what: str, limit: int | None = None) -> int:
+    """A non-negative decimal integer (ASCII digits only), below ``limit`` when given."""
+    if not (text.isascii() and text.isdigit()):
         raise FrameError("content", f"{what} {text!r} is not a non-negative integer")
+    if limit is not None and (len(text) > len(str(limit)) or int(text) >= limit):
+        raise FrameError("content", f"{what} {text} is out of range (0 .. 2^32-1)")
     return int(text)
 
 
@@ -182,11 +185,12 @@ def parse_line(line: bytes) -> tuple[bytes, DataRecord | Hello | Ack]:
     if kind == "D":
         if len(parts) < 4:
             raise FrameError("content", "a record needs boot, seq and values")
-        return prefix, DataRecord(_integer(parts[1], "boot"), _integer(parts[2], "seq"), tuple(parts[3:]))
+        return prefix, DataRecord(_integer(parts[1], "boot", SEQ_MODULUS), _integer(parts[2], "seq", SEQ_MODULUS),
+                                  tuple(parts[3:]))
     if kind == "H":
         if len(parts) != 5:
             raise FrameError("content", f"a hello has 5 parts (H,boot,version,device,fields), found {len(parts)}")
-        return prefix, Hello(_integer(parts[1], "boot"), _integer(parts[2], "protocol version"), parts[3],
+        return prefix, Hello(_integer(parts[1], "boot", SEQ_MODULUS), _integer(parts[2], "protocol version"), parts[3],
                              tuple(parts[4].split(";")))
     if kind == "A":
         if len(parts) < 3 or parts[2] not in ("OK", "ERR"):

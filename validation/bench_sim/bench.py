@@ -21,13 +21,14 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from meshes.sensor import SensorDescription
 from meshes.tank import Tank
 from validation.benchlog.header import receiver_columns
+from validation.defaults import BENCH_CURRENT_NOISE_REL, BENCH_POSITION_NOISE_M
 
 from .effects import TEMPERATURE_COEFFICIENT_PER_K, Effects
 
@@ -40,8 +41,8 @@ SIMULATOR_LABEL = "esense bench-sim: SIMULATED data from the virtual bench, not 
 class BenchNoise:
     """The bench's imprecision: relative current noise and robot position noise (1 sigma)."""
 
-    current_rel: float = 5e-4      # the paper: 0.05 % relative precision of the current measurement
-    position_m: float = 1e-4       # the paper: 0.1 mm precision of the cartesian robot
+    current_rel: float = BENCH_CURRENT_NOISE_REL   # the paper: 0.05 % relative precision of the current
+    position_m: float = BENCH_POSITION_NOISE_M     # the paper: 0.1 mm precision of the cartesian robot
 
 
 @dataclass

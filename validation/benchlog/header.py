@@ -1,6 +1,6 @@
 """The header of a bench log (version 1): format line, meta line, column row.
 
-See the bench-log format (version 1): line 1 is exactly
+See the bench-log format (version 1), ``docs/bench-log.md``: line 1 is exactly
 ``# esense-bench-log 1``, line 2 is ``# meta: `` and one JSON object, more
 ``#`` comment lines may follow, then the column row. This module turns that
 text into checked Python objects, and back; the reader and the writer share it
@@ -76,16 +76,35 @@ def standard_columns(sensor: SensorDescription, temperature: bool = False, passe
 
 
 def parse_format_line(text: str, file) -> None:
-    """Refuse anything but ``# esense-bench-log 1`` as line 1."""
+    """Refuse anything but ``# esense-bench-log 1`` as line 1, saying what differs."""
     if text == FORMAT_LINE:
         return
+    if text.startswith("\ufeff"):
+        raise BenchLogError(file, 1, "line 1 starts with a UTF-8 byte-order mark (BOM); save the file as UTF-8 "
+                                     "without a BOM")
     m = re.fullmatch(r"#\s*esense-bench-log\s+(\S+)\s*", text)
-    if m:
+    if m and m.group(1) != str(FORMAT_VERSION):
         raise BenchLogError(
             file, 1, f"unsupported bench-log version {m.group(1)!r}: this reader knows version {FORMAT_VERSION} "
             f"(line 1 must be exactly {FORMAT_LINE!r})"
         )
+    if text.strip() == FORMAT_LINE:
+        raise BenchLogError(file, 1, f"line 1 has white space around {FORMAT_LINE!r} (found {text!r}); it must be "
+                                     "exactly that text, with no trailing space")
+    if m:
+        raise BenchLogError(file, 1, f"line 1 is spaced differently from {FORMAT_LINE!r} (found {text!r}); it must "
+                                     "be exactly that text")
     raise BenchLogError(file, 1, f"not a bench log: line 1 must be exactly {FORMAT_LINE!r}, found {text[:60]!r}")
+
+
+def _unique_keys(pairs: list[tuple[str, object]]) -> dict:
+    """A JSON object's pairs as a dict, refusing a key given twice (json would keep the last one silently)."""
+    out = {}
+    for key, value in pairs:
+        if key in out:
+            raise ValueError(f"the key {key!r} appears twice (a reader would have to choose one value)")
+        out[key] = value
+    return out
 
 
 def _refuse_constant(name: str):
@@ -97,7 +116,7 @@ def parse_meta_line(text: str, file, line: int = META_LINE) -> dict:
     if not text.startswith(META_PREFIX):
         raise BenchLogError(file, line, f"line 2 must start with {META_PREFIX!r} and hold one JSON object, found {text[:60]!r}")
     try:
-        meta = json.loads(text[len(META_PREFIX):], parse_constant=_refuse_constant)
+        meta = json.loads(text[len(META_PREFIX):], parse_constant=_refuse_constant, object_pairs_hook=_unique_keys)
     except (json.JSONDecodeError, ValueError) as exc:
         raise BenchLogError(file, line, f"bad JSON in the meta line: {exc}") from None
     if not isinstance(meta, dict):

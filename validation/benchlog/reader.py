@@ -1,9 +1,12 @@
-"""Strict reader of bench logs (format version 1).
+"""Strict reader of bench logs (format version 1, specified in ``docs/bench-log.md``).
 
 A bench log is refused, with the file, the line and the reason, when the
-first line or the version is wrong, the meta JSON is bad or lacks a required
-key, a required column is missing, a value is not a finite number, time goes
-backwards, or the receiver columns do not match the sensor. A final line cut
+first line or the version is wrong, the file starts with a byte-order mark,
+a line ends otherwise than with ``\\n``, the meta JSON is bad, repeats a key
+or lacks a required key, a required column is missing, a value is not a
+finite number written plainly (padding, ``1_0``, hex and overflow are
+refused: the reader never changes a number), time goes backwards, or the
+receiver columns do not match the sensor. A final line cut
 short by a crash (no line end) is reported in ``BenchLog.warnings`` and
 skipped, never taken. Nothing is guessed.
 
@@ -16,6 +19,7 @@ Example
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +38,11 @@ from .header import (
 __all__ = ["BenchLog", "read_bench_log", "read_bench_logs", "read_header"]
 
 _NON_FINITE = {"nan", "+nan", "-nan", "inf", "+inf", "-inf", "infinity", "+infinity", "-infinity"}
+_DECIMAL = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+"""A number as the spec writes it: decimal digits, an optional point and exponent; nothing else."""
+MAX_PASS = 2**53
+"""Largest pass number taken (every integer up to it is exact as a double)."""
+BOM = "\ufeff"
 
 
 @dataclass
@@ -140,12 +149,30 @@ class BenchLog:
 
 
 # --------------------------------------------------------------------- reading
-def _decode(raw: bytes, file) -> str:
+def _decode(raw: bytes, file, first_line: bool = True) -> str:
     try:
-        return raw.decode("utf-8")
+        text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         line = raw.count(b"\n", 0, exc.start) + 1
         raise BenchLogError(file, line, f"not UTF-8 text (byte 0x{raw[exc.start]:02x})") from None
+    if first_line and text.startswith(BOM):
+        raise BenchLogError(
+            file, 1, "the file starts with a UTF-8 byte-order mark (BOM, bytes EF BB BF); a bench log is UTF-8 "
+            "without a BOM: save it again without one (e.g. 'UTF-8' rather than 'UTF-8 with BOM')"
+        )
+    return text
+
+
+def _check_line_end(line: str, number: int, file) -> None:
+    """Refuse a carriage return in a line: Windows (\\r\\n) or old Mac (\\r only) line ends."""
+    if "\r" not in line:
+        return
+    if line.endswith("\r") and "\r" not in line[:-1]:
+        raise BenchLogError(file, number, "line ends must be \\n; this line ends with \\r\\n (Windows line ends)")
+    raise BenchLogError(
+        file, number, "line ends must be \\n; this line holds a carriage return (\\r) inside it: the file has "
+        "CR-only (old Mac) line ends, or a stray \\r"
+    )
 
 
 def _split_lines(text: str, file) -> tuple[list[str], str | None]:
@@ -153,8 +180,9 @@ def _split_lines(text: str, file) -> tuple[list[str], str | None]:
     lines = text.split("\n")
     tail = lines.pop()  # "" when the file ends with a line end
     for i, line in enumerate(lines):
-        if line.endswith("\r"):
-            raise BenchLogError(file, i + 1, "line ends must be \\n; this line ends with \\r\\n (Windows line ends)")
+        _check_line_end(line, i + 1, file)
+    if tail and not lines and "\r" in tail:
+        _check_line_end(tail, 1, file)
     return lines, (tail if tail != "" else None)
 
 
@@ -168,10 +196,11 @@ def read_header(path: str | Path) -> tuple[Header, list[str], int]:
         head_lines = []
         for raw in f:
             if not raw.endswith(b"\n"):
+                if b"\r" in raw:
+                    _check_line_end(_decode(raw, path, first_line=not head_lines), len(head_lines) + 1, path)
                 break
-            text = _decode(raw, path)
-            if text.endswith("\r\n"):
-                raise BenchLogError(path, len(head_lines) + 1, "line ends must be \\n; this line ends with \\r\\n")
+            text = _decode(raw, path, first_line=not head_lines)
+            _check_line_end(text[:-1], len(head_lines) + 1, path)
             head_lines.append(text[:-1])
             if len(head_lines) > 2 and not text.startswith("#"):
                 break
@@ -197,27 +226,31 @@ def _parse_header(lines: list[str], file) -> tuple[Header, list[str], int]:
 
 
 def _first_bad(values: list[str]) -> tuple[int, str] | None:
-    """Index and reason of the first value that is not a finite number, or None."""
-    try:
-        arr = np.array(values, dtype=float)
-    except ValueError:
-        arr = None
-    if arr is not None:
-        bad = np.flatnonzero(~np.isfinite(arr))
-        if bad.size == 0:
-            return None
-        i = int(bad[0])
-        return i, f"non-finite value {values[i]!r}"
+    """Index and reason of the first value that is not a finite number written plainly, or None.
+
+    A value is taken only when it is a plain decimal number (``1``, ``-0.5``,
+    ``1.0314e-03``): no padding, no digit separators (``1_0``), no hex, no
+    ``nan``/``inf``, and no overflow (``1e400``).
+    """
+    match = _DECIMAL.fullmatch
     for i, v in enumerate(values):
+        if match(v):
+            continue
+        if v == "":
+            return i, "empty value"
+        if v != v.strip():
+            return i, f"value {v!r} has spaces around it (values are written without padding)"
         if v.strip().lower() in _NON_FINITE:
             return i, f"non-finite value {v!r}"
-        try:
-            x = float(v)
-        except ValueError:
-            return i, ("empty value" if v == "" else f"non-numeric value {v!r}")
-        if not np.isfinite(x):
-            return i, f"non-finite value {v!r}"
-    return None  # pragma: no cover - numpy and float agree
+        if "_" in v:
+            return i, f"value {v!r} holds an underscore (digit separators are not part of the format)"
+        return i, f"non-numeric value {v!r}"
+    arr = np.array(values, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        i = int(bad[0])
+        return i, f"value {values[i]!r} overflows a double (non-finite)"
+    return None
 
 
 def _column_values(rows: list[list[str]], j: int) -> list[str]:
@@ -297,6 +330,11 @@ def read_bench_log(path: str | Path) -> BenchLog:
         if frac.size:
             i = int(frac[0])
             raise BenchLogError(path, first + i, f"pass must be an integer, found {rows[i][columns.index(PASS_COLUMN)]!r}")
+        huge = np.flatnonzero(np.abs(p) > MAX_PASS)
+        if huge.size:
+            i = int(huge[0])
+            raise BenchLogError(path, first + i, f"pass {rows[i][columns.index(PASS_COLUMN)]!r} is out of range "
+                                                 f"(a pass number is an integer of magnitude at most 2**53)")
         data[PASS_COLUMN] = p.astype(np.int64)
     t = data["t_s"]
     back = np.flatnonzero(np.diff(t) < 0)

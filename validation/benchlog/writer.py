@@ -132,6 +132,8 @@ class BenchLogWriter:
         ``t_s`` of the last record in the file.
     recovered_tail : str or None
         A cut-short last line removed when appending.
+    last_row : dict or None
+        When appending: the file's last record, column name to text as written.
     """
 
     def __init__(self, path, meta: dict, columns: Sequence[str] | None = None, append: bool = False,
@@ -142,6 +144,7 @@ class BenchLogWriter:
         self.header = header
         self.recovered_tail: str | None = None
         self.last_t_s: float | None = None
+        self.last_row: dict[str, str] | None = None
         self.n_written = 0
         self._unsynced_since: float | None = None
         exists = self.path.exists()
@@ -188,6 +191,7 @@ class BenchLogWriter:
         fields = last.split(",")
         if len(fields) == len(old_columns) and last != ",".join(old_columns):
             self.last_t_s = float(fields[old_columns.index("t_s")])
+            self.last_row = dict(zip(old_columns, fields))
         return tuple(old_columns)
 
     # --------------------------------------------------------------- records

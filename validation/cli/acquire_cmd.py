@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from ._parsing import finite_float
+
 
 @click.command("acquire")
 @click.option("--port", required=True, metavar="PORT_OR_URL",
@@ -21,7 +23,7 @@ import click
 @click.option("--fields", default=None, metavar="NAME,NAME,...",
               help="Field names of a record, for a device that does not answer ID (default: from its hello line).")
 @click.option("--no-start", is_flag=True, help="Do not send START to the device (it streams by itself).")
-@click.option("--voltage", type=float, default=None,
+@click.option("--voltage", type=finite_float(positive=True), default=None,
               help="Ask the device for this emitter voltage U in V (command VOLT) before starting it.")
 @click.option("--reconnect-interval", default=0.5, show_default=True, type=click.FloatRange(min=0.01),
               help="Seconds between attempts to reopen a lost port.")

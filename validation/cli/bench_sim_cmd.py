@@ -3,6 +3,10 @@ from __future__ import annotations
 
 import click
 
+from validation.defaults import NOMINAL_SIGMA_S_PER_M
+
+from ._parsing import finite_float, parse_tank
+
 
 @click.command("bench-sim")
 @click.option("--pty", "use_pty", is_flag=True, help="Serve on a pseudo-terminal (the default); its path is printed.")
@@ -20,16 +24,17 @@ import click
 @click.option("--psm-model", default=None, type=click.Path(exists=True, dir_okay=False),
               help="PSM JSON file (default: the PSM calibrated on the sensor's free-space BEM).")
 @click.option("--tank", default="1,1,1", show_default=True, help="Inner tank size LX,LY,LZ in m, or none.")
-@click.option("--depth", type=float, default=None, help="Water depth in m (default: the tank's height).")
-@click.option("--sigma", type=float, default=0.0354, show_default=True, help="Nominal water conductivity in S/m.")
+@click.option("--depth", type=finite_float(positive=True), default=None, help="Water depth in m (default: the tank's height).")
+@click.option("--sigma", type=finite_float(positive=True), default=NOMINAL_SIGMA_S_PER_M, show_default=True,
+              help="Nominal water conductivity in S/m.")
 @click.option("--path", "path_spec", default="wall-to-wall", show_default=True,
               help="Trajectory: wall-to-wall[:N], line:X0,Y0,Z0,YAW0:X1,Y1,Z1,YAW1:N, grid:X0,X1,NX:Y0,Y1,NY[:Z[:YAW]].")
 @click.option("--passes", type=click.IntRange(min=1), default=1, show_default=True,
               help="Repeat the path, back and forth (numbered in the pass column).")
-@click.option("--rate", type=click.FloatRange(min=0, min_open=True), default=10.0, show_default=True,
+@click.option("--rate", type=finite_float(positive=True), default=10.0, show_default=True,
               help="Records per second.")
-@click.option("--voltage", type=float, default=1.0, show_default=True, help="Emitter voltage U in V.")
-@click.option("--temperature", type=float, default=20.0, show_default=True, help="Water temperature at start, C.")
+@click.option("--voltage", type=finite_float(positive=True), default=1.0, show_default=True, help="Emitter voltage U in V.")
+@click.option("--temperature", type=finite_float(), default=20.0, show_default=True, help="Water temperature at start, C.")
 @click.option("--effect", "effects", multiple=True, metavar="NAME=VALUE",
               help="Physical effect, repeatable: conductivity=-2% (true/nominal - 1), temperature_drift=0.5 (K over "
                    "the run, 2 %/K), contact_impedance=0.01 (ohm m^2), channel_gain=1.01,0.99,1 (per receiver), "
@@ -37,7 +42,7 @@ import click
                    "unmodelled_object=sphere,X,Y,Z,R[,conducting|insulating|S/m] or cylinder,X,Y,R,H[,...].")
 @click.option("--faults", default=None, metavar="KIND=N,...",
               help="Fault injection: corrupt, drop, garbage, disconnect, restart with counts, or all, or none.")
-@click.option("--disconnect-s", type=float, default=1.0, show_default=True, help="How long a disconnection lasts.")
+@click.option("--disconnect-s", type=finite_float(positive=True), default=1.0, show_default=True, help="How long a disconnection lasts.")
 @click.option("--seed", type=int, default=None, help="Random seed (noise, faults).")
 @click.option("--truth", default=None, type=click.Path(dir_okay=False),
               help="Also write what happened to every sample (true pose, fate) into this bench log.")
@@ -77,9 +82,25 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         raise click.UsageError("choose one of --pty, --port and -o")
     try:
         sens = load_sensor(sensor)
-        if emitter is not None:
-            sens = sens.with_emitter(emitter)
-        tank_obj = None if tank.strip().lower() == "none" else Tank(tuple(float(v) for v in tank.split(",")), depth)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--sensor") from None
+    if emitter is not None and not 1 <= emitter <= sens.n_electrodes:
+        raise click.BadParameter(f"{emitter} is not an electrode of {sens.name} (1..{sens.n_electrodes})",
+                                 param_hint="--emitter")
+    if emitter is not None:
+        sens = sens.with_emitter(emitter)
+    if tank.strip().lower() == "none":
+        if depth is not None:
+            raise click.UsageError("--depth needs a tank; --tank none is unbounded water")
+        tank_obj = None
+    else:
+        tank_obj = parse_tank(tank)
+        if depth is not None:
+            try:
+                tank_obj = Tank(tank_obj.size_m, depth)
+            except ValueError as exc:
+                raise click.BadParameter(str(exc), param_hint="--depth") from None
+    try:
         fx = Effects.parse(effects)
         plan = FaultPlan.parse(faults, disconnect_s)
         poses, pass_numbers = repeat_passes(parse_path(path_spec, tank_obj.size_m if tank_obj else None), passes)
@@ -87,6 +108,10 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         raise click.ClickException(str(exc)) from None
     if output is not None and plan.total:
         raise click.UsageError("--faults need a serial line (--pty or --port), not -o")
+    if output is not None and truth is not None:
+        raise click.UsageError("--truth records the fate of every record sent on a serial line (--pty or --port); "
+                               "with -o every sample is written as computed, so there is no separate truth: "
+                               "drop --truth, or serve on --pty/--port and log with esense acquire")
 
     tank_meta = "none" if tank_obj is None else ",".join(f"{v:g}" for v in tank_obj.size_m)
     meta_text = f"sensor={sensor},emitter={sens.emitter},tank={tank_meta},sigma={sigma:g}"

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from ._parsing import finite_float
+
 
 @click.command("calibrate")
 @click.option("--reference", "reference_path", type=click.Path(exists=True, dir_okay=False),
@@ -10,12 +12,12 @@ import click
 @click.option("--paper-table", is_flag=True, help="Fit the paper's printed S_BEM of the 4-electrode sensor instead.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Where to write the model (psm.json).")
 @click.option("--symmetric", is_flag=True, help="The paper's symmetry: mirror-equal radii and centre distances.")
-@click.option("--fix-length", "fix_length_m", type=float, default=None,
+@click.option("--fix-length", "fix_length_m", type=finite_float(positive=True), default=None,
               help="Fix the distance between the outermost sphere centres (m), e.g. 0.2 for the 2-electrode sensor.")
 @click.option("--sensor", default=None,
               help="Sensor preset or file of the real sensor, to record its electrode areas (for the contact impedance); "
                    "default: the reference's own sensor when it names a preset.")
-@click.option("--sigma", "sigma_S_per_m", type=float, default=None,
+@click.option("--sigma", "sigma_S_per_m", type=finite_float(positive=True), default=None,
               help="Conductivity (S/m) for --paper-table (default: the paper's measured 0.0354 S/m).")
 def calibrate(reference_path, paper_table, output, symmetric, fix_length_m, sensor, sigma_S_per_m):
     """Fit the PSM's radii and centre distances on the paper's criterion (17) and write psm.json.

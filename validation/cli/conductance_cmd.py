@@ -2,8 +2,8 @@
 
 Examples::
 
-    esense conductance --sensor angels-4 --unbounded --sigma 0.0354 --json angels4.json
-    esense conductance --sensor angels-2 --tank 1,1,1 --pose 0.3,0,0,0 --sigma 0.0354
+    esense conductance --sensor angels-4 --unbounded --json angels4.json
+    esense conductance --sensor angels-2 --tank 1,1,1 --pose 0.3,0,0,0 --sigma 0.05
     esense conductance --mesh my_sensor.vtp --sigma 1 --contact-impedance 0.001
     esense conductance --scene bench.toml --vtp surface.vtp
 
@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import parse_tank
+from validation.defaults import NOMINAL_SIGMA_S_PER_M
+
+from ._parsing import finite_float, scene_from_options, scene_options
 
 
 def _table(g) -> str:
@@ -32,79 +34,53 @@ def _table(g) -> str:
 
 
 @click.command("conductance")
-@click.option("--sensor", "sensor_spec", default=None, help="Sensor preset (angels-2, angels-4) or sensor file (.json/.toml).")
+@scene_options()
 @click.option("--mesh", "mesh_file", default=None, type=click.Path(exists=True, dir_okay=False),
               help="A closed labelled sensor mesh (.vtp/.ply with integer cell array 'electrode') instead of --sensor; "
                    "solved in unbounded water.")
-@click.option("--scene", "scene_file", default=None, type=click.Path(exists=True, dir_okay=False),
-              help="Scene file (TOML); the other flags override it.")
-@click.option("--tank", "tank_text", default=None, help="Tank inner size LX,LY,LZ in metres (water fills it).")
-@click.option("--unbounded", is_flag=True, help="Unbounded water (no tank), the default without --tank or --scene.")
-@click.option("--pose", "pose_text", default=None, help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame.")
-@click.option("--sigma", "sigma", type=float, default=None, help="Water conductivity in S/m (default 1, or the scene file's).")
-@click.option("--contact-impedance", "z_c", type=float, default=None, help="Electrode contact impedance in ohm m^2.")
-@click.option("--edge-length", "edge_length", type=float, default=None,
-              help="Sensor mesh edge length far from electrode edges, in metres "
-                   "(default: 0.6 x radius, at most length/30).")
+@click.option("--contact-impedance", "z_c", type=finite_float(), default=None,
+              help="Electrode contact impedance in ohm m^2.")
 @click.option("--no-edge-correction", "no_edge_correction", is_flag=True,
               help="K of the surface solution itself, without the electrode-edge correction "
                    "(bem/edge_correction.py; about 0.5 % lower at the default mesh).")
-@click.option("--emitter", type=int, default=None, help="Emitting electrode number (default: the sensor's, the last).")
+@click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the sensor's, the last).")
 @click.option("--json", "json_out", default=None, type=click.Path(dir_okay=False),
               help="Write the result (K_S, S_S, sigma_S_per_m, emitter, triangles, seconds...) to this JSON file.")
 @click.option("--vtp", "vtp_out", default=None, type=click.Path(dir_okay=False),
               help="Write the surface solution for the emitter at 1 V (cell data: potential_V, "
                    "current_density_A_per_m2) to this .vtp file.")
-def conductance(sensor_spec, mesh_file, scene_file, tank_text, unbounded, pose_text, sigma, z_c, edge_length,
-                no_edge_correction, emitter, json_out, vtp_out):
+def conductance(mesh_file, z_c, no_edge_correction, emitter, json_out, vtp_out, **scene_opts):
     """Conductance matrix K (and the paper's S) of a sensor by the BEM."""
     import json
     from dataclasses import replace
 
     from bem.solve import solve_scene
 
-    if mesh_file and (sensor_spec or scene_file):
-        raise click.UsageError("--mesh replaces --sensor and --scene; give one of them")
-    if unbounded and tank_text:
-        raise click.UsageError("--unbounded and --tank contradict each other")
-    if edge_length is not None and not edge_length > 0:
-        raise click.BadParameter(f"must be positive, got {edge_length}", param_hint="--edge-length")
+    edge_length = scene_opts["edge_length_m"]
     settings = {}
     try:
         if mesh_file:
+            if scene_opts["sensor_spec"] or scene_opts["scene_file"]:
+                raise click.UsageError("--mesh replaces --sensor and --scene; give one of them")
+            if scene_opts["tank_text"] or scene_opts["pose_text"] or scene_opts["depth_m"] is not None:
+                raise click.UsageError("--mesh is solved in unbounded water; --tank, --depth and --pose do not apply")
             from meshes.io import read_mesh
+            from meshes.quality import overlapping_shells
 
             target = read_mesh(mesh_file)
-            if tank_text or pose_text:
-                raise click.UsageError("--mesh is solved in unbounded water; --tank and --pose do not apply")
+            overlaps = overlapping_shells(target)
+            if overlaps:
+                a, b, n = overlaps[0]
+                raise click.BadParameter(
+                    f"{mesh_file}: its closed surfaces intersect or lie inside one another ({n} vertices of surface "
+                    f"{b + 1} are inside surface {a + 1}; {len(overlaps)} such pair(s)): solids must have water "
+                    "between them, else the BEM solves another problem; fix the mesh", param_hint="--mesh")
+            sigma = scene_opts["sigma"] if scene_opts["sigma"] is not None else NOMINAL_SIGMA_S_PER_M
         else:
-            from meshes.pose import Pose
-            from meshes.scene import Scene
-            from meshes.sensor import load_sensor
-
-            scene = None
-            if scene_file:
-                from meshes.scene_file import load_scene, load_scene_settings
-
-                scene = load_scene(scene_file)
-                settings = load_scene_settings(scene_file)
-            if scene is None:
-                if not sensor_spec:
-                    raise click.UsageError("give --sensor, --mesh or --scene")
-                scene = Scene(load_sensor(sensor_spec))
-            elif sensor_spec:
-                scene = replace(scene, sensor=load_sensor(sensor_spec))
-            if pose_text:
-                scene = replace(scene, pose=Pose.parse(pose_text))
-            if tank_text:
-                scene = replace(scene, tank=parse_tank(tank_text))
-            if unbounded:
-                scene = replace(scene, tank=None)
+            scene, sigma, settings = scene_from_options(**scene_opts)
             if emitter is not None:
                 scene = replace(scene, sensor=scene.sensor.with_emitter(emitter))
             target = scene
-        if sigma is None:
-            sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
         if z_c is None and "contact" in settings:
             z_c = settings["contact"].get("impedance_ohm_m2")
         solution = solve_scene(target, sigma, z_c, edge_length, edge_correction=not no_edge_correction)

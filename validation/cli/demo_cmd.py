@@ -3,7 +3,7 @@
 Example::
 
     esense demo -o esense-demo
-    esense demo --quick -o /tmp/demo      # reduced settings (coarse meshes, few poses)
+    esense demo --quick -o demo-quick     # reduced settings (coarse meshes, few poses)
 
 Steps: mesh the paper's sensors (those named by the bundled logs), compute
 their free-space BEM conductance matrices, calibrate the PSM on them, validate
@@ -14,6 +14,7 @@ folder's ``index.html`` is printed at the end.
 """
 from __future__ import annotations
 
+import io
 import time
 from pathlib import Path
 
@@ -117,6 +118,29 @@ def _format_params(params: dict, uncertainty: dict | None) -> str:
     return "; ".join(parts)
 
 
+class _Indented(io.TextIOBase):
+    """A text stream that hands each complete line to ``echo`` with a prefix (a command's steps inside a bar).
+
+    ``echo(line, file=...)`` is called with the standard output of the moment the stream was made, so that
+    it can stand in for ``sys.stdout`` (``contextlib.redirect_stdout``) without writing to itself.
+    """
+
+    def __init__(self, echo, prefix: str):
+        import sys
+
+        self.echo, self.prefix, self._part, self._out = echo, prefix, "", sys.stdout
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, text: str) -> int:
+        *lines, self._part = (self._part + text).split("\n")
+        for line in lines:
+            if line.strip():
+                self.echo(self.prefix + line, file=self._out)
+        return len(text)
+
+
 def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses: int = 0, edge_length_m=None):
     """Run ``esense diagnose`` on each log into folder/diagnosis/<log>; a summary Section with its figures.
 
@@ -126,7 +150,6 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
     """
     import contextlib
     import importlib
-    import io
     import json
 
     from validation.report.html import Figure, Section, Table
@@ -147,7 +170,9 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
             args += ["--bem-correction", str(bem_poses)]
             if edge_length_m:
                 args += ["--edge-length", str(edge_length_m)]
-        chatter = io.StringIO()  # the command's own step-by-step output; the demo prints a summary line
+        echo(f"diagnosis of {Path(path).name}: fitting the candidate effects"
+             + (f" on a PSM corrected by the BEM at ~{bem_poses} poses" if bem_poses else "") + " ...")
+        chatter = _Indented(echo, f"  {stem}: ")  # the command's own steps, shown as they come (minutes of work)
         try:
             with contextlib.redirect_stdout(chatter):
                 command.main(args, standalone_mode=False)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import click
 
+from ._parsing import check_edge_length, finite_float, scene_from_options, scene_options
+
 _MESH_SUFFIXES = (".vtp", ".vtk", ".ply", ".stl")
 
 
@@ -26,22 +28,6 @@ def _check_output(path: str) -> str:
     if Path(path).suffix.lower() not in _MESH_SUFFIXES:
         raise click.BadParameter(f"{path!r}: the mesh file must end in {', '.join(_MESH_SUFFIXES)}", param_hint="-o")
     return path
-
-
-def _positive(value, name):
-    if value is not None and not value > 0:
-        raise click.BadParameter(f"must be positive, got {value}", param_hint=name)
-    return value
-
-
-def _numbers(text: str, n: int, name: str, what: str) -> tuple[float, ...]:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        raise click.BadParameter(f"{text!r}: expected {what}", param_hint=name) from None
-    if len(values) != n:
-        raise click.BadParameter(f"{text!r}: expected {n} numbers {what}", param_hint=name)
-    return values
 
 
 def _finish(mesh, output, png, title, emitter):
@@ -76,7 +62,7 @@ def mesh():
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Mesh file to write: .vtp (labels and region names), .ply (labels) or .stl (geometry only).")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the mesh (PNG).")
-@click.option("--edge-length", "edge_length_m", type=float, default=None,
+@click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None,
               help="Far-field edge length in metres (default: from the sensor's size); the mesh is graded finer "
                    "towards every electrode edge.")
 @click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the sensor's, the last one).")
@@ -87,72 +73,35 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
 
     if output:
         _check_output(output)
-    _positive(edge_length_m, "--edge-length")
     try:
         description = load_sensor(sensor)
         if emitter is not None:
             description = description.with_emitter(emitter)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="SENSOR") from None
+    check_edge_length(description, edge_length_m)
     m = mesh_sensor(description, edge_length_m=edge_length_m)
     _finish(m, output, png, f"{description.name}: {m.n_triangles} triangles", description.emitter)
 
 
 @mesh.command("scene")
-@click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="Scene file (TOML: tank, sensor, pose, objects); the flags below override it.")
-@click.option("--sensor", default=None, help="Sensor preset (angels-2, angels-4) or sensor file.")
-@click.option("--tank", default=None, help="Tank inner size LX,LY,LZ in metres.")
-@click.option("--depth", "depth_m", type=float, default=None, help="Water depth in metres (default: LZ).")
-@click.option("--unbounded", is_flag=True, help="No tank: unbounded water (drops the scene file's tank).")
-@click.option("--pose", default=None, help="Sensor pose X,Y,Z,YAW (m, m, m, rad) in the tank frame.")
+@scene_options(sigma=False)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Mesh file of the whole scene in the tank frame: .vtp, .ply or .stl.")
 @click.option("--png", type=click.Path(dir_okay=False), default=None, help="Write a picture of the scene (PNG).")
-@click.option("--edge-length", "edge_length_m", type=float, default=None, help="Sensor edge length in metres.")
-@click.option("--tank-edge-length", "tank_edge_length_m", type=float, default=None,
+@click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True), default=None,
               help="Tank edge length nearest the sensor in metres (default: a twentieth of the sensor length); "
                    "it grows away from the sensor.")
-@click.option("--tank-grading", type=float, default=0.25, show_default=True,
+@click.option("--tank-grading", type=finite_float(), default=0.25, show_default=True,
               help="Growth of the tank's edge length per metre of distance from the sensor.")
-def mesh_scene_cmd(scene_file, sensor, tank, depth_m, unbounded, pose, output, png, edge_length_m,
-                   tank_edge_length_m, tank_grading):
+def mesh_scene_cmd(output, png, tank_edge_length_m, tank_grading, **scene_opts):
     """Mesh a scene: the sensor at its pose, the tank (graded towards the sensor) and the objects."""
-    from meshes.pose import Pose
-    from meshes.scene_file import apply_overrides, load_scene
     from meshes.scene_mesh import mesh_scene
-    from meshes.tank import Tank
 
     if output:
         _check_output(output)
-    for value, name in ((edge_length_m, "--edge-length"), (tank_edge_length_m, "--tank-edge-length")):
-        _positive(value, name)
-    if unbounded and (tank or depth_m is not None):
-        raise click.UsageError("--unbounded cannot go with --tank or --depth")
-    try:
-        scene = load_scene(scene_file) if scene_file else None
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--scene") from None
-    tank_obj = None
-    if tank or depth_m is not None:
-        if tank:
-            size = _numbers(tank, 3, "--tank", "LX,LY,LZ (m)")
-        elif scene is not None and scene.tank is not None:
-            size = scene.tank.size_m
-        else:
-            raise click.UsageError("--depth needs a tank (--tank LX,LY,LZ or a scene file with a [tank])")
-        try:
-            tank_obj = Tank(size, depth_m)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--tank/--depth") from None
-    try:
-        pose_obj = Pose.parse(pose) if pose else None
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--pose") from None
-    try:
-        scene = apply_overrides(scene, sensor=sensor, pose=pose_obj, tank=tank_obj, unbounded=unbounded)
-    except ValueError as exc:
-        raise click.UsageError(f"{exc} (--scene FILE or --sensor NAME)") from None
+    scene, _, _ = scene_from_options(**scene_opts)
+    edge_length_m = scene_opts["edge_length_m"]
     try:
         sm = mesh_scene(scene, edge_length_m, tank_edge_length_m=tank_edge_length_m, tank_grading=tank_grading)
     except ValueError as exc:  # a refused scene names its parts

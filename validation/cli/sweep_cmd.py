@@ -20,10 +20,11 @@ from pathlib import Path
 
 import click
 
-from ._parsing import parse_tank
+from validation.defaults import NOMINAL_TANK_M
+
+from ._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
 
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
-DEFAULT_SIGMA_S_PER_M = 0.0354  # the paper's tank water
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
 
 
@@ -42,6 +43,33 @@ def _objects_description(objects) -> list:
     from dataclasses import asdict
 
     return [{"shape": type(o).__name__.lower(), **asdict(o)} for o in objects]
+
+
+def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: int, attrs: dict, ours: bool,
+                overwrite: bool):
+    """Resume the store of this very sweep, or start over where the folder holds another one.
+
+    ``ours``: the store is the hidden ``.partial.zarr`` of a .csv/.nc output, so a different sweep in it
+    (an earlier run with other arguments) is replaced, with a word. A ``.zarr`` output is the user's: a
+    different sweep in it is replaced only with ``--overwrite``, else the message says how to go on.
+    """
+    from validation.sweep.store import StoreError, SweepStore, remove_store
+
+    def open_():
+        return SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
+                                         chunk_poses, attrs)
+
+    try:
+        return open_()
+    except StoreError as exc:
+        if not store_path.exists():
+            raise
+        if not (ours or overwrite):
+            raise StoreError(f"{exc}; or pass --overwrite to replace it with this sweep") from None
+        click.echo(f"starting over: {store_path} {'held an earlier, different run' if ours else 'is replaced'} "
+                   f"({str(exc).split('(', 1)[-1].split(')')[0]})")
+        remove_store(store_path)
+        return open_()
 
 
 def _bench_log_frame(C, poses):
@@ -67,26 +95,19 @@ def _bench_log_frame(C, poses):
               help="bem: the boundary-element reference; psm: the poly-spherical model.")
 @click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False),
               help="PSM model file (from `esense calibrate`); default: calibrate on the sensor's free-space BEM (cached).")
-@click.option("--sensor", "sensor_spec", help="Sensor preset (angels-2, angels-4) or sensor file; default: the scene's.")
-@click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False),
-              help="Scene file (TOML): sensor, tank, objects, and [water] sigma_S_per_m; flags override it.")
-@click.option("--tank", "tank_text", help="Tank inner size LX,LY,LZ in m (default: the scene's, else 1,1,1).")
-@click.option("--unbounded", is_flag=True, help="Unbounded water (no tank).")
-@click.option("--sigma", "sigma", type=float,
-              help=f"Water conductivity in S/m (default: the scene's [water], else {DEFAULT_SIGMA_S_PER_M}).")
+@scene_options(pose=False, tank_default="1,1,1")
 @click.option("--from", "from_xy", help="Line start X0,Y0 (m, tank frame).")
 @click.option("--to", "to_xy", help="Line end X1,Y1 (m).")
 @click.option("--steps", type=int, help="Number of poses on the line, both ends included.")
 @click.option("--grid", "grid_text", help="Grid X0:X1:NX,Y0:Y1:NY[,YAW0:YAW1:NYAW] (m, m, rad; ends included).")
-@click.option("--yaw", type=float, default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
-@click.option("--z", "z_m", type=float, default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
+@click.option("--yaw", type=finite_float(), default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
+@click.option("--z", "z_m", type=finite_float(), default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
-@click.option("--edge-length", "edge_length_m", type=float,
-              help="BEM sensor mesh edge length in m (default: the mesher's); with the PSM, of its calibration BEM.")
-@click.option("--tank-edge-length", "tank_edge_length_m", type=float,
+@click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True),
               help="BEM tank mesh edge length nearest the poses, in m (default: the BEM's).")
-@click.option("--contact-impedance", "contact_impedance", type=float, help="Electrode contact impedance in ohm m^2.")
+@click.option("--contact-impedance", "contact_impedance", type=finite_float(),
+              help="Electrode contact impedance in ohm m^2.")
 @click.option("--scheduler", help="dask scheduler address (tcp://host:port); default: Dask config, else this machine.")
 @click.option("--workers", type=int,
               help="Local workers (1: in this process). Default: this machine's cores for the BEM; for the PSM, "
@@ -95,7 +116,9 @@ def _bench_log_frame(C, poses):
 @click.option("--plot", "plot_png", type=click.Path(dir_okay=False), help="Also write the tank map (grid sweeps) as PNG.")
 @click.option("--plot-quantity", type=click.Choice(["resistance", "current_change"]), default="resistance",
               show_default=True, help="What the tank map shows.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing .csv/.nc output (a .zarr store is resumed instead).")
+@click.option("--overwrite", is_flag=True,
+              help="Replace an existing output: a .csv/.nc file, or a .zarr store of another sweep (a store of the "
+                   "same sweep is resumed without it).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="out.csv (bench log with R<k>_ohm columns), out.zarr (resumable store) or out.nc (netCDF).")
@@ -114,6 +137,12 @@ def sweep(**options):
 
     try:
         _sweep(SimpleNamespace(**options))
+    except KeyboardInterrupt:
+        out = Path(options["output"])
+        store = out if out.suffix == ".zarr" else out.with_name(out.name + ".partial.zarr")
+        kept = f"the poses computed so far are kept in {store}; " if store.exists() else ""
+        click.echo(f"\nesense sweep: interrupted (Ctrl-C); {kept}run the same command again to resume", err=True)
+        raise SystemExit(130) from None
     except click.ClickException:
         raise
     except (ValueError, GridError, FileExistsError) as exc:
@@ -123,33 +152,22 @@ def sweep(**options):
 
 
 def _sweep(o):
-    from meshes.scene_file import apply_overrides, load_scene, load_scene_settings
     from meshes.tank import Tank
     from validation.models import code_version, pose_evaluator
     from validation.sweep.grid import line_poses, parse_grid, parse_xy
     from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
-    from validation.sweep.store import SweepStore, export_netcdf, open_sweep, remove_store
+    from validation.sweep.store import export_netcdf, open_sweep, remove_store
 
-    model, psm_file, sigma, workers, out = o.model, o.psm_file, o.sigma, o.workers, Path(o.output)
+    model, psm_file, workers, out = o.model, o.psm_file, o.workers, Path(o.output)
     images, edge_length_m, contact_impedance = o.images, o.edge_length_m, o.contact_impedance
     # ------------------------------------------------------------ what to run
     if out.suffix not in _OUTPUT_SUFFIXES:
         raise click.BadParameter(f"{out}: the output must end in {', '.join(_OUTPUT_SUFFIXES)}", param_hint="-o")
     if psm_file and model != "psm":
         raise click.BadParameter("--psm goes with --model psm", param_hint="--psm")
-    if o.unbounded and o.tank_text:
-        raise click.BadParameter("give either --tank or --unbounded", param_hint="--tank")
-    scene = load_scene(o.scene_file) if o.scene_file else None
-    settings = load_scene_settings(o.scene_file) if o.scene_file else {}
-    if scene is None and o.sensor_spec is None:
-        raise click.BadParameter("give --sensor (or a --scene file)", param_hint="--sensor")
-    tank = parse_tank(o.tank_text) if o.tank_text else None
-    if scene is None and tank is None and not o.unbounded:
-        tank = Tank((1.0, 1.0, 1.0))
-    scene = apply_overrides(scene, sensor=o.sensor_spec, tank=tank, unbounded=o.unbounded)
+    scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
+                                         default_tank=Tank(NOMINAL_TANK_M))
     sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
-    if sigma is None:
-        sigma = float(settings.get("water", {}).get("sigma_S_per_m", DEFAULT_SIGMA_S_PER_M))
 
     grid = None
     if o.grid_text:
@@ -167,6 +185,8 @@ def _sweep(o):
     if final is not None and final.exists() and not o.overwrite:
         raise click.ClickException(f"{final} exists; pass --overwrite to replace it")
     store_path = out if final is None else out.with_name(out.name + ".partial.zarr")
+    if final is not None and final.exists() and o.overwrite and store_path.exists():
+        remove_store(store_path)  # --overwrite: the run starts over, not from an older partial run
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     if o.tank_edge_length_m is not None:
@@ -202,8 +222,12 @@ def _sweep(o):
     if workers is None and model == "psm" and len(poses) <= PSM_POSES_PER_EXTRA_WORKER:
         workers = 1
     n_workers = workers or local_cores()
-    store = SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
-                                      o.chunk_poses or default_chunk_poses(len(poses), n_workers), attrs)
+    # the model is set up (and may refuse) before any store exists, so a refusal leaves nothing behind
+    evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
+                               poses=poses, **bem_options)
+    chunk_poses = o.chunk_poses or default_chunk_poses(len(poses), n_workers)
+    store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
+                        overwrite=o.overwrite)
     pending = store.pending_chunks()
     if pending:
         n_left = sum(b - a for a, b in pending)
@@ -211,8 +235,6 @@ def _sweep(o):
             click.echo(f"resuming {store_path}: {len(poses) - n_left} of {len(poses)} poses already computed")
         click.echo(f"{model.upper()}: {sensor.name}, {'unbounded water' if tank is None else f'tank {tank.size_m} m'}, "
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
-        evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
-                                   poses=poses, **bem_options)
         result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
         C = result.conductance
         click.echo(f"computed {result.n_computed} poses in {result.seconds:.1f} s "

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import click
 
+from ._parsing import finite_float
+
 
 def _parse_models(text: str) -> tuple[str, ...]:
     from validation.compare.validate import MODEL_ORDER
@@ -118,13 +120,13 @@ def print_summary(results, paths, echo=click.echo) -> None:
 @click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Scene file (TOML) whose objects are in the tank during the logs (simulated, and used for "
                    "the 'near an object' region).")
-@click.option("--edge-length", type=float, default=None,
+@click.option("--edge-length", type=finite_float(positive=True), default=None,
               help="BEM sensor mesh edge length far from the electrode edges (m); default: the mesher's.")
 @click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
               help="Validate every N-th sample of each pass (faster BEM runs on long logs).")
-@click.option("--near-wall", type=float, default=None,
+@click.option("--near-wall", type=finite_float(positive=True), default=None,
               help="Region threshold: an electrode centre this close to a tank boundary is 'near' it (m, default 0.1).")
-@click.option("--near-object", type=float, default=None,
+@click.option("--near-object", type=finite_float(positive=True), default=None,
               help="Region threshold: an electrode centre this close to an object is 'near' it (m, default 0.1).")
 @click.option("--no-potential", is_flag=True, help="Skip the BEM potential figure (one extra BEM solve).")
 @click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False, path_type=Path),

@@ -24,11 +24,33 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridError", "Axis", "PoseGrid", "parse_grid", "parse_xy", "line_poses"]
+__all__ = ["GridError", "Axis", "PoseGrid", "parse_grid", "parse_xy", "line_poses", "MAX_SWEEP_POSES",
+           "check_pose_count"]
+
+MAX_SWEEP_POSES = 20_000_000
+"""Most poses one sweep takes: their array alone is 0.64 GB, the stored K of a 4-electrode sensor 2.6 GB more."""
+_BYTES_PER_POSE = 4 * 8 * 3  # the poses array and the meshgrid temporaries that build it
 
 
 class GridError(ValueError):
     """A pose line or grid that cannot be built as given."""
+
+
+def check_pose_count(n_poses: int, option: str) -> None:
+    """Refuse, before anything is allocated, a sweep of more than :data:`MAX_SWEEP_POSES` poses.
+
+    >>> check_pose_count(1000, "--grid")
+    >>> try:
+    ...     check_pose_count(30000 * 30000, "--grid")
+    ... except GridError as exc:
+    ...     print(str(exc)[:43])
+    --grid gives 900,000,000 poses (about 86 GB
+    """
+    if n_poses > MAX_SWEEP_POSES:
+        gb = n_poses * _BYTES_PER_POSE / 1e9
+        raise GridError(f"{option} gives {n_poses:,} poses (about {gb:.0f} GB of memory to build them, more to "
+                        f"store the results); a sweep takes at most {MAX_SWEEP_POSES:,}: use fewer points, or split "
+                        f"the region into several sweeps")
 
 
 @dataclass(frozen=True)
@@ -114,6 +136,7 @@ def parse_grid(text: str, yaw_rad: float = 0.0, z_m: float = 0.0) -> PoseGrid:
     x = Axis.parse(parts[0], "x")
     y = Axis.parse(parts[1], "y")
     yaw = Axis.parse(parts[2], "yaw") if len(parts) == 3 else Axis(float(yaw_rad), float(yaw_rad), 1)
+    check_pose_count(int(x.num) * int(y.num) * int(yaw.num), "--grid")
     return PoseGrid(x, y, yaw, float(z_m))
 
 
@@ -136,6 +159,7 @@ def line_poses(start_xy, stop_xy, steps: int, yaw_rad: float = 0.0, z_m: float =
     """
     if int(steps) != steps or steps < 1:
         raise GridError(f"--steps must be a positive number of poses, got {steps}")
+    check_pose_count(int(steps), "--steps")
     if steps == 1 and tuple(start_xy) != tuple(stop_xy):
         raise GridError("--steps 1 gives one pose: --from and --to must then be the same point")
     t = np.linspace(0.0, 1.0, int(steps))[:, None]

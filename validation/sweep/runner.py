@@ -126,16 +126,41 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
         return
     from dask.distributed import Client, LocalCluster
 
-    with LocalCluster(
-        n_workers=n,
-        threads_per_worker=1,
-        processes=processes,
-        host="127.0.0.1",
-        dashboard_address=None,
-        memory_limit=0,  # the models check their own memory needs
-        silence_logs=logging.ERROR,
-    ) as cluster, Client(cluster, set_as_default=False) as client:
+    with _workers_ignore_ctrl_c():  # the workers start with SIGINT ignored; this process gets it back at once
+        cluster = LocalCluster(
+            n_workers=n,
+            threads_per_worker=1,
+            processes=processes,
+            host="127.0.0.1",
+            dashboard_address=None,
+            memory_limit=0,  # the models check their own memory needs
+            silence_logs=logging.ERROR,
+        )
+    with cluster, Client(cluster, set_as_default=False) as client:
         yield client
+
+
+@contextmanager
+def _workers_ignore_ctrl_c():
+    """Start worker processes with SIGINT ignored: Ctrl-C reaches this process alone.
+
+    A terminal sends Ctrl-C to every process of the foreground group; without
+    this each dask worker would print its own KeyboardInterrupt traceback.
+    Here the interrupt stops the run in the client, which closes the cluster
+    (the chunks already landed stay in the store). Child processes inherit an
+    ignored signal; the handler of this process is restored at once.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def default_chunk_poses(n_poses: int, workers: int) -> int:

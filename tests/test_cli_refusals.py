@@ -1,0 +1,78 @@
+"""Refusals instead of tracebacks, hangs or wrong answers: each names the option the user typed."""
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from validation.cli import main
+
+
+def _run(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+@pytest.mark.parametrize("rate", ["inf", "nan", "0", "-2"])
+def test_bench_sim_rate_must_be_finite_and_positive(tmp_path, rate):
+    r = _run("bench-sim", "-o", tmp_path / "r.csv", "--rate", rate)
+    assert r.exit_code != 0 and "--rate" in r.output and not (tmp_path / "r.csv").exists()
+
+
+def test_bench_sim_truth_with_output_is_refused_not_ignored(tmp_path):
+    r = _run("bench-sim", "-o", tmp_path / "r.csv", "--truth", tmp_path / "t.csv")
+    assert r.exit_code != 0 and "--truth" in r.output and not (tmp_path / "r.csv").exists()
+
+
+def test_an_edge_length_making_millions_of_triangles_is_refused_at_once(tmp_path):
+    import time
+
+    t0 = time.perf_counter()
+    for cmd in (("conductance", "--sensor", "angels-4"), ("mesh", "sensor", "angels-4", "-o", tmp_path / "m.vtp")):
+        r = _run(*cmd, "--edge-length", "0.00005")
+        assert r.exit_code != 0 and "--edge-length" in r.output and "triangles" in r.output, r.output
+    assert time.perf_counter() - t0 < 20
+
+
+def test_sigma_is_named_as_typed():
+    r = _run("conductance", "--sensor", "angels-2", "--sigma", "-1")
+    assert r.exit_code != 0 and "--sigma" in r.output and "sigma_S_per_m" not in r.output
+
+
+def test_pose_without_a_tank_is_explained():
+    r = _run("conductance", "--sensor", "angels-2", "--pose", "0.1,0,0,0")
+    assert r.exit_code != 0 and "--pose" in r.output and "--tank" in r.output
+
+
+def test_conductance_default_sigma_is_the_nominal_one():
+    from validation.cli.conductance_cmd import conductance
+    from validation.defaults import NOMINAL_SIGMA_S_PER_M
+
+    sigma = next(p for p in conductance.params if p.name == "sigma")
+    assert str(NOMINAL_SIGMA_S_PER_M) in sigma.help
+
+
+def test_a_mesh_whose_shells_intersect_is_refused(tmp_path):
+    import trimesh
+
+    from meshes.io import write_mesh
+    from meshes.labelled_mesh import LabelledMesh
+
+    rng = np.random.default_rng(3)
+    r = rng.uniform(0.005, 0.02)
+    a = trimesh.creation.icosphere(2, r)
+    b = trimesh.creation.icosphere(2, r).apply_translation([rng.uniform(0.5, 1.5) * r, 0, 0])
+    both = trimesh.util.concatenate([a, b])
+    labels = np.concatenate([np.ones(len(a.faces), int), np.full(len(b.faces), 2)])
+    write_mesh(LabelledMesh(both.vertices, both.faces, labels), tmp_path / "bad.vtp")
+    res = _run("conductance", "--mesh", tmp_path / "bad.vtp")
+    assert res.exit_code != 0 and "--mesh" in res.output and "intersect" in res.output
+
+
+@pytest.mark.parametrize("args, option", [
+    (("--tank", "1,1"), "--tank"),
+    (("--tank", "none", "--depth", "0.5"), "--depth"),
+    (("--depth", "2"), "--depth"),
+    (("--emitter", "9"), "--emitter"),
+    (("--sigma", "nan"), "--sigma"),
+])
+def test_bench_sim_names_the_option(tmp_path, args, option):
+    r = _run("bench-sim", "-o", tmp_path / "r.csv", "--path", "wall-to-wall:5", *args)
+    assert r.exit_code != 0 and option in r.output and not (tmp_path / "r.csv").exists(), r.output
