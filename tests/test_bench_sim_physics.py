@@ -31,9 +31,10 @@ class RecordingModel:
 
 
 def bench(effects=(), noise=NO_NOISE, sensor="angels-4", seed=0):
+    """A bench whose model is evaluated at every true pose (the PSM path; the BEM path has its own test)."""
     model = RecordingModel()
-    b = VirtualBench(preset(sensor), Tank((1.0, 1.0, 1.0)), 0.0354, effects=Effects.parse(effects), noise=noise,
-                     seed=seed, simulate=model)
+    b = VirtualBench(preset(sensor), Tank((1.0, 1.0, 1.0)), 0.0354, model="psm", effects=Effects.parse(effects),
+                     noise=noise, seed=seed, simulate=model)
     return b, model
 
 
@@ -162,7 +163,7 @@ def test_cli_writes_a_simulated_log(tmp_path):
     model_file = tmp_path / "psm.json"
     PolySphericalModel.collinear([0.0071, 0.0071], [0.2]).save(model_file)
     out = tmp_path / "sim.csv"
-    args = ["bench-sim", "-o", str(out), "--sensor", "angels-2", "--psm-model", str(model_file), "--passes", "2",
+    args = ["bench-sim", "-o", str(out), "--sensor", "angels-2", "--model", "psm", "--psm-model", str(model_file), "--passes", "2",
             "--path", "wall-to-wall:21", "--effect", "conductivity=-2%", "--seed", "1"]
     result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
@@ -175,3 +176,28 @@ def test_cli_writes_a_simulated_log(tmp_path):
     assert again.exit_code != 0 and "exists" in again.output
     bad = CliRunner().invoke(main, ["bench-sim", "-o", str(tmp_path / "x.csv"), "--faults", "all"])
     assert bad.exit_code != 0 and "--faults need a serial line" in bad.output
+
+
+class PoseDependentModel(RecordingModel):
+    """K grows with x: as a different function of the pose for the 'bem' and the 'psm'."""
+
+    def __call__(self, model, sensor, poses, tank, sigma_S_per_m, **kwargs):
+        C = super().__call__(model, sensor, poses, tank, sigma_S_per_m, **kwargs)
+        x = np.asarray(poses)[:, 0]
+        factor = (1.0 + 0.5 * x**2) if model == "bem" else (1.0 + 0.2 * x)
+        return ConductanceMatrix(C.K_S * factor[:, None, None], C.emitter, C.sigma_S_per_m)
+
+
+def test_bem_physics_once_per_distinct_pose_and_the_robot_noise_carried_by_the_psm():
+    model = PoseDependentModel()
+    b = VirtualBench(preset("angels-2"), Tank((1.0, 1.0, 1.0)), 0.0354, noise=BenchNoise(0.0, 1e-3), seed=3,
+                     simulate=model)
+    assert b.model == "bem"   # the bench's physics is the BEM unless the user says otherwise
+    poses, passes = repeat_passes(wall_to_wall(n=7), 3)
+    run = b.run(poses, passes=passes)
+    bem_calls = [c for c in model.calls if c["model"] == "bem"]
+    assert len(bem_calls) == 1 and len(bem_calls[0]["poses"]) == 7    # three passes, seven distinct poses
+    x_true, x_nominal = run.true_poses[:, 0], run.poses[:, 0]
+    I_nominal = 0.0354 * 0.03 * (1 + 0.5 * x_nominal**2)                # the 'bem' at the nominal pose ...
+    expected = I_nominal * (1 + 0.2 * x_true) / (1 + 0.2 * x_nominal)  # ... moved by the 'psm' to the true pose
+    np.testing.assert_allclose(run.currents_A[:, 0], expected, rtol=1e-12)

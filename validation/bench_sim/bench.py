@@ -92,7 +92,10 @@ class VirtualBench:
         The nominal tank (what the log's meta says).
     sigma_S_per_m : float
         Nominal conductivity (what the log's meta says).
-    model : {"psm", "bem"}
+    model : {"bem", "psm"}
+        The physics: the BEM by default (see :meth:`_currents_A`), the PSM
+        only when asked (it is the diagnosis's fast path: data made with it
+        cannot test it).
     psm_model : PolySphericalModel or path, optional
     effects : Effects
     noise : BenchNoise
@@ -104,7 +107,7 @@ class VirtualBench:
         e.g. in tests.
     """
 
-    def __init__(self, sensor: SensorDescription, tank: Tank | None, sigma_S_per_m: float, model: str = "psm",
+    def __init__(self, sensor: SensorDescription, tank: Tank | None, sigma_S_per_m: float, model: str = "bem",
                  psm_model=None, effects: Effects = Effects(), noise: BenchNoise = BenchNoise(),
                  temperature_C: float = 20.0, seed: int | None = None, simulate=None, **model_options):
         self.sensor, self.tank, self.sigma_S_per_m = sensor, tank, float(sigma_S_per_m)
@@ -137,6 +140,38 @@ class VirtualBench:
                 f"noise {self.noise.current_rel:g} relative on currents, {self.noise.position_m:g} m on positions; "
                 f"effects: {self.effects.describe()}")
 
+    def _currents_A(self, nominal: np.ndarray, true: np.ndarray, tank, sigma_S_per_m: float, U: np.ndarray):
+        """Receiver currents (P, n-1) at the true poses, in the true scene.
+
+        The PSM is evaluated at every true pose. The BEM is evaluated once per
+        distinct nominal pose (the passes of a path repeat them) and the
+        robot's imprecision, 0.1 mm, is carried by the PSM's relative change
+        between the nominal and the true pose (first order in the offset; the
+        PSM's own error enters only through that small change). Where the PSM
+        cannot represent a pose (a sphere through a wall), the BEM is evaluated
+        at every true pose instead.
+        """
+        e = self.effects
+        objects = () if e.unmodelled_object is None else (e.unmodelled_object,)
+        scene = dict(objects=objects, contact_impedance_ohm_m2=e.contact_impedance_ohm_m2)
+
+        def per_volt(model, at, **options):   # receiver currents (A) at 1 V
+            psm_model = self.psm_model if model == "psm" else None
+            return self._simulate(model, self.sensor, at, tank, sigma_S_per_m, psm_model=psm_model, **scene,
+                                  **options).receiver_currents_A(1.0)
+
+        if self.model != "bem":
+            return per_volt(self.model, true, **self.model_options) * U[:, None]
+        distinct, index = np.unique(np.round(nominal, 12), axis=0, return_inverse=True)
+        index = index.reshape(-1)
+        try:
+            psm = per_volt("psm", np.concatenate([true, distinct]))
+        except ValueError:  # the PSM cannot represent some pose: the BEM at every true pose
+            return per_volt("bem", true, **self.model_options) * U[:, None]
+        psm_true, psm_nominal = psm[: len(true)], psm[len(true):][index]
+        bem_nominal = per_volt("bem", distinct, **self.model_options)[index]
+        return bem_nominal * (psm_true / psm_nominal) * U[:, None]
+
     def run(self, poses: np.ndarray, rate_hz: float = 10.0, passes: np.ndarray | None = None,
             U_V: float = 1.0) -> SimulatedRun:
         """Simulate every sample of a trajectory (all poses in one batched model call)."""
@@ -156,11 +191,9 @@ class VirtualBench:
             if not inside.all():
                 raise ValueError(f"pose {int(np.flatnonzero(~inside)[0])} of the trajectory is out of the water")
         sigma0 = self.sigma_S_per_m * (1.0 + e.conductivity_rel)
-        objects = () if e.unmodelled_object is None else (e.unmodelled_object,)
-        C = self._simulate(self.model, self.sensor, true, tank, sigma0, objects=objects, psm_model=self.psm_model,
-                           contact_impedance_ohm_m2=e.contact_impedance_ohm_m2, **self.model_options)
         U = np.full(P, float(U_V))
-        currents = C.receiver_currents_A(U)
+        currents = self._currents_A(poses if e.pose_offset is None else poses + np.asarray(e.pose_offset), true,
+                                    tank, sigma0, U)
         # temperature drift: the conductivity follows the temperature (K is proportional to sigma;
         # with a contact impedance this neglects the second-order change of sigma * z_c)
         duration = t[-1] if P > 1 else 1.0

@@ -19,7 +19,7 @@ from ._parsing import finite_float, parse_tank
               help="Path of the stable link to the pseudo-terminal (default: a new temporary folder).")
 @click.option("--sensor", default="angels-4", show_default=True, help="Sensor preset or sensor file.")
 @click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the last).")
-@click.option("--model", type=click.Choice(["psm", "bem"]), default="psm", show_default=True,
+@click.option("--model", type=click.Choice(["bem", "psm"]), default="bem", show_default=True,
               help="Model that gives the currents.")
 @click.option("--psm-model", default=None, type=click.Path(exists=True, dir_okay=False),
               help="PSM JSON file (default: the PSM calibrated on the sensor's free-space BEM).")
@@ -123,7 +123,7 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
     say(f"bench-sim: computing {len(poses)} samples with the {model.upper()} ...")
     try:
         bench = VirtualBench(sens, tank_obj, sigma, model=model, psm_model=psm_model, effects=fx,
-                             temperature_C=temperature, seed=seed)
+                             temperature_C=temperature, seed=seed, **({"progress": True} if model == "bem" else {}))
         run = bench.run(poses, rate_hz=rate, passes=pass_numbers, U_V=voltage)
     except ValueError as exc:
         raise click.ClickException(str(exc)) from None
