@@ -35,7 +35,7 @@ from .header import (
     interpret_meta, receiver_columns, standard_columns,
 )
 
-__all__ = ["BenchLogWriter", "write_bench_log", "format_value"]
+__all__ = ["BenchLogWriter", "write_bench_log", "bench_log_table", "format_value"]
 
 _FORBIDDEN = (",", "\n", "\r")
 
@@ -325,3 +325,47 @@ def write_bench_log(path, meta: dict, data, overwrite: bool = False, comments: S
             tmp.unlink()
     _fsync_folder(path)
     return path
+
+
+def bench_log_table(poses, U_V, currents_A, receivers, t_s=None, passes=None, temp_C=None) -> dict:
+    """The columns of a bench log (format version 1) from arrays, in the spec's order.
+
+    Parameters
+    ----------
+    poses : (P, 4) array
+        ``x_m, y_m, z_m, yaw_rad`` of every sample.
+    U_V : float or (P,) array
+        Emitter voltage.
+    currents_A : (P, n-1) array
+        Receiver currents, positive into the receivers, in the order of ``receivers``.
+    receivers : sequence of int
+        The receivers' electrode numbers (``I<k>_A`` columns).
+    t_s : (P,) array, optional
+        Sample times; default the sample index (a model run has no clock).
+    passes, temp_C : (P,) arrays, optional
+        The optional ``pass`` and ``temp_C`` columns.
+
+    Returns
+    -------
+    dict
+        Column name -> (P,) array, for :func:`write_bench_log`.
+
+    Example
+    -------
+    >>> import numpy as np
+    >>> table = bench_log_table(np.zeros((2, 4)), 1.0, np.array([[1e-3, 2e-3], [1e-3, 2e-3]]), [1, 2])
+    >>> list(table)
+    ['t_s', 'x_m', 'y_m', 'z_m', 'yaw_rad', 'U_V', 'I1_A', 'I2_A']
+    """
+    poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+    currents_A = np.asarray(currents_A, dtype=float).reshape(len(poses), -1)
+    P = len(poses)
+    table = {"t_s": np.arange(P, dtype=float) if t_s is None else np.asarray(t_s, dtype=float),
+             "x_m": poses[:, 0], "y_m": poses[:, 1], "z_m": poses[:, 2], "yaw_rad": poses[:, 3],
+             "U_V": np.broadcast_to(np.asarray(U_V, dtype=float), (P,))}
+    table.update({f"I{k}_A": currents_A[:, j] for j, k in enumerate(receivers)})
+    if temp_C is not None:
+        table["temp_C"] = np.asarray(temp_C, dtype=float)
+    if passes is not None:
+        table["pass"] = np.asarray(passes)
+    return table

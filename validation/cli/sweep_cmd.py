@@ -74,20 +74,14 @@ def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: in
 
 def _bench_log_frame(C, poses):
     """The bench-log table of a sweep: t_s (pose index), pose, U_V = 1, I<k>_A, R<k>_ohm."""
-    import numpy as np
     import pandas as pd
 
+    from validation.benchlog.writer import bench_log_table
+
     I = C.receiver_currents_A(1.0)
-    data = {
-        "t_s": np.arange(len(poses), dtype=float),
-        "x_m": poses[:, 0], "y_m": poses[:, 1], "z_m": poses[:, 2], "yaw_rad": poses[:, 3],
-        "U_V": np.ones(len(poses)),
-    }
-    for j, k in enumerate(C.receivers):
-        data[f"I{k}_A"] = I[:, j]
-    for j, k in enumerate(C.receivers):
-        data[f"R{k}_ohm"] = 1.0 / I[:, j]
-    return pd.DataFrame(data)
+    table = bench_log_table(poses, 1.0, I, C.receivers)
+    table.update({f"R{k}_ohm": 1.0 / I[:, j] for j, k in enumerate(C.receivers)})
+    return pd.DataFrame(table)
 
 
 @click.command("sweep")

@@ -77,6 +77,7 @@ def make_bem_bench_log(sensor, path: Path, n: int, edge_length_m=None, seed: int
     from validation.bench_sim.effects import Effects
     from validation.bench_sim.trajectory import wall_to_wall
     from validation.benchlog import write_bench_log
+    from validation.benchlog.writer import bench_log_table
 
     effect = PAPER[sensor.name]["correction"]
     tank = Tank((1.0, 1.0, 1.0))
@@ -84,9 +85,7 @@ def make_bem_bench_log(sensor, path: Path, n: int, edge_length_m=None, seed: int
     bench = VirtualBench(sensor, tank, SIGMA_S_PER_M, model="bem", effects=Effects(conductivity_rel=effect),
                          seed=seed, **options)
     run = bench.run(wall_to_wall(tank.size_m, n=n))
-    data = {"t_s": run.t_s, "x_m": run.poses[:, 0], "y_m": run.poses[:, 1], "z_m": run.poses[:, 2],
-            "yaw_rad": run.poses[:, 3], "U_V": run.U_V}
-    data.update({f"I{k}_A": run.currents_A[:, j] for j, k in enumerate(sensor.receivers)})
+    data = bench_log_table(run.poses, run.U_V, run.currents_A, sensor.receivers, t_s=run.t_s)
     meta = {"sensor": sensor.name, "emitter": sensor.emitter, "tank_m": list(tank.size_m),
             "sigma_S_per_m": SIGMA_S_PER_M, "source": bench.describe()}
     return write_bench_log(path, meta, data, overwrite=True)
