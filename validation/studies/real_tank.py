@@ -127,14 +127,17 @@ def _ring_offsets(drive, meas, proto):
 
 def _wall_electrodes(scene):
     """(index, centre, outward normal, azimuthal tangent, radius) of the discs on a cylindrical tank's wall."""
-    R = getattr(scene.tank, "radius_m", None)
+    tank = scene.tank
+    if not hasattr(tank, "radius_at"):
+        return []
+    slope = tank.wall_slope
     out = []
     for i, e in enumerate(scene.electrodes):
-        if R is None or not isinstance(e, DiscElectrode) or abs(np.hypot(*e.centre_m[:2]) - R) > 1e-9:
+        if not isinstance(e, DiscElectrode) or abs(np.hypot(*e.centre_m[:2]) - tank.radius_at(e.centre_m[2])) > 1e-9:
             continue
         phi = np.arctan2(e.centre_m[1], e.centre_m[0])
-        out.append((i, np.array(e.centre_m), np.array([np.cos(phi), np.sin(phi), 0.0]),
-                    np.array([-np.sin(phi), np.cos(phi), 0.0]), e.radius_m))
+        normal = np.array([np.cos(phi), np.sin(phi), -slope]) / np.hypot(1.0, slope)   # out of the water
+        out.append((i, np.array(e.centre_m), normal, np.array([-np.sin(phi), np.cos(phi), 0.0]), e.radius_m))
     return out
 
 
@@ -172,6 +175,8 @@ def main(argv=None) -> None:
     ap.add_argument("--data", type=Path, required=True, help="the phantom's .mat file, or a transfer log .csv")
     ap.add_argument("--scene", type=Path, required=True, help="the tank's scene file (TOML) with a [protocol] table")
     ap.add_argument("-o", "--out", type=Path, required=True)
+    ap.add_argument("--no-diagnosis", dest="diagnosis", action="store_false",
+                    help="only the comparison (noise floor, empty tank, balls): no diagnosis candidates")
     args = ap.parse_args(argv)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     out = args.out
@@ -230,88 +235,91 @@ def main(argv=None) -> None:
         metrics["empty_rel_error_by_ring_offset"] = {int(o): float(np.mean(s * Zm[off == o] / Zd_abs[off == o] - 1))
                                                      for o in np.unique(off)}
 
-    # ---- diagnosis candidates: linear effects about the BEM, fitted on even drives, scored on odd ones
-    mpairs = np.unique(meas, axis=0)
-    mindex = np.array([np.flatnonzero(np.all(mpairs == m, axis=1))[0] for m in meas])
-    chan = [(mindex == j).astype(float) for j in range(len(mpairs))]
-    cols = {"channel_gains": [Zm * c for c in chan], "channel_offsets": [Zm] + chan,
-            "common_offset": [Zm, np.ones(len(Zm))]}
-    n_e = K0.shape[0]
-    # ground electrode(s) off the ring carrying part of the drive current (sink shared with it)
-    ring = [int(e) for e in proto.get("ring", [])]
-    others = [e for e in range(1, n_e + 1) if e not in ring]
-    for g in others:
-        alt = np.abs(_model(K0, np.c_[drive[:, 0], np.full(len(drive), g)], meas))
-        cols[f"current_to_electrode_{g}"] = [Zm, alt - Zm]
-    # electrode positions along the wall: sensitivities from the one solve (reciprocity)
-    t0 = time.perf_counter()
-    wall = _wall_electrodes(scene)
-    J = None
-    if wall:
-        idx = np.array([i + 1 for i, *_ in wall])
-        Jall = shift_sensitivities_ohm_per_m(sol0, drives, mpairs, idx, [w[1] for w in wall], [w[2] for w in wall],
-                                             [w[3] for w in wall], [w[4] for w in wall])
-        J = sgn[:, None] * Jall[dindex, mindex]                       # (R, E) d|Z|/ds, ohm per metre of arc
-        gauge = np.r_[0.0, np.ones(len(idx))][None]                     # a rigid rotation changes nothing
-        cols["electrode_angles"] = [Zm] + list(J.T)
-    metrics["bem"]["position_sensitivity_s"] = time.perf_counter() - t0
-    # water depth: one more solve (finite difference of a sixth of the depth)
-    dZdH = None
     tank = scene.tank
-    if hasattr(tank, "water_depth_m"):
-        dH = tank.water_depth_m / 6
+    ring = [int(e) for e in proto.get("ring", [])]
+    floating = {int(e) for e in proto.get("floating", [])}   # electrodes in the water that no cable touches
+    if args.diagnosis:
+        # ---- diagnosis candidates: linear effects about the BEM, fitted on even drives, scored on odd ones
+        mpairs = np.unique(meas, axis=0)
+        mindex = np.array([np.flatnonzero(np.all(mpairs == m, axis=1))[0] for m in meas])
+        chan = [(mindex == j).astype(float) for j in range(len(mpairs))]
+        cols = {"channel_gains": [Zm * c for c in chan], "channel_offsets": [Zm] + chan,
+                "common_offset": [Zm, np.ones(len(Zm))]}
+        n_e = K0.shape[0]
+        # ground electrode(s) off the ring carrying part of the drive current (sink shared with it)
+        others = [e for e in range(1, n_e + 1) if e not in ring and e not in floating]
+        for g in others:
+            alt = np.abs(_model(K0, np.c_[drive[:, 0], np.full(len(drive), g)], meas))
+            cols[f"current_to_electrode_{g}"] = [Zm, alt - Zm]
+        # electrode positions along the wall: sensitivities from the one solve (reciprocity)
         t0 = time.perf_counter()
-        Kd, _ = _K(replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)), sigma, bem)
-        dZdH = (Zm - np.abs(_model(Kd, drive, meas))) / dH             # ohm per metre of depth
-        metrics["bem"]["depth_solve_s"] = time.perf_counter() - t0
-        cols["water_depth"] = [Zm, dZdH]
-    if J is not None and dZdH is not None:
-        cols["water_depth+electrode_angles"] = [Zm, dZdH] + list(J.T)
-        cols["water_depth+electrode_angles+channel_offsets"] = [Zm, dZdH] + list(J.T) + chan
-    cands = {}
-    for name, cs in cols.items():
-        g = None
-        if "electrode_angles" in name:
-            g = np.zeros((1, len(cs)))
-            k0 = 2 if name.startswith("water_depth") else 1
-            g[0, k0:k0 + J.shape[1]] = 1.0
-        sc, res, coefs = score(cs, g)
-        c = coefs[1]
-        if name == "water_depth" or name.startswith("water_depth+"):
-            sc["depth_change_m"] = float(c[1] / c[0])
-        if "electrode_angles" in name:
-            k0 = 2 if name.startswith("water_depth") else 1
-            sc["arc_offsets_mm"] = np.round(1e3 * c[k0:k0 + J.shape[1]] / c[0], 2).tolist()
-        if name.startswith("current_to_electrode"):
-            sc["fraction"] = float(c[1] / c[0])
-        if name == "channel_gains":
-            sc["gains_rel"] = np.round(c / np.mean(c), 4).tolist()
-        cands[name] = sc
-    chosen = min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
-    # contact impedances from the drive pairs' voltages (nominal sigma; min-norm over the ring's pairs)
-    Zdrive_bem = drive_impedances_ohm(K0, ddrive)
-    excess = Vdrive - Zdrive_bem
-    A = np.zeros((len(ddrive), n_e))
-    A[np.arange(len(ddrive)), ddrive[:, 0] - 1] = 1
-    A[np.arange(len(ddrive)), ddrive[:, 1] - 1] = 1
-    r_el = np.linalg.lstsq(A, excess, rcond=None)[0]
-    areas = np.array([np.pi * e.radius_m ** 2 if isinstance(e, DiscElectrode) else np.nan for e in scene.electrodes])
-    contact = {
-        "note": "from the drive pairs' voltages; with a current source and floating measurement electrodes they "
-                "cannot change a four-electrode transfer impedance",
-        "drive_impedance_measured_ohm": np.round(Vdrive, 2).tolist(),
-        "drive_impedance_bem_ohm": np.round(Zdrive_bem, 2).tolist(),
-        "z_c_ohm_m2": np.round(r_el * areas[:n_e], 6).tolist()}
-    worst = np.argsort(-np.abs(res0[held]))[:4]
-    metrics["diagnosis"] = {
-        "chosen": chosen, "gap_before": gap_before, "gap_after": cands[chosen]["heldout_rms_rel"],
-        "shrink": 1 - cands[chosen]["heldout_rms_rel"] / gap_before, "candidates": cands,
-        "contact_impedances": contact,
-        "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
-                                    "rel": float(res0[held][i])} for i in worst],
-        "remaining": "measurement-specific scatter that no smooth physical effect (depth, electrode angles, ground "
-                     "current) nor per-channel gain/offset predicts on held-out drives; reciprocal pairs agree on "
-                     "much of it (see noise_floor)"}
+        wall = [w for w in _wall_electrodes(scene) if w[0] + 1 in ring]      # the measured electrodes
+        J = None
+        if wall:
+            idx = np.array([i + 1 for i, *_ in wall])
+            Jall = shift_sensitivities_ohm_per_m(sol0, drives, mpairs, idx, [w[1] for w in wall], [w[2] for w in wall],
+                                                 [w[3] for w in wall], [w[4] for w in wall])
+            J = sgn[:, None] * Jall[dindex, mindex]                       # (R, E) d|Z|/ds, ohm per metre of arc
+            gauge = np.r_[0.0, np.ones(len(idx))][None]                     # a rigid rotation changes nothing
+            cols["electrode_angles"] = [Zm] + list(J.T)
+        metrics["bem"]["position_sensitivity_s"] = time.perf_counter() - t0
+        # water depth: one more solve (finite difference of a sixth of the depth)
+        dZdH = None
+        tank = scene.tank
+        if hasattr(tank, "water_depth_m"):
+            dH = tank.water_depth_m / 6
+            t0 = time.perf_counter()
+            Kd, _ = _K(replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)), sigma, bem)
+            dZdH = (Zm - np.abs(_model(Kd, drive, meas))) / dH             # ohm per metre of depth
+            metrics["bem"]["depth_solve_s"] = time.perf_counter() - t0
+            cols["water_depth"] = [Zm, dZdH]
+        if J is not None and dZdH is not None:
+            cols["water_depth+electrode_angles"] = [Zm, dZdH] + list(J.T)
+            cols["water_depth+electrode_angles+channel_offsets"] = [Zm, dZdH] + list(J.T) + chan
+        cands = {}
+        for name, cs in cols.items():
+            g = None
+            if "electrode_angles" in name:
+                g = np.zeros((1, len(cs)))
+                k0 = 2 if name.startswith("water_depth") else 1
+                g[0, k0:k0 + J.shape[1]] = 1.0
+            sc, res, coefs = score(cs, g)
+            c = coefs[1]
+            if name == "water_depth" or name.startswith("water_depth+"):
+                sc["depth_change_m"] = float(c[1] / c[0])
+            if "electrode_angles" in name:
+                k0 = 2 if name.startswith("water_depth") else 1
+                sc["arc_offsets_mm"] = np.round(1e3 * c[k0:k0 + J.shape[1]] / c[0], 2).tolist()
+            if name.startswith("current_to_electrode"):
+                sc["fraction"] = float(c[1] / c[0])
+            if name == "channel_gains":
+                sc["gains_rel"] = np.round(c / np.mean(c), 4).tolist()
+            cands[name] = sc
+        chosen = min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
+        # contact impedances from the drive pairs' voltages (nominal sigma; min-norm over the ring's pairs)
+        Zdrive_bem = drive_impedances_ohm(K0, ddrive)
+        excess = Vdrive - Zdrive_bem
+        A = np.zeros((len(ddrive), n_e))
+        A[np.arange(len(ddrive)), ddrive[:, 0] - 1] = 1
+        A[np.arange(len(ddrive)), ddrive[:, 1] - 1] = 1
+        r_el = np.linalg.lstsq(A, excess, rcond=None)[0]
+        areas = np.array([np.pi * e.radius_m ** 2 if isinstance(e, DiscElectrode) else np.nan for e in scene.electrodes])
+        contact = {
+            "note": "from the drive pairs' voltages; with a current source and floating measurement electrodes they "
+                    "cannot change a four-electrode transfer impedance",
+            "drive_impedance_measured_ohm": np.round(Vdrive, 2).tolist(),
+            "drive_impedance_bem_ohm": np.round(Zdrive_bem, 2).tolist(),
+            "z_c_ohm_m2": np.round(r_el * areas[:n_e], 6).tolist()}
+        worst = np.argsort(-np.abs(res0[held]))[:4]
+        metrics["diagnosis"] = {
+            "chosen": chosen, "gap_before": gap_before, "gap_after": cands[chosen]["heldout_rms_rel"],
+            "shrink": 1 - cands[chosen]["heldout_rms_rel"] / gap_before, "candidates": cands,
+            "contact_impedances": contact,
+            "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
+                                        "rel": float(res0[held][i])} for i in worst],
+            "remaining": "measurement-specific scatter that no smooth physical effect (depth, electrode angles, ground "
+                         "current) nor per-channel gain/offset predicts on held-out drives; reciprocal pairs agree on "
+                         "much of it (see noise_floor)"}
 
     # ---- ball set-ups: the unstated height fitted (one height shared by every set-up) on a few solves
     radius = float(proto.get("ball_radius_m", 0.02))
@@ -348,7 +356,8 @@ def main(argv=None) -> None:
     _figures(out, Zd_abs, s * Zm, ~held, rec, signals)
     _report(out, metrics)
     print(json.dumps({k: metrics[k] for k in ("noise_floor", "empty_heldout_rms_rel", "object_rms_rel")}, indent=1))
-    print("diagnosis:", {k: metrics["diagnosis"][k] for k in ("chosen", "gap_before", "gap_after")})
+    if "diagnosis" in metrics:
+        print("diagnosis:", {k: metrics["diagnosis"][k] for k in ("chosen", "gap_before", "gap_after")})
     print("goals: empty_heldout_rms_rel <= 0.045; each object_rms_rel <= 0.15; diagnosis shrink >= 0.5")
 
 
@@ -383,23 +392,28 @@ def _figures(out, Zd, Zfit, train, rec, signals):
 
 
 def _report(out, m):
-    d = m["diagnosis"]
     lines = ["# Real tank: BEM against the measured phantom", "",
-             f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles.", "",
+             f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
+             f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s.", "",
              f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
              f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement.",
              f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= 0.045).",
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
              f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
              *[f"- Set-up {k}: object_rms_rel = {v:.3f} at the fitted height, "
-               f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= 0.15)"
-               for k, v in m["object_rms_rel"].items()],
-             f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
-             f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %).",
-             *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
-               f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
-             f"  - remaining: {d['remaining']}",
-             "", "![empty tank](empty_tank.png)", "", "![difference signals](difference_signals.png)", ""]
+               f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= 0.15); measured/BEM "
+               f"amplitude {m['ball_height']['measured_over_simulated_amplitude'][k]:.2f}"
+               for k, v in m["object_rms_rel"].items()]]
+    if "diagnosis" in m:
+        d = m["diagnosis"]
+        lines += [f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
+                  f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %).",
+                  *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
+                    f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
+                  f"  - remaining: {d['remaining']}"]
+    else:
+        lines += ["- Diagnosis: not run (--no-diagnosis)."]
+    lines += ["", "![empty tank](empty_tank.png)", "", "![difference signals](difference_signals.png)", ""]
     (out / "report.md").write_text("\n".join(lines))
 
 
