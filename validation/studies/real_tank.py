@@ -141,6 +141,25 @@ def _wall_electrodes(scene):
     return out
 
 
+def _reshaped(scene, radius_m=None, floor_radius_m=None):
+    """The scene with its cylindrical tank's top/floor radii changed; wall discs follow the wall (same angle, height)."""
+    t = scene.tank
+    new = replace(t, radius_m=t.radius_m if radius_m is None else radius_m,
+                  floor_radius_m=t.floor_radius_m if floor_radius_m is None else floor_radius_m)
+    moved = []
+    for e in scene.electrodes:
+        if isinstance(e, DiscElectrode) and abs(np.hypot(*e.centre_m[:2]) - t.radius_at(e.centre_m[2])) < 1e-9:
+            k = float(new.radius_at(e.centre_m[2]) / t.radius_at(e.centre_m[2]))
+            e = replace(e, centre_m=(k * e.centre_m[0], k * e.centre_m[1], e.centre_m[2]))
+        moved.append(e)
+    return replace(scene, tank=new, electrodes=tuple(moved))
+
+
+def _ring_z(scene, ring):
+    """Mean height (m) of the ring's electrodes."""
+    return float(np.mean([scene.electrodes[e - 1].centre_m[2] for e in ring]))
+
+
 def _fit_ball_height(heights, measured, simulated):
     """One height shared by every set-up, from signals simulated at a few heights (quadratic in z).
 
@@ -238,6 +257,7 @@ def main(argv=None) -> None:
     tank = scene.tank
     ring = [int(e) for e in proto.get("ring", [])]
     floating = {int(e) for e in proto.get("floating", [])}   # electrodes in the water that no cable touches
+    shape = None                                             # the radius-scaled scene, for the balls' amplitudes
     if args.diagnosis:
         # ---- diagnosis candidates: linear effects about the BEM, fitted on even drives, scored on odd ones
         mpairs = np.unique(meas, axis=0)
@@ -273,6 +293,27 @@ def main(argv=None) -> None:
             dZdH = (Zm - np.abs(_model(Kd, drive, meas))) / dH             # ohm per metre of depth
             metrics["bem"]["depth_solve_s"] = time.perf_counter() - t0
             cols["water_depth"] = [Zm, dZdH]
+        # the tank's shape at the ring: radius (both radii scaled) and taper (floor radius alone), one solve each;
+        # columns per metre of the RING's radius (taper: per metre of the floor's radius)
+        dZdR = dZdF = None
+        if hasattr(tank, "radius_at") and ring:
+            z_ring = _ring_z(scene, ring)
+            R_ring = float(tank.radius_at(z_ring))
+            t0 = time.perf_counter()
+            f = 0.9
+            Kr, _ = _K(_reshaped(scene, f * tank.radius_m, f * tank.floor_radius_m), sigma, bem)
+            dZdR = (Zm - np.abs(_model(Kr, drive, meas))) / ((1 - f) * R_ring)
+            dF = 0.1 * tank.floor_radius_m
+            Kf, _ = _K(_reshaped(scene, floor_radius_m=tank.floor_radius_m - dF), sigma, bem)
+            dZdF = (Zm - np.abs(_model(Kf, drive, meas))) / dF
+            metrics["bem"]["shape_solves_s"] = time.perf_counter() - t0
+            cols["ring_radius"] = [Zm, dZdR]
+            shape = {"scene": _reshaped(scene, f * tank.radius_m, f * tank.floor_radius_m), "R_ring_m": R_ring,
+                     "R_ring_scaled_m": f * R_ring, "Z": np.abs(_model(Kr, drive, meas))}
+            cols["wall_taper"] = [Zm, dZdF]
+            cols["ring_radius+wall_taper"] = [Zm, dZdR, dZdF]
+            if dZdH is not None:
+                cols["ring_radius+water_depth"] = [Zm, dZdR, dZdH]
         if J is not None and dZdH is not None:
             cols["water_depth+electrode_angles"] = [Zm, dZdH] + list(J.T)
             cols["water_depth+electrode_angles+channel_offsets"] = [Zm, dZdH] + list(J.T) + chan
@@ -287,6 +328,14 @@ def main(argv=None) -> None:
             c = coefs[1]
             if name == "water_depth" or name.startswith("water_depth+"):
                 sc["depth_change_m"] = float(c[1] / c[0])
+            if name.startswith("ring_radius"):
+                sc["ring_radius_change_m"] = float(c[1] / c[0])
+                sc["ring_radius_m"] = R_ring + float(c[1] / c[0])
+            if name.endswith("water_depth") and not name == "water_depth":
+                sc["depth_change_m"] = float(c[-1] / c[0])
+            if "wall_taper" in name:
+                k = 1 if name == "wall_taper" else 2
+                sc["floor_radius_change_m"] = float(c[k] / c[0])
             if "electrode_angles" in name:
                 k0 = 2 if name.startswith("water_depth") else 1
                 sc["arc_offsets_mm"] = np.round(1e3 * c[k0:k0 + J.shape[1]] / c[0], 2).tolist()
@@ -350,6 +399,29 @@ def main(argv=None) -> None:
     metrics["ball_height"]["measured_over_simulated_amplitude"] = {
         k: v["measured_over_simulated_amplitude"] for k, v in ball.items()}
     signals = {k: (dm_all[k], v["signal"]) for k, v in ball.items()}
+    if shape is not None and setups:
+        # ONE geometry for both? the ring radius at which each ball's amplitude matches (assumed height),
+        # against the one the empty tank's held-out fit wants
+        t0 = time.perf_counter()
+        want = {}
+        for setup in setups:
+            balls = tuple(Sphere(centre_m=(float(x), float(y), float(zb)), radius_m=radius) for x, y in proto[setup])
+            Kb, _ = _K(replace(shape["scene"], objects=balls), sigma, bem)
+            s1 = np.abs(_model(Kb, drive, meas)) / shape["Z"] - 1
+            a0 = float(np.sum(ds_all[setup][0] * dm_all[setup]) / np.sum(ds_all[setup][0] ** 2))
+            a1 = float(np.sum(s1 * dm_all[setup]) / np.sum(s1 ** 2))
+            want[setup] = shape["R_ring_m"] + (1 - a0) / (a1 - a0) * (shape["R_ring_scaled_m"] - shape["R_ring_m"])
+        cands = metrics["diagnosis"]["candidates"]
+        metrics["diagnosis"]["one_geometry"] = {
+            "ring_radius_m_stated": shape["R_ring_m"],
+            "ring_radius_m_for_ball_amplitude": want,
+            "ring_radius_m_for_empty_tank": cands["ring_radius"]["ring_radius_m"],
+            "empty_heldout_rms_rel_with_ring_radius": cands["ring_radius"]["heldout_rms_rel"],
+            "ball_radius_m": radius,
+            "note": "radius of the ring's circle at which each ball's measured/simulated amplitude is 1 (linear in "
+                    "the radius, ball at the assumed height), against the radius the empty tank's held-out fit "
+                    "wants: one tank shape explains both only if they agree"}
+        metrics["bem"]["shape_ball_solves_s"] = time.perf_counter() - t0
     metrics["wall_s"] = time.perf_counter() - t_start
     metrics["cpu_s"] = time.process_time() - cpu_start
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
