@@ -258,6 +258,7 @@ def main(argv=None) -> None:
     ring = [int(e) for e in proto.get("ring", [])]
     floating = {int(e) for e in proto.get("floating", [])}   # electrodes in the water that no cable touches
     shape = None                                             # the radius-scaled scene, for the balls' amplitudes
+    resid = {"stated geometry": res0}                        # 2-fold relative residuals of the candidates
     if args.diagnosis:
         # ---- diagnosis candidates: linear effects about the BEM, fitted on even drives, scored on odd ones
         mpairs = np.unique(meas, axis=0)
@@ -344,6 +345,7 @@ def main(argv=None) -> None:
             if name == "channel_gains":
                 sc["gains_rel"] = np.round(c / np.mean(c), 4).tolist()
             cands[name] = sc
+            resid[name] = res
         chosen = min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
         # contact impedances from the drive pairs' voltages (nominal sigma; min-norm over the ring's pairs)
         Zdrive_bem = drive_impedances_ohm(K0, ddrive)
@@ -426,6 +428,8 @@ def main(argv=None) -> None:
     metrics["cpu_s"] = time.process_time() - cpu_start
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     _figures(out, Zd_abs, s * Zm, ~held, rec, signals)
+    if off is not None:
+        _geometry_figure(out, off, resid, metrics.get("diagnosis", {}).get("one_geometry"))
     _report(out, metrics)
     print(json.dumps({k: metrics[k] for k in ("noise_floor", "empty_heldout_rms_rel", "object_rms_rel")}, indent=1))
     if "diagnosis" in metrics:
@@ -456,11 +460,47 @@ def _figures(out, Zd, Zfit, train, rec, signals):
             a.plot(100 * dm, "k.-", lw=0.6, ms=3, label="measured")
             a.plot(100 * ds, "r.-", lw=0.6, ms=3, label="BEM")
             a.set(ylabel="with/without - 1 (%)", title=f"set-up {name}")
-            a.legend(loc="upper right")
+            a.legend(loc="upper left", fontsize=8, ncol=2)
         axes[-1, 0].set_xlabel("measurement (drive-major, drive-touching pairs left out)")
         fig.tight_layout()
         fig.savefig(out / "difference_signals.png", dpi=110)
         plt.close(fig)
+
+
+def _geometry_figure(out, off, resid, one):
+    """Model/measured - 1 by ring offset (held out in turn) for the stated tank and the shape candidates; and the
+    ring radius the empty tank and each ball want."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(1, 2 if one else 1, figsize=(11 if one else 6, 4.2), squeeze=False)
+    a = ax[0, 0]
+    offs = np.unique(off)
+    for name, mk in (("stated geometry", "ko-"), ("ring_radius", "bs-"), ("water_depth", "r^-"),
+                     ("electrode_angles", "gv-")):
+        if name in resid:
+            r = resid[name]
+            a.plot(offs, [100 * np.mean(r[off == o]) for o in offs], mk, ms=4, lw=1, label=name.replace("_", " "))
+    r0 = resid["stated geometry"]
+    a.plot(off + 0.15 * (np.random.default_rng(0).random(len(off)) - 0.5), 100 * r0, ".", color="0.7", ms=2,
+           zorder=0, label="each measurement (stated)")
+    a.axhline(0, color="k", lw=0.5)
+    a.set(xlabel="ring offset of the measurement pair from the drive pair", ylabel="model / measured - 1 (%)",
+          title="empty tank, each half held out in turn")
+    a.legend(fontsize=8)
+    if one:
+        b = ax[0, 1]
+        items = [("stated", one["ring_radius_m_stated"]), ("empty tank fit", one["ring_radius_m_for_empty_tank"])] + [
+            (f"ball amplitude {k}", v) for k, v in one["ring_radius_m_for_ball_amplitude"].items()]
+        b.barh(range(len(items)), [100 * v for _, v in items], color=["0.6", "b"] + ["r"] * (len(items) - 2))
+        b.set_yticks(range(len(items)), [k for k, _ in items])
+        lo = 100 * min(v for _, v in items)
+        b.set_xlim(lo - 2, 100 * max(v for _, v in items) + 1)
+        b.set(xlabel="radius of the electrode ring (cm)", title="one tank shape for both? (ring radius wanted)")
+    fig.tight_layout()
+    fig.savefig(out / "geometry.png", dpi=110)
+    plt.close(fig)
 
 
 def _report(out, m):
@@ -483,9 +523,17 @@ def _report(out, m):
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
                     f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
                   f"  - remaining: {d['remaining']}"]
+        if "one_geometry" in d:
+            g = d["one_geometry"]
+            lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "
+                      f"empty tank's held-out fit wants {100 * g['ring_radius_m_for_empty_tank']:.1f} cm (held-out "
+                      f"{g['empty_heldout_rms_rel_with_ring_radius']:.4f}); the balls' amplitudes (ball radius "
+                      f"{1e3 * g['ball_radius_m']:.2f} mm) want " + ", ".join(
+                          f"{k} {100 * v:.1f} cm" for k, v in g["ring_radius_m_for_ball_amplitude"].items()) + "."]
     else:
         lines += ["- Diagnosis: not run (--no-diagnosis)."]
-    lines += ["", "![empty tank](empty_tank.png)", "", "![difference signals](difference_signals.png)", ""]
+    lines += ["", "![empty tank](empty_tank.png)", "", "![tank shape](geometry.png)", "",
+              "![difference signals](difference_signals.png)", ""]
     (out / "report.md").write_text("\n".join(lines))
 
 
