@@ -14,12 +14,18 @@ Run: ``esense study real_tank --data FILE.mat|LOG.csv --scene pail.toml -o DIR``
   measured over the held-out measurements.
 * Each ball set-up: difference signal (with ball / without - 1), measured vs
   BEM with the balls where the scene's ``[protocol]`` table says.
-* Diagnosis: candidate effects fitted on the even drives and scored on the
-  odd ones: per-channel gains of the measurement system (one per measurement
-  pair), electrode positions along the wall (angle per electrode; linearised
-  from one BEM solve per electrode), both; contact impedances from the drive
-  pairs' voltages (they cannot change a four-electrode transfer impedance).
-  ``diagnosis.chosen`` is the candidate with the smallest held-out gap.
+* Diagnosis (left out with ``--no-diagnosis``, as ``esense validate`` does):
+  candidate effects fitted on the even drives and scored on the odd ones,
+  each linear about the BEM: per-channel gains or offsets of the measurement
+  system, electrode positions along the wall (one solve's sensitivities, by
+  reciprocity), water depth, the tank's shape at the ring (radius; taper of
+  the wall; one solve each), current returning through electrodes off the
+  ring; contact impedances from the drive pairs' voltages (they cannot
+  change a four-electrode transfer impedance). ``diagnosis.chosen`` is the
+  candidate with the smallest held-out gap. ``diagnosis.one_geometry``
+  asks whether one tank shape explains both the empty tank and the balls:
+  the ring radius the empty tank's fit wants against the one at which each
+  ball's measured/simulated amplitude is 1.
 
 Nothing is tuned to one file: the ring, the set-ups and the balls come from
 the scene's ``[protocol]`` table, the electrodes from its geometry.
@@ -477,8 +483,8 @@ def _geometry_figure(out, off, resid, one):
     fig, ax = plt.subplots(1, 2 if one else 1, figsize=(11 if one else 6, 4.2), squeeze=False)
     a = ax[0, 0]
     offs = np.unique(off)
-    for name, mk in (("stated geometry", "ko-"), ("ring_radius", "bs-"), ("water_depth", "r^-"),
-                     ("electrode_angles", "gv-")):
+    for name, mk in (("stated geometry", "ko-"), ("ring_radius", "bs-"), ("wall_taper", "cd--"),
+                     ("water_depth", "r^-")):
         if name in resid:
             r = resid[name]
             a.plot(offs, [100 * np.mean(r[off == o]) for o in offs], mk, ms=4, lw=1, label=name.replace("_", " "))
@@ -487,16 +493,22 @@ def _geometry_figure(out, off, resid, one):
            zorder=0, label="each measurement (stated)")
     a.axhline(0, color="k", lw=0.5)
     a.set(xlabel="ring offset of the measurement pair from the drive pair", ylabel="model / measured - 1 (%)",
-          title="empty tank, each half held out in turn")
+          title="empty tank: mean by offset, each half held out in turn")
+    a.set_ylim(-30, 30)
     a.legend(fontsize=8)
     if one:
         b = ax[0, 1]
         items = [("stated", one["ring_radius_m_stated"]), ("empty tank fit", one["ring_radius_m_for_empty_tank"])] + [
             (f"ball amplitude {k}", v) for k, v in one["ring_radius_m_for_ball_amplitude"].items()]
-        b.barh(range(len(items)), [100 * v for _, v in items], color=["0.6", "b"] + ["r"] * (len(items) - 2))
+        colours = ["0.4", "b"] + ["r"] * (len(items) - 2)
+        for i, ((_, v), c) in enumerate(zip(items, colours)):
+            b.plot(100 * v, i, "o", color=c, ms=8)
+            b.annotate(f"{100 * v:.1f}", (100 * v, i), textcoords="offset points", xytext=(8, -4), fontsize=9)
+        b.axvline(100 * one["ring_radius_m_stated"], color="0.4", lw=0.8, ls=":")
         b.set_yticks(range(len(items)), [k for k, _ in items])
-        lo = 100 * min(v for _, v in items)
-        b.set_xlim(lo - 2, 100 * max(v for _, v in items) + 1)
+        b.set_ylim(-0.6, len(items) - 0.4)
+        b.set_xlim(100 * min(v for _, v in items) - 1, 100 * max(v for _, v in items) + 1.5)
+        b.grid(axis="x", lw=0.3)
         b.set(xlabel="radius of the electrode ring (cm)", title="one tank shape for both? (ring radius wanted)")
     fig.tight_layout()
     fig.savefig(out / "geometry.png", dpi=110)
