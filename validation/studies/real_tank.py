@@ -287,7 +287,6 @@ def main(argv=None) -> None:
             Jall = shift_sensitivities_ohm_per_m(sol0, drives, mpairs, idx, [w[1] for w in wall], [w[2] for w in wall],
                                                  [w[3] for w in wall], [w[4] for w in wall])
             J = sgn[:, None] * Jall[dindex, mindex]                       # (R, E) d|Z|/ds, ohm per metre of arc
-            gauge = np.r_[0.0, np.ones(len(idx))][None]                     # a rigid rotation changes nothing
             cols["electrode_angles"] = [Zm] + list(J.T)
         metrics["bem"]["position_sensitivity_s"] = time.perf_counter() - t0
         # water depth: one more solve (finite difference of a sixth of the depth)
@@ -338,7 +337,7 @@ def main(argv=None) -> None:
             if name.startswith("ring_radius"):
                 sc["ring_radius_change_m"] = float(c[1] / c[0])
                 sc["ring_radius_m"] = R_ring + float(c[1] / c[0])
-            if name.endswith("water_depth") and not name == "water_depth":
+            if name.endswith("water_depth") and name != "water_depth":
                 sc["depth_change_m"] = float(c[-1] / c[0])
             if "wall_taper" in name:
                 k = 1 if name == "wall_taper" else 2
@@ -517,10 +516,10 @@ def _geometry_figure(out, off, resid, one):
 
 def _report(out, m):
     lines = ["# Real tank: BEM against the measured phantom", "",
-             f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
-             f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s.", "",
-             f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
-             f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement.",
+             (f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
+              f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s."), "",
+             (f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
+              f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement."),
              f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= 0.045).",
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
              f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
@@ -530,8 +529,8 @@ def _report(out, m):
                for k, v in m["object_rms_rel"].items()]]
     if "diagnosis" in m:
         d = m["diagnosis"]
-        lines += [f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
-                  f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %).",
+        lines += [(f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
+                   f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
                     f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
                   f"  - remaining: {d['remaining']}"]
