@@ -36,6 +36,27 @@
     [water]                     # optional physics, read by the simulating commands
     sigma_S_per_m = 0.05
 
+A cylindrical tank with electrodes of its own (a tank without a sensor is
+allowed when it has electrodes)::
+
+    [tank]
+    shape = "cylinder"
+    radius_m = 0.15             # at the top of the tank
+    floor_radius_m = 0.13       # optional: a tapered (frustum) wall
+    height_m = 0.30
+    water_depth_m = 0.28
+
+    [[electrode_ring]]          # n discs evenly round the wall; one table per ring
+    n = 16
+    z_m = -0.05
+    radius_m = 0.004
+    first_angle_rad = 0.0
+
+    [[electrodes]]              # more electrodes: disc (centre on a boundary) or plate (a whole region)
+    shape = "disc"
+    centre_m = [0.0, 0.0, -0.15]
+    radius_m = 0.005
+
 Unknown tables or keys are refused (a misspelt key must not be silently
 ignored). Tables other than ``tank``, ``sensor`` and ``objects`` that the
 geometry does not use (``[water]``...) are returned by
