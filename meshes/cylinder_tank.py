@@ -1,4 +1,9 @@
-"""A cylindrical tank: radius, height and water depth, axis vertical.
+"""A cylindrical tank: radius, height and water depth, axis vertical; optionally tapered (a frustum).
+
+Moulded tanks and pails taper: narrower at the floor than at the top. With
+``floor_radius_m`` the wall is a frustum, its radius growing linearly from
+``floor_radius_m`` at the floor to ``radius_m`` at the top of the tank
+(``z = +height/2``); without it the wall is a straight cylinder.
 
 Tank frame: the axis is the z axis, the origin at mid-height of the tank's
 inner volume (as for the box :class:`meshes.tank.Tank`), floor at
@@ -12,6 +17,9 @@ Example
 >>> t = CylinderTank(radius_m=0.15, height_m=0.3, water_depth_m=0.3)
 >>> t.floor_z_m, t.free_surface_z_m, t.region_names
 (-0.15, 0.15, ('wall', 'floor', 'free_surface'))
+>>> pail = CylinderTank(radius_m=0.15, height_m=0.3, floor_radius_m=0.12)
+>>> round(float(pail.radius_at(-0.05)), 4), round(pail.wall_slope, 3)
+(0.13, 0.1)
 """
 from __future__ import annotations
 
@@ -27,11 +35,16 @@ CYLINDER_TANK_REGIONS = ("wall", "floor", "free_surface")
 
 @dataclass(frozen=True)
 class CylinderTank:
-    """Inner radius and height (m) of a vertical cylindrical tank, and its water depth (default: full)."""
+    """Inner radius at the top and height (m) of a vertical tank, its water depth (default: full), radius at the floor.
+
+    ``floor_radius_m`` (default: ``radius_m``, a straight wall) makes the wall
+    a frustum between the floor's radius and the top's.
+    """
 
     radius_m: float
     height_m: float
     water_depth_m: float | None = None
+    floor_radius_m: float | None = None
 
     def __post_init__(self):
         r, h = float(self.radius_m), float(self.height_m)
@@ -44,6 +57,19 @@ class CylinderTank:
         if not 0 < depth <= h + 1e-12:
             raise ValueError(f"cylindrical tank: water depth {depth} m must lie in (0, height = {h}]")
         object.__setattr__(self, "water_depth_m", depth)
+        rf = r if self.floor_radius_m is None else float(self.floor_radius_m)
+        if not (np.isfinite(rf) and rf > 0):
+            raise ValueError(f"cylindrical tank: floor_radius_m must be positive (m), got {self.floor_radius_m}")
+        object.__setattr__(self, "floor_radius_m", rf)
+
+    @property
+    def wall_slope(self) -> float:
+        """dr/dz of the wall (0: straight; > 0: wider at the top)."""
+        return (self.radius_m - self.floor_radius_m) / self.height_m
+
+    def radius_at(self, z_m):
+        """Inner radius (m) of the wall at heights ``z_m`` (tank frame)."""
+        return self.floor_radius_m + self.wall_slope * (np.asarray(z_m, dtype=float) - self.floor_z_m)
 
     @property
     def region_names(self) -> tuple[str, ...]:
@@ -60,13 +86,14 @@ class CylinderTank:
     @property
     def water_bounds_m(self) -> np.ndarray:
         """(2, 3): lower and upper corners of the water's bounding box."""
-        r = self.radius_m
+        r = max(self.floor_radius_m, float(self.radius_at(self.free_surface_z_m)))
         return np.array([[-r, -r, self.floor_z_m], [r, r, self.free_surface_z_m]])
 
     def distance_to_boundary_m(self, points_m: np.ndarray) -> np.ndarray:
         """Distance (..., 3) of each point to the wall, floor and free surface (negative: outside)."""
         p = np.asarray(points_m, dtype=float)
-        return np.stack([self.radius_m - np.hypot(p[..., 0], p[..., 1]), p[..., 2] - self.floor_z_m,
+        wall = (self.radius_at(p[..., 2]) - np.hypot(p[..., 0], p[..., 1])) / np.hypot(1.0, self.wall_slope)
+        return np.stack([wall, p[..., 2] - self.floor_z_m,
                          self.free_surface_z_m - p[..., 2]], axis=-1)
 
     def contains(self, points_m: np.ndarray, margin_m: float = 0.0) -> np.ndarray:

@@ -53,39 +53,49 @@ def electrode_surface(tank: CylinderTank, electrode: DiscElectrode, index: int) 
     a = electrode.radius_m
     if on[0] == "wall":
         gap = min(electrode.centre_m[2] - tank.floor_z_m, tank.free_surface_z_m - electrode.centre_m[2])
-        if gap <= a or a >= 0.5 * np.pi * tank.radius_m:
+        if gap <= a or a >= 0.5 * np.pi * float(tank.radius_at(electrode.centre_m[2])):
             raise ValueError(f"{label} (radius {a} m) does not fit on the wall: its rim reaches the floor or the "
                              "free surface")
-    elif tank.radius_m - np.hypot(*electrode.centre_m[:2]) <= a:
+    elif float(tank.radius_at(electrode.centre_m[2])) - np.hypot(*electrode.centre_m[:2]) <= a:
         raise ValueError(f"{label} (radius {a} m) does not fit on the {on[0]}: its rim reaches the wall")
     return on[0]
 
 
 def mesh_plane_with_discs(boundary_uv: np.ndarray, discs_uv: list, size_uv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Triangulate a convex polygon with embedded discs ``(centre_uv, radius, h_edge, label)``.
+    """Triangulate a convex polygon with embedded discs ``(centre_uv, radius, h_edge, label[, stretch_uv])``.
 
-    Returns points (N, 2) (the boundary first, kept), CCW triangles and a
-    label per triangle (0 outside every disc).
+    ``stretch_uv`` (default (1, 1)): (u, v) lengths in the plane per unit of
+    true length at the disc (a developed surface that is not isometric, e.g.
+    a tapered wall): the disc is an ellipse in the plane and a circle on the
+    surface. A triangle belongs to a disc when all its nodes lie in the disc's
+    rim polygon (rim nodes included), so the electrode is exactly the
+    polygon, whose area is the disc's. Returns points (N, 2) (the boundary
+    first, kept), CCW triangles and a label per triangle (0 outside every disc).
     """
-    rims = [disc_rim_nodes(c, a, h) for c, a, h, _ in discs_uv]
-    fixed = np.concatenate([r.reshape(-1, 2) for r in rims]) if rims else np.zeros((0, 2))
+    stretch = np.array([d[4] if len(d) > 4 else (1.0, 1.0) for d in discs_uv], float).reshape(-1, 2)
     centres = np.array([c for c, *_ in discs_uv], float).reshape(-1, 2)
-    radii = np.array([a for _, a, *_ in discs_uv], float)
-    band = np.array([np.ptp(np.linalg.norm(r[:, 0] - c, axis=1)) / 2 for r, (c, *_) in zip(rims, discs_uv)])
+    radii = np.array([d[1] for d in discs_uv], float)
+    rims = [c + disc_rim_nodes((0.0, 0.0), a, h) * st for (c, a, h, *_), st in zip(discs_uv, stretch)]
+    fixed = np.concatenate([r.reshape(-1, 2) for r in rims]) if rims else np.zeros((0, 2))
+    band = np.array([np.ptp(np.linalg.norm((r[:, 0] - c) / st, axis=1)) / 2
+                     for r, c, st in zip(rims, centres, stretch)])
+    r_eq = np.array([np.linalg.norm((r[0, 0] - c) / st) for r, c, st in zip(rims, centres, stretch)])
+
+    def true_radius(p):          # (N, D) distance from each disc's centre in true length
+        return np.linalg.norm((p[:, None] - centres[None]) / stretch[None], axis=2)
 
     def allowed(p):
         if not len(discs_uv):
             return np.ones(len(p), bool)
-        gap = np.abs(np.linalg.norm(p[:, None] - centres[None], axis=2) - radii[None]) - band[None]
-        return np.all(gap > 0.5 * size_uv(p)[:, None], axis=1)
+        gap = np.abs(true_radius(p) - radii[None]) - band[None]
+        return np.all(gap * stretch.min(axis=1)[None] > 0.5 * size_uv(p)[:, None], axis=1)
 
     points, tri = mesh_convex_polygon(boundary_uv, size_uv, fixed_uv=fixed, allowed_uv=allowed)
     label = np.zeros(len(tri), np.int64)
     if len(discs_uv):
-        centroid = points[tri].mean(axis=1)
-        r_eq = np.array([np.linalg.norm(rim[0, 0] - c) for rim, (c, *_) in zip(rims, discs_uv)])
-        inside = np.linalg.norm(centroid[:, None] - centres[None], axis=2) < r_eq[None]
-        labels = np.array([lab for *_, lab in discs_uv])
+        inside_node = true_radius(points) <= r_eq[None] * (1 + 1e-9)       # (N, D)
+        inside = np.all(inside_node[tri], axis=1)                           # (T, D)
+        labels = np.array([d[3] for d in discs_uv])
         hit = inside.any(axis=1)
         label[hit] = labels[np.argmax(inside[hit], axis=1)]
     return points, tri, label
@@ -130,7 +140,11 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
         Growth per metre away from the focus; rim edge length over the disc
         radius; growth per metre away from a rim.
     """
-    R, zf, zt = tank.radius_m, tank.floor_z_m, tank.free_surface_z_m
+    zf, zt = tank.floor_z_m, tank.free_surface_z_m
+    # developed wall: u = R (phi - phi0) with R the radius at mid-water; on a tapered wall the map to the
+    # surface stretches u by r(z) / R and z by the slant factor (discs are meshed as ellipses there)
+    R = 0.5 * float(tank.radius_at(zf) + tank.radius_at(zt))
+    slant = float(np.hypot(1.0, tank.wall_slope))
     h_far = min(R, tank.water_depth_m) / 6 if edge_length_m is None else float(edge_length_m)
     if not h_far > 0:
         raise ValueError(f"mesh_cylinder_tank: edge_length_m must be positive, got {edge_length_m}")
@@ -150,9 +164,11 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     phi0 = _seam_angle([e for i, e in enumerate(electrodes, start=first_label) if where.get(i) == "wall"])
 
     def rim(phi, z):
-        return np.stack([R * np.cos(phi), R * np.sin(phi), np.full_like(phi, z)], axis=1)
+        r = tank.radius_at(z)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), np.full_like(phi, z)], axis=1)
 
-    phi_floor, phi_top = _circle_angles(R, zf, size, phi0), _circle_angles(R, zt, size, phi0)
+    phi_floor = _circle_angles(float(tank.radius_at(zf)), zf, size, phi0)
+    phi_top = _circle_angles(float(tank.radius_at(zt)), zt, size, phi0)
     seam = equidistributed_nodes(rim(np.array([phi0]), zf)[0], rim(np.array([phi0]), zt)[0], size)[:, 2]
     L = 2 * np.pi * R
     # developed wall: (s, z), s = R (phi - phi0); CCW = outward normal
@@ -161,15 +177,13 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     bnd_uv = np.concatenate([np.stack([s_b, np.full_like(s_b, zf)], 1), np.stack([np.full(len(seam) - 1, L), seam[:-1]], 1),
                              np.stack([np.r_[L, s_t[::-1][:-1]], np.full(len(s_t), zt)], 1),
                              np.stack([np.zeros(len(seam) - 1), seam[::-1][:-1]], 1)])
-    bnd_3d = np.concatenate([rim(phi_floor, zf),
-                             rim(np.full(len(seam) - 1, phi0), 0.0) + np.c_[0 * seam[:-1], 0 * seam[:-1], seam[:-1]],
-                             rim(np.r_[phi0, phi_top[::-1][:-1]], zt),
-                             rim(np.full(len(seam) - 1, phi0), 0.0) + np.c_[0 * seam[:-1], 0 * seam[:-1],
-                                                                               seam[::-1][:-1]]])
-
     def wall_3d(uv):
-        phi = phi0 + uv[:, 0] / R
-        return np.stack([R * np.cos(phi), R * np.sin(phi), uv[:, 1]], axis=1)
+        phi, r = phi0 + uv[:, 0] / R, tank.radius_at(uv[:, 1])
+        return np.stack([r * np.cos(phi), r * np.sin(phi), uv[:, 1]], axis=1)
+
+    seam_3d = wall_3d(np.c_[np.zeros(len(seam)), seam])          # both sides of the seam: bit-identical nodes
+    bnd_3d = np.concatenate([rim(phi_floor, zf), seam_3d[:-1], rim(np.r_[phi0, phi_top[::-1][:-1]], zt),
+                             seam_3d[::-1][:-1]])
 
     h_edge = {i: edge_fraction * e.radius_m for i, e in enumerate(electrodes, start=first_label)
               if isinstance(e, DiscElectrode)}
@@ -177,7 +191,8 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     for i, e in enumerate(electrodes, start=first_label):
         if where.get(i) == "wall":
             phi = np.mod(np.arctan2(e.centre_m[1], e.centre_m[0]) - phi0, 2 * np.pi)
-            wall_discs.append(((R * phi, e.centre_m[2]), e.radius_m, h_edge[i], i))
+            stretch = (R / float(tank.radius_at(e.centre_m[2])), 1.0 / slant)
+            wall_discs.append(((R * phi, e.centre_m[2]), e.radius_m, h_edge[i], i, stretch))
     pts, tri, lab = mesh_plane_with_discs(bnd_uv, wall_discs, lambda q: size(wall_3d(q)))
     verts = np.concatenate([bnd_3d, wall_3d(pts[len(bnd_3d):])])
     parts = [LabelledMesh(verts, tri, lab, np.zeros(len(tri), np.int64), CYLINDER_TANK_REGIONS)]

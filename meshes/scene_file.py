@@ -36,6 +36,27 @@
     [water]                     # optional physics, read by the simulating commands
     sigma_S_per_m = 0.05
 
+A cylindrical tank with electrodes of its own (a tank without a sensor is
+allowed when it has electrodes)::
+
+    [tank]
+    shape = "cylinder"
+    radius_m = 0.15             # at the top of the tank
+    floor_radius_m = 0.13       # optional: a tapered (frustum) wall
+    height_m = 0.30
+    water_depth_m = 0.28
+
+    [[electrode_ring]]          # n discs evenly round the wall; one table per ring
+    n = 16
+    z_m = -0.05
+    radius_m = 0.004
+    first_angle_rad = 0.0
+
+    [[electrodes]]              # more electrodes: disc (centre on a boundary) or plate (a whole region)
+    shape = "disc"
+    centre_m = [0.0, 0.0, -0.15]
+    radius_m = 0.005
+
 Unknown tables or keys are refused (a misspelt key must not be silently
 ignored). Tables other than ``tank``, ``sensor`` and ``objects`` that the
 geometry does not use (``[water]``...) are returned by
@@ -123,14 +144,16 @@ def load_scene(path: str | Path) -> Scene:
         tank = None
         if "tank" in data and str(data["tank"].get("shape", "box")) == "cylinder":
             t = data["tank"]
-            _unknown(path, "[tank]", t, {"shape", "radius_m", "height_m", "water_depth_m"})
+            _unknown(path, "[tank]", t, {"shape", "radius_m", "height_m", "water_depth_m", "floor_radius_m"})
             for key in ("radius_m", "height_m"):
                 if key not in t:
                     raise SceneFileError(f"{path}: a cylindrical [tank] needs {key}")
             depth = t.get("water_depth_m")
             tank = CylinderTank(_floats(path, "[tank] radius_m", t["radius_m"], 1)[0],
                                 _floats(path, "[tank] height_m", t["height_m"], 1)[0],
-                                None if depth is None else _floats(path, "[tank] water_depth_m", depth, 1)[0])
+                                None if depth is None else _floats(path, "[tank] water_depth_m", depth, 1)[0],
+                                None if "floor_radius_m" not in t else
+                                _floats(path, "[tank] floor_radius_m", t["floor_radius_m"], 1)[0])
         elif "tank" in data:
             t = data["tank"]
             _unknown(path, "[tank]", t, {"shape", "size_m", "water_depth_m"})
@@ -159,25 +182,30 @@ def load_scene(path: str | Path) -> Scene:
 
 
 def _scene_electrodes(path, data, tank) -> list:
-    """``[electrode_ring]`` (n discs evenly round a cylindrical tank's wall) then ``[[electrodes]]``, in order."""
+    """``[electrode_ring]`` (n discs evenly round a cylindrical tank's wall; ``[[electrode_ring]]`` for several
+    rings, numbered in file order) then ``[[electrodes]]``, in order."""
     out = []
-    if "electrode_ring" in data:
-        r = data["electrode_ring"]
-        _unknown(path, "[electrode_ring]", r, {"n", "z_m", "radius_m", "first_angle_rad", "clockwise", "name"})
+    rings = data.get("electrode_ring", [])
+    rings = [rings] if isinstance(rings, dict) else rings
+    for j, r in enumerate(rings, start=1):
+        where = "[electrode_ring]" if isinstance(data["electrode_ring"], dict) else f"[[electrode_ring]] number {j}"
+        if not isinstance(r, dict):
+            raise SceneFileError(f"{path}: {where} must be a table")
+        _unknown(path, where, r, {"n", "z_m", "radius_m", "first_angle_rad", "clockwise", "name"})
         if not isinstance(tank, CylinderTank):
-            raise SceneFileError(f"{path}: [electrode_ring] needs a cylindrical [tank] (shape = \"cylinder\")")
+            raise SceneFileError(f"{path}: {where} needs a cylindrical [tank] (shape = \"cylinder\")")
         for key in ("n", "z_m", "radius_m"):
             if key not in r:
-                raise SceneFileError(f"{path}: [electrode_ring] needs {key}")
+                raise SceneFileError(f"{path}: {where} needs {key}")
         n = int(r["n"])
         if n < 1:
-            raise SceneFileError(f"{path}: [electrode_ring] n must be >= 1, got {n}")
+            raise SceneFileError(f"{path}: {where} n must be >= 1, got {n}")
         sign = -1.0 if r.get("clockwise", False) else 1.0
         phi = float(r.get("first_angle_rad", 0.0)) + sign * 2 * math.pi * np.arange(n) / n
-        z = _floats(path, "[electrode_ring] z_m", r["z_m"], 1)[0]
-        a = _floats(path, "[electrode_ring] radius_m", r["radius_m"], 1)[0]
-        name = str(r.get("name", "ring"))
-        R = tank.radius_m
+        z = _floats(path, f"{where} z_m", r["z_m"], 1)[0]
+        a = _floats(path, f"{where} radius_m", r["radius_m"], 1)[0]
+        name = str(r.get("name", "ring" if len(rings) == 1 else f"ring {j}"))
+        R = float(tank.radius_at(z))
         out += [DiscElectrode((R * math.cos(p), R * math.sin(p), z), a, f"{name} {k}") for k, p in enumerate(phi, 1)]
     entries = data.get("electrodes", [])
     if not isinstance(entries, list):
