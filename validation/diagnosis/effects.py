@@ -48,22 +48,15 @@ from meshes.objects import Sphere
 from meshes.tank import Tank
 
 from .forward import electrode_areas_m2, receiver_currents, series_contact
+from validation.bench_sim.effects import EFFECT_NAMES as BENCH_EFFECT_NAMES
+
 from .observations import Observations
 
 __all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]
 
-#: Candidate names, in the order they are reported.
-EFFECT_NAMES = (
-    "conductivity",
-    "temperature_drift",
-    "contact_impedance",
-    "channel_gain",
-    "pose_offset",
-    "water_depth",
-    "tank_size",
-    "unmodelled_object",
-    "none",
-)
+#: Candidate names, in the order they are reported: the virtual bench's effects (defined once, in
+#: :mod:`validation.bench_sim.effects`) and ``none``.
+EFFECT_NAMES = tuple(BENCH_EFFECT_NAMES) + ("none",)
 
 
 # ----------------------------------------------------------------------- scenarios
