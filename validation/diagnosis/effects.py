@@ -9,7 +9,7 @@ name                   what changes (parameters)                    how it is ev
 ``temperature_drift``  sigma (1 + b (t - t_ref)) or                 exact
                        sigma (1 + alpha (T - T_ref)) (b or alpha)
 ``contact_impedance``  z_c on every electrode (common: z; per        series network on K
-                       electrode: z_1..z_n, ohm m^2)                (lumped: z_c / area)
+                       electrode: z_1..z_n, ohm m^2)                (z_c / BEM-fitted area)
 ``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
 ``pose_offset``        robot frame shifted/turned against the tank  effect model at moved poses
                        (dx, dy, dyaw; or the sensor mounted off
