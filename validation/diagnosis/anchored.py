@@ -51,7 +51,28 @@ import numpy as np
 from .forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features",
-           "psm_usable", "anchor_cache_dir"]
+           "psm_usable", "anchor_cache_dir", "SENSOR_EDGE_FACTOR", "default_bem_options"]
+
+#: sensor mesh edge of the anchors' BEM, in units of the mesher's default: the per-pose cost is the tank's
+#: Schur complement plus O(N_sensor^2); with the free-space edge correction a coarser sensor mesh moves K by
+#: about 2e-4 mid-tank, 1e-3 with a tip 1.5 cm from a wall (5-electrode sensor, factors 2 against 3), which
+#: the budget's discretisation estimate reports
+SENSOR_EDGE_FACTOR = 3.0
+
+#: wall-clock seconds of BEM poses after which no more anchors are added (the estimated error is then
+#: reported as it stands, and raises the noise floor)
+MAX_BEM_SECONDS = 150.0
+
+
+def default_bem_options(sensor, options: dict | None = None) -> dict:
+    """The anchors' BEM options: ``options`` with the sensor edge length defaulting to
+    :data:`SENSOR_EDGE_FACTOR` times the mesher's default."""
+    from meshes.sensor_mesh import default_edge_length_m
+
+    out = dict(options or {})
+    if out.get("edge_length_m") is None:
+        out["edge_length_m"] = SENSOR_EDGE_FACTOR * default_edge_length_m(sensor)
+    return out
 
 
 # ------------------------------------------------------------------ interpolation
@@ -193,11 +214,21 @@ class AnchoredBaseline:
     psm_vs_bem_rms: float
     loo_rms: float
     seconds: float
-    bem_error: dict = field(default_factory=dict)
+    bem_error: np.ndarray | None = None  # (P, m) estimated discretisation error of the BEM itself
+    stopped: str = ""
+
+    @property
+    def interpolation_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.error**2)))
+
+    @property
+    def total_error(self) -> np.ndarray:
+        """(P, m): interpolation and BEM discretisation errors in quadrature."""
+        return self.error if self.bem_error is None else np.hypot(self.error, self.bem_error)
 
     @property
     def rms_error(self) -> float:
-        return float(np.sqrt(np.mean(self.error**2)))
+        return float(np.sqrt(np.mean(self.total_error**2)))
 
 
 def _offdiag_log_ratio(K_bem, K_psm):
@@ -235,7 +266,8 @@ def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) ->
 
 
 def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_model=None, bem_options=None,
-                      store: AnchorStore | None = None, first_fraction: float = 0.25, step_fraction: float = 0.15,
+                      store: AnchorStore | None = None, first_fraction: float = 0.2, step_fraction: float = 0.1,
+                      max_bem_s: float = MAX_BEM_SECONDS, check_discretisation: bool = True,
                       progress=None) -> AnchoredBaseline:
     """The PSM corrected by the BEM at an adaptive set of logged poses until its estimated error is below
     ``target_factor * noise`` (module doc); K at the observations' conductivity."""
@@ -246,11 +278,11 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     sensor, tank, objects = obs.sensor, obs.tank, tuple(obs.objects)
-    bem_options = dict(bem_options or {})
+    bem_options = default_bem_options(sensor, bem_options)
     store = store or AnchorStore(sensor, tank, objects, bem_options)
     P, n = obs.n_poses, sensor.n_electrodes
     target = max(target_factor * noise, 1e-7)
-    model = psm_model if psm_model is not None else calibrated_psm(sensor, edge_length_m=bem_options.get("edge_length_m"))
+    model = psm_model if psm_model is not None else calibrated_psm(sensor)
     ok = psm_usable(model, obs.poses, tank)
     K_psm = np.full((P, n, n), np.nan)
     if ok.any():
@@ -285,6 +317,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     sweep = None
     n_new = 0
     new_poses, new_K = [], []
+    bem_seconds = [0.0, 0]  # wall seconds of BEM poses, count (for the time budget)
 
     def run_bem(idx):
         nonlocal sweep, n_new
@@ -296,7 +329,10 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
 
             sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
         say(f"BEM at {len(idx)} poses")
+        t_bem = time.perf_counter()
         K = sweep.conductance(obs.poses[idx]).K_S
+        bem_seconds[0] += time.perf_counter() - t_bem
+        bem_seconds[1] += len(idx)
         K_bem[idx] = K
         n_new += len(idx)
         new_poses.append(obs.poses[idx])
@@ -306,17 +342,16 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     run_bem(np.flatnonzero(~ok))
     rec = _receiver_entries(sensor)
     passes = obs.pass_indices()
-    free_dir = None
     # where the tank matters most: the PSM's own tank effect (unit for refused poses)
     if ok.any():
         free = receiver_currents(pose_evaluator("psm", sensor, None, 1.0, (), psm_model=model).conductance(
             obs.poses[:1]).K_S, obs.emitter)[0]
         tank_effect = np.ones(P)
         tank_effect[ok] = np.max(np.abs(receiver_currents(K_psm[ok], obs.emitter) / free - 1), axis=1)
-        free_dir = tank_effect
     else:
         tank_effect = np.ones(P)
     rounds = []
+    stopped = ""
     labels = place_labels(obs)
     # cached anchors off the log's poses still serve as interpolation nodes (PSM at them as well)
     extra = np.zeros(len(cached_poses), bool)
@@ -334,7 +369,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     while True:
         have = np.isfinite(K_bem[:, 0, 0])
         nodes = np.flatnonzero(have & ok)
-        if first and len(nodes) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
+        if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
             k = max(8, int(np.ceil(first_fraction * ok.sum())))
             run_bem(_spread(np.flatnonzero(ok), tank_effect, passes, k))
             first = False
@@ -373,6 +408,12 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         if (total <= target and worst_region <= target) or not len(todo):
             break
         k = max(4, int(np.ceil(step_fraction * P)))
+        per_pose = bem_seconds[0] / max(bem_seconds[1], 1)
+        if bem_seconds[0] + k * per_pose > max_bem_s:
+            stopped = (f"time budget: {bem_seconds[0]:.0f} s of BEM poses spent, {max_bem_s:.0f} s allowed; the "
+                       "estimated error is reported as it stands")
+            say(stopped)
+            break
         worst = todo[np.argsort(np.max(error[todo], axis=1))[::-1][:k]]
         run_bem(worst)
     have = np.isfinite(K_bem[:, 0, 0])
@@ -380,15 +421,59 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     fill = ~have
     if fill.any():
         K[fill] = _apply_log_ratio(K_psm[fill], L[fill])
-    if new_poses:
+    # the BEM's own discretisation: a coarser mesh at a few anchor poses (cached with the anchors)
+    check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
+    if check_discretisation and not check and len(np.flatnonzero(have)):
+        try:
+            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem, have,
+                                          tank_effect, rec, say)
+        except Exception as exc:  # the estimate is optional; say so in the budget
+            say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
+            check = {}
+    bem_error = None
+    if check:
+        from scipy.spatial import cKDTree
+
+        _, j = cKDTree(pose_features(sensor, check["poses"])).query(F)
+        bem_error = check["error"][j]
+    if new_poses or (check and "check_poses" not in (entry or {})):
         entry_poses = np.vstack([cached_poses] + new_poses)
         entry_K = np.vstack([cached_K] + new_K)
-        store.save({"poses": entry_poses, "K_unit": entry_K, "focus_m": focus})
+        saved = {"poses": entry_poses, "K_unit": entry_K, "focus_m": focus}
+        saved.update({f"check_{k}": v for k, v in check.items()})
+        store.save(saved)
     anchors = np.flatnonzero(have)
     return AnchoredBaseline(
         K=K * obs.sigma_S_per_m, error=error, anchors=anchors, refused=np.flatnonzero(~ok), n_bem_new=n_new,
         n_cached=int(np.sum(exact >= 0)) + int(extra.sum()), target=target, rounds=rounds,
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
-        seconds=time.perf_counter() - t0,
+        seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped,
     )
+
+
+#: the coarser mesh of the discretisation check, in units of the anchors' (sensor edge, tank edge)
+CHECK_COARSENING = 1.5
+
+
+def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_bem, have, tank_effect, rec, say,
+                          n_check: int = 4) -> dict:
+    """The BEM at ``n_check`` anchor poses (strongest, median and weakest tank effect) on a mesh
+    :data:`CHECK_COARSENING` times coarser: |K_coarse / K - 1| of the receiver currents (about the anchors' own
+    discretisation error for a first-order convergence, an upper estimate for a faster one)."""
+    from bem import PoseSweep
+    from meshes.scene_mesh import default_tank_edge_length_m
+
+    idx = np.flatnonzero(have)
+    order = idx[np.argsort(tank_effect[idx])]
+    pick = np.unique(order[np.round(np.linspace(0, len(order) - 1, min(n_check, len(order)))).astype(int)])
+    opts = dict(bem_options)
+    opts["edge_length_m"] = CHECK_COARSENING * opts["edge_length_m"]
+    opts["tank_edge_length_m"] = CHECK_COARSENING * (opts.get("tank_edge_length_m")
+                                                     or default_tank_edge_length_m(sensor))
+    say(f"BEM discretisation check at {len(pick)} poses (mesh {CHECK_COARSENING}x coarser)")
+    coarse = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **opts).conductance(poses[pick]).K_S
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    err = np.abs(coarse[:, r, e] / K_bem[pick][:, r, e] - 1.0)
+    return {"poses": poses[pick], "error": err}

@@ -276,6 +276,14 @@ def diagnose(
         notes.append(f"the log holds conductimeter readings: mean {logged:.5g} S/m against {obs.sigma_S_per_m:.5g} S/m "
                      f"in the meta line ({100 * (logged / obs.sigma_S_per_m - 1):+.2f} %); the simulation uses the "
                      "meta line's value, compare with the conductivity candidate")
+    simulated = simulated_by(obs)
+    if simulated is not None:
+        notes.append(f"these data were made by the virtual bench with the {simulated.upper()} as physics"
+                     + (": the PSM's own error (not physics) will show as a gap against this baseline; make bench "
+                        "data with the BEM physics (the virtual bench's default), or diagnose with model 'psm' to "
+                        "check the bench's plumbing only" if simulated == "psm" and model != "psm" else
+                        ": baseline and data share one model; the diagnosis then checks the plumbing, not the physics"
+                        if simulated == model else ""))
     correction = None
     if model == "psm" and bem_correction_poses > 0:
         from .forward import receiver_currents
@@ -309,7 +317,7 @@ def diagnose(
     if correction is not None:  # the correction's own uncertainty, as a model error of each sample
         problem.weight = problem.weight / np.sqrt(1.0 + (correction.error / noise) ** 2)
     if anchored is not None:
-        problem.weight = problem.weight / np.sqrt(1.0 + (anchored.error / noise) ** 2)
+        problem.weight = problem.weight / np.sqrt(1.0 + (anchored.total_error / noise) ** 2)
     budget = model_error_budget(obs, model, noise, anchored, correction)
     floor = budget["noise_floor"]
     where = breakdown(obs, r0)
@@ -332,6 +340,25 @@ def diagnose(
             notes.append(f"PSM/BEM split not computed: {exc}")
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
                      time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity)
+
+
+def simulated_by(obs: Observations) -> str | None:
+    """``"psm"`` or ``"bem"`` when the log says it was made by the virtual bench (its meta or description), else None.
+
+    >>> from validation.bench_sim.bench import SIMULATOR_LABEL
+    >>> simulated_by(type("O", (), {"meta": {"notes": SIMULATOR_LABEL + "; model psm; sensor x"}})())
+    'psm'
+    """
+    from validation.bench_sim.bench import SIMULATOR_LABEL
+
+    texts = [v for v in (obs.meta or {}).values() if isinstance(v, str)]
+    for t in texts:
+        if SIMULATOR_LABEL in t:
+            import re
+
+            m = re.search(r"model (\w+)", t)
+            return m.group(1).lower() if m else "unknown"
+    return None
 
 
 def _load(psm_model):
@@ -376,29 +403,39 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
     out = {"noise": noise, "baseline": model}
     if anchored is not None:
         labels = place_labels(obs)
-        err = anchored.error
+        by_place = lambda err: {g: rms(err[labels == g]) for g in dict.fromkeys(labels.tolist())}  # noqa: E731
         out.update({
             "baseline_rms": anchored.rms_error,
-            "baseline_by_place": {g: rms(err[labels == g]) for g in dict.fromkeys(labels.tolist())},
-            "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; error = leave-one-out error of the "
-                   "interpolation at the nearest BEM poses (an upper estimate), zero at the BEM poses",
+            "baseline_by_place": by_place(anchored.total_error),
+            "interpolation_rms": anchored.interpolation_rms,
+            "interpolation_by_place": by_place(anchored.error),
+            "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; interpolation error = leave-one-out "
+                   "error at the nearest BEM poses (an upper estimate, zero at the BEM poses), in quadrature with the "
+                   "BEM's own discretisation error",
             "bem_poses": int(len(anchored.anchors)), "bem_poses_new": int(anchored.n_bem_new),
             "bem_poses_cached": int(anchored.n_cached), "psm_refused_poses": int(len(anchored.refused)),
-            "target": anchored.target, "rounds": anchored.rounds,
+            "target": anchored.target, "rounds": anchored.rounds, "stopped": anchored.stopped or None,
             "bare_psm_vs_bem_rms": anchored.psm_vs_bem_rms,
         })
+        if anchored.bem_error is not None:
+            out["bem_discretisation_rms"] = rms(anchored.bem_error)
+            out["bem_discretisation_by_place"] = by_place(anchored.bem_error)
     elif correction is not None:
         out.update({"baseline_rms": rms(correction.error),
                     "how": "leave-one-out error of the BEM/PSM ratio interpolated along each pass"})
     elif model == "bem":
         out.update({"baseline_rms": 0.0, "how": "the BEM at every pose"})
-    else:
+    elif model == "psm":
         out.update({"baseline_rms": None, "how": "not estimated: the bare PSM (its error near walls is several "
                                                   "percent); use the default baseline to know it"})
+    else:
+        out.update({"baseline_rms": None, "how": "not estimated: the baseline was given by the caller"})
     out["bem_discretisation"] = {
-        "sensor": "free-space electrode-edge error of the sensor mesh corrected against the ring-element BEM "
-                  "(bem.edge_correction)",
-        "tank": "not estimated (tank mesh graded to the sensor's trajectory)",
+        "free_space": "the sensor mesh's electrode-edge error in unbounded water is corrected against the converged "
+                      "ring-element BEM (bem.edge_correction)",
+        "in_the_tank": ("estimated at a few anchor poses as the change of the receiver currents on a 1.5x coarser "
+                        "sensor and tank mesh; each sample takes the estimate of the nearest such pose"
+                        if "bem_discretisation_rms" in out else "not estimated"),
     }
     base = out["baseline_rms"] or 0.0
     out["noise_floor"] = float(np.hypot(noise, base))

@@ -37,7 +37,9 @@ CASES = {
     "two_objects": ("two_objects", {}, {}, ("unmodelled_object", "unexplained")),
 }
 
-WORLD_TANK_EDGE_FACTOR = 0.7  # the world's tank mesh is finer than the diagnosis's default
+#: the world's sensor mesh edge, in units of the mesher's default: finer than the diagnosis's anchors
+#: (:data:`validation.diagnosis.anchored.SENSOR_EDGE_FACTOR`), so that data and baseline never share a mesh
+WORLD_SENSOR_EDGE_FACTOR = 2.0
 
 
 def world_scene(setup, poses, effect, args, rng):
@@ -75,7 +77,8 @@ def world_K(setup, poses, effect, args, rng, cache: Path):
     import hashlib
 
     from bem import PoseSweep
-    from meshes.scene_mesh import default_tank_edge_length_m, trajectory_focus_m
+    from meshes.scene_mesh import trajectory_focus_m
+    from meshes.sensor_mesh import default_edge_length_m
 
     tank, objects, z = world_scene(setup, poses, effect, args, rng)
     key = hashlib.sha256(repr((setup.sensor.to_dict(), tank, objects, z, np.round(poses, 9).tolist(),
@@ -84,9 +87,9 @@ def world_K(setup, poses, effect, args, rng, cache: Path):
     if path.exists():
         return np.load(path)
     sweep = PoseSweep(setup.sensor, tank, objects, sigma_S_per_m=setup.sigma_S_per_m, contact_impedance_ohm_m2=z,
-                      tank_edge_length_m=WORLD_TANK_EDGE_FACTOR * default_tank_edge_length_m(setup.sensor),
+                      edge_length_m=WORLD_SENSOR_EDGE_FACTOR * default_edge_length_m(setup.sensor),
                       focus_m=trajectory_focus_m(setup.sensor, poses))
-    K = sweep.conductance(poses).K_S
+    K = sweep.conductance(poses, progress=True).K_S
     cache.mkdir(parents=True, exist_ok=True)
     np.save(path, K)
     return K
