@@ -284,6 +284,14 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     target = max(target_factor * noise, 1e-7)
     model = psm_model if psm_model is not None else calibrated_psm(sensor)
     ok = psm_usable(model, obs.poses, tank)
+    if ok.mean() < 0.5:  # its spheres do not fit the tank (or the calibration degenerated): spheres at the electrodes
+        from .forward import geometric_psm
+
+        geometric = geometric_psm(sensor, model)
+        if psm_usable(geometric, obs.poses, tank).sum() > ok.sum():
+            model = geometric
+            ok = psm_usable(model, obs.poses, tank)
+            say("the calibrated PSM does not fit these poses; its radii with the spheres at the electrodes are used")
     K_psm = np.full((P, n, n), np.nan)
     if ok.any():
         ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=obs.poses[ok])
@@ -468,7 +476,7 @@ def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_be
     order = idx[np.argsort(tank_effect[idx])]
     pick = np.unique(order[np.round(np.linspace(0, len(order) - 1, min(n_check, len(order)))).astype(int)])
     opts = dict(bem_options)
-    opts["edge_length_m"] = CHECK_COARSENING * opts["edge_length_m"]
+    opts["edge_length_m"] = min(CHECK_COARSENING * opts["edge_length_m"], 1.9 * sensor.radius_m)  # mesher's limit
     opts["tank_edge_length_m"] = CHECK_COARSENING * (opts.get("tank_edge_length_m")
                                                      or default_tank_edge_length_m(sensor))
     say(f"BEM discretisation check at {len(pick)} poses (mesh {CHECK_COARSENING}x coarser)")

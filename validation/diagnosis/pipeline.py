@@ -380,8 +380,13 @@ def _prior_noise(obs: Observations, psm_model=None) -> float:
     from .anchored import psm_usable
     from .forward import receiver_currents
 
+    from .forward import geometric_psm
+
     model = _load(psm_model) or calibrated_psm(obs.sensor)
     ok = psm_usable(model, obs.poses, obs.tank)
+    if ok.sum() < 8:  # the calibrated spheres do not fit (or the calibration degenerated): spheres at the electrodes
+        model = geometric_psm(obs.sensor, model)
+        ok = psm_usable(model, obs.poses, obs.tank)
     if ok.sum() >= 8:
         K = pose_evaluator("psm", obs.sensor, obs.tank, obs.sigma_S_per_m, tuple(obs.objects), psm_model=model,
                            poses=obs.poses[ok]).conductance(obs.poses[ok]).K_S
