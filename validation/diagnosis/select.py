@@ -263,14 +263,15 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
 
 def _fewest_reaching_floor(best: CandidateScore, tried: list, current: CandidateScore, rules: SelectionRules,
                            floor: float) -> CandidateScore:
-    """One parameter that explains the gap to the floor beats three: among the candidates whose held-out gap is
-    within ``at_noise`` x floor and within one floor^2 (in mean square) of the best's, the one with fewest
-    parameters (then the lowest score)."""
-    reach = [c for c in tried if c.heldout_gap <= rules.at_noise * floor and c.score < current.score
-             and c.heldout_gap**2 - best.heldout_gap**2 < floor**2]
-    if not reach or best.heldout_gap > rules.at_noise * floor:
+    """One parameter that explains the gap to the floor beats several: a one-parameter candidate whose held-out gap
+    is within ``at_noise`` x floor and within one floor^2 (in mean square) of the best's is taken instead (the
+    lowest score among such). Between richer candidates the score decides; the others that explain the data as
+    well are reported as the ambiguity set."""
+    if best.n_params <= 1 or best.heldout_gap > rules.at_noise * floor:
         return best
-    return min(reach, key=lambda c: (c.n_params, c.score))
+    reach = [c for c in tried if c.n_params == 1 and c.heldout_gap <= rules.at_noise * floor
+             and c.score < current.score and c.heldout_gap**2 - best.heldout_gap**2 < floor**2]
+    return min(reach, key=lambda c: c.score) if reach else best
 
 
 def nested_angle_deg(J_simple: np.ndarray, J_rich: np.ndarray) -> float:

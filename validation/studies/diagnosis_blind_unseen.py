@@ -115,6 +115,10 @@ def make_log(case: str, seed: int, folder: Path, per_pass: int = 41, n_electrode
     I = receiver_currents(K, setup.sensor.emitter)
     obs = assemble(setup, poses, t, passes, I, np.random.default_rng(1000 + noise_seed), **output)
     folder.mkdir(parents=True, exist_ok=True)
+    from meshes.sensor import save_sensor
+
+    save_sensor(setup.sensor, folder / f"sensor-{seed}.json")  # a sensor file, not a preset
+    obs.meta["sensor"] = f"sensor-{seed}.json"
     path = write_log(obs, folder / f"{case}-{seed}-{noise_seed}.csv")
     return path, setup, {"case": case, "acceptable": list(ok)}
 
