@@ -61,7 +61,7 @@ SENSOR_EDGE_FACTOR = 3.0
 
 #: wall-clock seconds of BEM poses after which no more anchors are added (the estimated error is then
 #: reported as it stands, and raises the noise floor)
-MAX_BEM_SECONDS = 150.0
+MAX_BEM_SECONDS = 480.0
 
 
 def default_bem_options(sensor, options: dict | None = None) -> dict:
@@ -379,7 +379,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         nodes = np.flatnonzero(have & ok)
         if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
             k = max(8, int(np.ceil(first_fraction * ok.sum())))
-            run_bem(_spread(np.flatnonzero(ok), tank_effect, passes, k))
+            ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
+            run_bem(_spread(np.flatnonzero(ok), tank_effect, ok_passes, k))
             first = False
             continue
         first = False

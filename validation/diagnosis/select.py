@@ -248,7 +248,14 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps, rules, baseline)
         path[-1] = current
     if not path:
-        verdict = "none" if baseline.heldout_gap <= rules.none_ceiling * fl else "unexplained"
+        if baseline.heldout_gap <= rules.none_ceiling * noise:
+            verdict = "none"
+        else:
+            verdict = "unexplained"
+            if baseline.heldout_gap <= rules.none_ceiling * fl:
+                steps.append({"stop": f"the gap ({100 * baseline.heldout_gap:.3g} %) is above the bench noise but "
+                                      f"within the model's own error (noise floor {100 * fl:.3g} %): the model is the "
+                                      "limit, not the physics; nothing can be named"})
     elif path[-1].heldout_gap <= rules.none_ceiling * fl:
         verdict = "explained"
     elif path[-1].heldout_gap <= (1 - rules.named_shrink) * baseline.heldout_gap:
