@@ -47,7 +47,7 @@ def test_two_logs_and_an_effect_subset(tmp_path, psm_world):
     a = _log(tmp_path, psm_world, "a.csv", 2)
     b = _log(tmp_path, psm_world, "b.csv", 3)
     out = tmp_path / "d2"
-    res = CliRunner().invoke(main, ["diagnose", str(a), str(b), "--effects", "conductivity,channel_gain",
+    res = CliRunner().invoke(main, ["diagnose", str(a), str(b), "--model", "psm", "--effects", "conductivity,channel_gain",
                                     "--no-figures", "-o", str(out)])
     assert res.exit_code == 0, res.output
     d = json.loads((out / "diagnosis.json").read_text())
@@ -58,5 +58,5 @@ def test_two_logs_and_an_effect_subset(tmp_path, psm_world):
 
 def test_unknown_effect_is_refused(tmp_path, psm_world):
     log = _log(tmp_path, psm_world, "c.csv", 4)
-    res = CliRunner().invoke(main, ["diagnose", str(log), "--effects", "gremlins", "-o", str(tmp_path / "x")])
+    res = CliRunner().invoke(main, ["diagnose", str(log), "--model", "psm", "--effects", "gremlins", "-o", str(tmp_path / "x")])
     assert res.exit_code != 0 and "gremlins" in res.output

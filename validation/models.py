@@ -182,8 +182,9 @@ def psm_cache_dir() -> Path:
 
 
 def _psm_cache_key(sensor: SensorDescription, edge_length_m, layout: dict) -> str:
+    geometry = {k: v for k, v in sensor.to_dict().items() if k not in ("name", "notes")}
     description = {
-        "sensor": sensor.to_dict(),
+        "sensor": geometry,
         "bem_edge_length_m": edge_length_m,
         "layout": layout,
         "code_version": code_version(),
@@ -258,7 +259,8 @@ def calibrated_psm(
     from psm import PolySphericalModel
 
     layout = calibration_layout(sensor, symmetric)
-    path = psm_cache_dir() / f"{sensor.name or 'sensor'}-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
+    # the file name is a hash only: a sensor's name is a user's label, never part of a path
+    path = psm_cache_dir() / f"psm-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
     if cache and path.exists():
         try:
             return PolySphericalModel.load(path)

@@ -8,9 +8,13 @@ from validation.diagnosis.effects import EFFECT_NAMES
 
 @click.command("diagnose")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
-@click.option("--model", type=click.Choice(["bem", "psm"]), default="psm", show_default=True,
-              help="Baseline simulation of the logged poses. Effects are evaluated with that PSM for 'psm', with the "
-                   "PSM whose spheres sit at the electrodes (plus Kelvin images for spheres) for 'bem'.")
+@click.option("--model", type=click.Choice(["anchored", "bem", "psm"]), default="anchored", show_default=True,
+              help="Baseline simulation of the logged poses. 'anchored': the PSM corrected by the BEM at as many "
+                   "poses as it takes for its cross-validated error to fall below a third of the noise (the BEM "
+                   "itself where the PSM refuses a pose; BEM runs cached on disk per sensor and tank); 'bem': the BEM "
+                   "at every pose; 'psm': the bare calibrated PSM (its own error is then unknown). Geometric effects "
+                   "are evaluated with that PSM for 'psm', with the PSM whose spheres sit at the electrodes (plus "
+                   "Kelvin images for spheres) otherwise.")
 @click.option("--effects", default="all", show_default=True,
               help=f"Candidates to consider: 'all' or a comma list of {', '.join(EFFECT_NAMES)}.")
 @click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),
@@ -42,7 +46,7 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
     up to three by forward selection, or 'none' when the gap is at the noise
     level. Told nothing but what the logs say.
 
-    Example: esense diagnose run.csv --model psm -o diag/
+    Example: esense diagnose run.csv -o diag/
     """
     from validation.transfer.cli import all_transfer_logs, run_transfer_logs  # transfer logs: their own diagnosis
 
@@ -66,7 +70,7 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
         obs = from_bench_logs([read_bench_log(p) for p in logs])
     except (ValueError, DiagnosisInputError) as exc:
         raise click.ClickException(str(exc)) from None
-    base_options = {"edge_length_m": edge_length_m} if (edge_length_m and (model == "bem" or bem_correction_poses
+    base_options = {"edge_length_m": edge_length_m} if (edge_length_m and (model != "psm" or bem_correction_poses
                                                                            or split_poses)) else {}
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
@@ -74,8 +78,14 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
                       model_error=model_error, bem_correction_poses=bem_correction_poses,
                       progress=lambda s: click.echo(f"  {s}"))
     page = write_report(d, outdir, figures=not no_figures)
-    click.echo(f"noise {100 * d.noise:.3f} %, gap {100 * d.gap_before:.3f} % -> {100 * d.gap_after:.3f} % (held-out)")
-    click.echo(f"chosen: {', '.join(d.chosen) or '(nothing: ' + d.selection.verdict + ')'}")
+    base = d.model_error.get("baseline_rms")
+    click.echo(f"noise {100 * d.noise:.3f} %, baseline error "
+               f"{'unknown' if base is None else f'{100 * base:.3f} %'}, noise floor {100 * d.noise_floor:.3f} %; "
+               f"gap {100 * d.gap_before:.3f} % -> {100 * d.gap_after:.3f} % (held-out)")
+    click.echo(f"verdict: {d.selection.verdict}; chosen: {', '.join(d.chosen) or '(nothing)'}")
+    for a in d.ambiguity[:4]:
+        click.echo(f"  as good as {d.chosen[0] if d.chosen else '?'}: {a['effect']} "
+                   f"({100 * a['heldout_gap']:.3f} %); to separate: {a['separate_by']}")
     for p in d.confusable[:5]:
         click.echo(f"  cannot tell apart {p['pair'][0]} / {p['pair'][1]} ({p['angle_deg']:.1f} deg): {p['separate_by']}")
     click.echo(f"wrote {page} and {page.parent / 'diagnosis.json'} ({d.seconds:.1f} s)")

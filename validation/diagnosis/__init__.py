@@ -3,6 +3,10 @@
 Modules, one idea each:
 
 * :mod:`.observations`: what the logs say (poses, currents, times, passes, meta);
+* :mod:`.anchored`: the default baseline, the PSM corrected by the BEM at
+  adaptive anchor poses (cached per sensor and tank), with its estimated error;
+* :mod:`.contact`: contact impedance through areas fitted to the BEM's
+  contact boundary condition;
 * :mod:`.forward`: forward models ``(poses, tank, objects) -> K`` (the PSM
   as effect model, the project's models, a point-electrode stand-in);
 * :mod:`.effects`: the candidate library, physical parametrised additions;
@@ -11,7 +15,8 @@ Modules, one idea each:
 * :mod:`.select`: ranking, forward selection, confusable pairs;
 * :mod:`.pipeline`: :func:`diagnose`, the whole chain;
 * :mod:`.report`: ``diagnosis.json`` and ``index.html``;
-* :mod:`.blind`: worlds with withheld effects, for tests and studies.
+* :mod:`.blind`: worlds with withheld effects, for tests and studies;
+* :mod:`.unseen`: random sensors, tanks and passes for blind checks.
 
 Example
 -------

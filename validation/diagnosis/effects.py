@@ -9,7 +9,7 @@ name                   what changes (parameters)                    how it is ev
 ``temperature_drift``  sigma (1 + b (t - t_ref)) or                 exact
                        sigma (1 + alpha (T - T_ref)) (b or alpha)
 ``contact_impedance``  z_c on every electrode (common: z; per        series network on K
-                       electrode: z_1..z_n, ohm m^2)                (lumped: z_c / area)
+                       electrode: z_1..z_n, ohm m^2)                (z_c / BEM-fitted area)
 ``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
 ``pose_offset``        robot frame shifted/turned against the tank  effect model at moved poses
                        (dx, dy, dyaw; or the sensor mounted off
@@ -48,22 +48,15 @@ from meshes.objects import Sphere
 from meshes.tank import Tank
 
 from .forward import electrode_areas_m2, receiver_currents, series_contact
+from validation.bench_sim.effects import EFFECT_NAMES as BENCH_EFFECT_NAMES
+
 from .observations import Observations
 
 __all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]
 
-#: Candidate names, in the order they are reported.
-EFFECT_NAMES = (
-    "conductivity",
-    "temperature_drift",
-    "contact_impedance",
-    "channel_gain",
-    "pose_offset",
-    "water_depth",
-    "tank_size",
-    "unmodelled_object",
-    "none",
-)
+#: Candidate names, in the order they are reported: the virtual bench's effects (defined once, in
+#: :mod:`validation.bench_sim.effects`) and ``none``.
+EFFECT_NAMES = tuple(BENCH_EFFECT_NAMES) + ("none",)
 
 
 # ----------------------------------------------------------------------- scenarios
@@ -121,6 +114,7 @@ class Problem:
         else:
             self.T_ref_C = None
         self.areas_m2 = electrode_areas_m2(obs.sensor)
+        self._effective_areas = None
         self._memo = {}
         self.I_base = receiver_currents(self.K_base, obs.emitter) * obs.U_V[:, None]
         if self.weight is None:
@@ -147,7 +141,8 @@ class Problem:
             K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
         K = K * scenario.sigma_scale[:, None, None]
         if scenario.contact_ohm_m2 is not None:
-            K = series_contact(K, np.asarray(scenario.contact_ohm_m2) / self.areas_m2)
+            z = np.asarray(scenario.contact_ohm_m2, float)
+            K = series_contact(K, z / self.contact_areas_m2(z))
         I = receiver_currents(K, self.obs.emitter) * self.obs.U_V[idx, None]
         return I * scenario.gain[None, :]
 
@@ -163,6 +158,18 @@ class Problem:
                 self._memo.pop(next(iter(self._memo)))
             self._memo[key] = K
         return K
+
+    def contact_areas_m2(self, z_ohm_m2) -> np.ndarray:
+        """Areas (n,) of the lumped contact z / A that reproduce the BEM's contact boundary condition
+        (:mod:`validation.diagnosis.contact`); the geometric areas if the BEM cannot be run."""
+        if self._effective_areas is None:
+            try:
+                from .contact import effective_areas
+
+                self._effective_areas = effective_areas(self.obs.sensor, self.obs.sigma_S_per_m)
+            except Exception:  # no BEM: the geometric areas (10-20 % off at small z_c)
+                self._effective_areas = lambda z: self.areas_m2
+        return self._effective_areas(z_ohm_m2)
 
     def relative_residual(self, I_pred: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """(bench - prediction) / |baseline| for the samples ``idx``: (p, m)."""
@@ -351,7 +358,8 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
     lib["temperature_drift"] = drift
     lib["contact_impedance"] = [
         Effect("contact_impedance", "common", ("z_c_ohm_m2",), ("ohm m^2",), (1e-3,), (0.0,), (10.0,), _contact,
-               describe="one contact impedance in series with every electrode (lumped z_c / area)"),
+               describe="one contact impedance in series with every electrode (z_c / A_eff, the effective areas "
+                        "fitted to the BEM with the contact boundary condition)"),
         Effect("contact_impedance", "per_electrode", tuple(f"z_c{k}_ohm_m2" for k in range(1, n + 1)),
                ("ohm m^2",) * n, (1e-3,) * n, (0.0,) * n, (10.0,) * n, _contact,
                describe="a contact impedance per electrode"),

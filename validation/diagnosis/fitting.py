@@ -288,8 +288,15 @@ def cross_validate(problem: Problem, effects, folds, full: FitResult | None = No
         else:
             du = np.zeros(k)
         theta = (u_full + du) * scales
+        r_held = _residual(problem, effects, theta, held)
+        for _ in range(6):  # a refit whose scene the held-out poses cannot have (a wall through a pose): step back
+            if not np.any(r_held == _REFUSED):
+                break
+            du = du / 2
+            theta = (u_full + du) * scales
+            r_held = _residual(problem, effects, theta, held)
         thetas.append(theta)
-        out[held] = _residual(problem, effects, theta, held).reshape(len(held), m)
+        out[held] = r_held.reshape(len(held), m)
     return out, thetas
 
 

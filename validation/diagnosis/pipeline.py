@@ -2,17 +2,25 @@
 
 :func:`diagnose` runs the whole chain:
 
-1. the baseline: the model (``"bem"`` or ``"psm"``) at the logged poses, in
-   the believed tank, at the believed conductivity; with ``"psm"`` and
-   ``bem_correction_poses``, corrected by the BEM on that many poses
-   (:mod:`.multifidelity`), so that the PSM's own approximation near the
-   walls is not blamed on the physics;
+1. the baseline at the logged poses, in the believed tank, at the believed
+   conductivity: by default (``"anchored"``) the PSM corrected by the BEM at
+   an adaptive set of poses until its cross-validated error is below a third
+   of the noise, the BEM itself where the PSM refuses a pose
+   (:mod:`.anchored`, cached on disk per sensor and tank); or the bare
+   ``"bem"`` or ``"psm"``; with ``"psm"`` and ``bem_correction_poses``,
+   corrected by the BEM on that many poses (:mod:`.multifidelity`);
+   the *model-error budget*: the baseline's estimated error by region, beside
+   the bench noise; their quadrature sum is the *noise floor* below which no
+   effect is named;
 2. the residual r = (bench - baseline) / |baseline|, the noise level s
    estimated from the data, and where r lies (:mod:`.where`);
 3. every candidate of :mod:`.effects` fitted and cross-validated on held-out
    passes or segments (:mod:`.fitting`), ranked by penalised held-out score;
-4. greedy forward selection (:mod:`.select`), or ``none`` when the gap is
-   noise; the pairs that cannot be told apart on these poses.
+4. greedy forward selection (:mod:`.select`) against the noise floor, or
+   ``none`` when the gap is within it, ``unexplained`` when no candidate
+   brings it there (nor removes 80 % of it); the candidates that these poses
+   cannot tell from the chosen one (the ambiguity set) with the measurement
+   that would separate them.
 
 Geometric effects are evaluated by an *effect model*, as a relative change
 of the baseline. With the PSM as baseline it is that PSM itself (the gap is
@@ -109,6 +117,13 @@ class Diagnosis:
     model_split: dict | None = None
     notes: list = field(default_factory=list)
     I_base: np.ndarray | None = None
+    model_error: dict = field(default_factory=dict)
+    ambiguity: list = field(default_factory=list)
+
+    @property
+    def noise_floor(self) -> float:
+        """sqrt(noise^2 + baseline error^2): the gap no effect can be asked to explain."""
+        return float(self.model_error.get("noise_floor", self.noise))
 
     @property
     def baseline(self) -> CandidateScore:
@@ -118,6 +133,8 @@ class Diagnosis:
     def chosen(self) -> list[str]:
         if self.selection.verdict == "none":
             return ["none"]
+        if self.selection.verdict == "unexplained":
+            return []
         return [e.name for e in self.selection.chosen[-1].effects] if self.selection.chosen else []
 
     @property
@@ -160,7 +177,7 @@ def _model_split(obs, model_K_psm, n_poses: int, bem_options: dict) -> dict:
 
 def diagnose(
     obs: Observations,
-    model: str = "psm",
+    model: str = "anchored",
     effects: str | list | None = "all",
     effect_model=None,
     K_base: np.ndarray | None = None,
@@ -177,8 +194,12 @@ def diagnose(
     Parameters
     ----------
     obs : Observations
-    model : {"psm", "bem"}
-        The baseline simulation.
+    model : {"anchored", "bem", "psm"}
+        The baseline simulation: ``"anchored"`` (default) the PSM corrected by
+        the BEM until its estimated error is below a third of the noise
+        (:func:`validation.diagnosis.anchored.anchored_baseline`); ``"bem"``
+        the BEM at every pose; ``"psm"`` the calibrated PSM (its own error is
+        then not known: a note says so).
     effects : "all", "NAME,NAME" or list of names
         Candidates to consider (``none`` is always considered).
     effect_model : callable, optional
@@ -212,7 +233,21 @@ def diagnose(
     say = progress or (lambda s: None)
     notes = []
     names = parse_effects(effects) if isinstance(effects, (str, type(None))) else list(effects) + (["none"] if "none" not in effects else [])
-    if K_base is None:
+    anchored = None
+    if K_base is None and model == "anchored":
+        from .anchored import anchored_baseline
+
+        noise0 = _prior_noise(obs, psm_model)
+        say(f"baseline: PSM corrected by BEM anchors at {obs.n_poses} poses (noise about {100 * noise0:.3f} %)")
+        anchored = anchored_baseline(obs, noise0, psm_model=_load(psm_model),
+                                     bem_options={k: v for k, v in (model_options or {}).items() if k != "psm_model"},
+                                     progress=say)
+        K_base = anchored.K
+        notes.append(f"baseline: the PSM corrected by the BEM at {len(anchored.anchors)} of {obs.n_poses} poses "
+                     f"({anchored.n_bem_new} run now, {anchored.n_cached} from the cache, {len(anchored.refused)} "
+                     f"refused by the PSM); estimated error {100 * anchored.rms_error:.4f} % RMS against a target of "
+                     f"{100 * anchored.target:.4f} % ({anchored.seconds:.1f} s)")
+    elif K_base is None:
         say(f"baseline: {model} at {obs.n_poses} poses")
         options = dict(model_options or {})
         if model == "psm" and psm_model is not None:
@@ -241,6 +276,14 @@ def diagnose(
         notes.append(f"the log holds conductimeter readings: mean {logged:.5g} S/m against {obs.sigma_S_per_m:.5g} S/m "
                      f"in the meta line ({100 * (logged / obs.sigma_S_per_m - 1):+.2f} %); the simulation uses the "
                      "meta line's value, compare with the conductivity candidate")
+    simulated = simulated_by(obs)
+    if simulated is not None:
+        notes.append(f"these data were made by the virtual bench with the {simulated.upper()} as physics"
+                     + (": the PSM's own error (not physics) will show as a gap against this baseline; make bench "
+                        "data with the BEM physics (the virtual bench's default), or diagnose with model 'psm' to "
+                        "check the bench's plumbing only" if simulated == "psm" and model != "psm" else
+                        ": baseline and data share one model; the diagnosis then checks the plumbing, not the physics"
+                        if simulated == model else ""))
     correction = None
     if model == "psm" and bem_correction_poses > 0:
         from .forward import receiver_currents
@@ -267,12 +310,21 @@ def diagnose(
     everything = np.arange(obs.n_poses)
     r0 = problem.relative_residual(problem.I_base, everything)
     noise = noise_level(r0, obs.pass_indices())
+    if anchored is not None and noise0 < noise:
+        # the interpolated correction's own wiggles enter second differences; the bare PSM's error is smooth
+        notes.append(f"noise from bench / PSM ({100 * noise0:.4f} %), not from bench / corrected baseline "
+                     f"({100 * noise:.4f} %), whose interpolation adds roughness of its own")
+        noise = noise0
     if not noise > 0:
         noise = max(1e-6, 1e-3 * float(np.sqrt(np.mean(r0**2))))
         notes.append("the noise estimate was zero (noise-free data?); a floor of 1e-6 relative is used")
     problem.weight = model_trust_weights(problem, noise, model_error)
     if correction is not None:  # the correction's own uncertainty, as a model error of each sample
         problem.weight = problem.weight / np.sqrt(1.0 + (correction.error / noise) ** 2)
+    if anchored is not None:
+        problem.weight = problem.weight / np.sqrt(1.0 + (anchored.total_error / noise) ** 2)
+    budget = model_error_budget(obs, model, noise, anchored, correction)
+    floor = budget["noise_floor"]
     where = breakdown(obs, r0)
     mask = region_mask(where)
     folds = make_folds(obs)
@@ -281,8 +333,9 @@ def diagnose(
     if skipped:
         notes.append(f"candidates not applicable to these data: {', '.join(skipped)}")
     ranking = rank_candidates(problem, lib, folds, noise, r0, mask, progress=lambda n: say(f"fitting {n}"))
-    selection = forward_selection(problem, ranking, folds, noise, rules, mask)
+    selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor)
     confusable = confusable_pairs(ranking, rules)
+    ambiguity = ambiguity_set(selection, ranking, rules, floor)
     split = None
     if model == "psm" and split_with_bem > 0:
         try:
@@ -291,4 +344,128 @@ def diagnose(
         except Exception as exc:  # report, do not fail the diagnosis
             notes.append(f"PSM/BEM split not computed: {exc}")
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
-                     time.perf_counter() - t0, split, notes, problem.I_base)
+                     time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity)
+
+
+def simulated_by(obs: Observations) -> str | None:
+    """``"psm"`` or ``"bem"`` when the log says it was made by the virtual bench (its meta or description), else None.
+
+    >>> from validation.bench_sim.bench import SIMULATOR_LABEL
+    >>> simulated_by(type("O", (), {"meta": {"notes": SIMULATOR_LABEL + "; model psm; sensor x"}})())
+    'psm'
+    """
+    from validation.bench_sim.bench import SIMULATOR_LABEL
+
+    texts = [v for v in (obs.meta or {}).values() if isinstance(v, str)]
+    for t in texts:
+        if SIMULATOR_LABEL in t:
+            import re
+
+            m = re.search(r"model (\w+)", t)
+            return m.group(1).lower() if m else "unknown"
+    return None
+
+
+def _load(psm_model):
+    if psm_model is None:
+        return None
+    from validation.models import _load_psm
+
+    return _load_psm(psm_model)
+
+
+def _prior_noise(obs: Observations, psm_model=None) -> float:
+    """The bench noise from the second differences of bench / PSM - 1 along each pass (PSM-usable poses).
+
+    The PSM's own error is smooth along a pass and hardly enters second
+    differences; where the PSM refuses every pose, the log of the currents is used.
+    """
+    from validation.models import calibrated_psm, pose_evaluator
+
+    from .anchored import psm_usable
+    from .forward import receiver_currents
+
+    from .forward import geometric_psm
+
+    model = _load(psm_model) or calibrated_psm(obs.sensor)
+    ok = psm_usable(model, obs.poses, obs.tank)
+    if ok.sum() < 8:  # the calibrated spheres do not fit (or the calibration degenerated): spheres at the electrodes
+        model = geometric_psm(obs.sensor, model)
+        ok = psm_usable(model, obs.poses, obs.tank)
+    if ok.sum() >= 8:
+        K = pose_evaluator("psm", obs.sensor, obs.tank, obs.sigma_S_per_m, tuple(obs.objects), psm_model=model,
+                           poses=obs.poses[ok]).conductance(obs.poses[ok]).K_S
+        r = np.zeros_like(obs.currents_A)
+        r[ok] = obs.currents_A[ok] / (receiver_currents(K, obs.emitter) * obs.U_V[ok, None]) - 1.0
+        groups = [g[ok[g]] for g in obs.pass_indices()]
+    else:
+        r = np.log(np.abs(obs.currents_A / obs.U_V[:, None]))
+        groups = obs.pass_indices()
+    s = noise_level(r, groups)
+    return s if s > 0 else 1e-6
+
+
+def model_error_budget(obs: Observations, model: str, noise: float, anchored=None, correction=None) -> dict:
+    """The baseline's estimated error (RMS, by place) beside the bench noise, and the noise floor they make."""
+    from .where import place_labels
+
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0  # noqa: E731
+    out = {"noise": noise, "baseline": model}
+    if anchored is not None:
+        labels = place_labels(obs)
+        by_place = lambda err: {g: rms(err[labels == g]) for g in dict.fromkeys(labels.tolist())}  # noqa: E731
+        out.update({
+            "baseline_rms": anchored.rms_error,
+            "baseline_by_place": by_place(anchored.total_error),
+            "interpolation_rms": anchored.interpolation_rms,
+            "interpolation_by_place": by_place(anchored.error),
+            "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; interpolation error = leave-one-out "
+                   "error at the nearest BEM poses (an upper estimate, zero at the BEM poses), in quadrature with the "
+                   "BEM's own discretisation error",
+            "bem_poses": int(len(anchored.anchors)), "bem_poses_new": int(anchored.n_bem_new),
+            "bem_poses_cached": int(anchored.n_cached), "psm_refused_poses": int(len(anchored.refused)),
+            "target": anchored.target, "rounds": anchored.rounds, "stopped": anchored.stopped or None,
+            "bare_psm_vs_bem_rms": anchored.psm_vs_bem_rms,
+        })
+        if anchored.bem_error is not None:
+            out["bem_discretisation_rms"] = rms(anchored.bem_error)
+            out["bem_discretisation_by_place"] = by_place(anchored.bem_error)
+    elif correction is not None:
+        out.update({"baseline_rms": rms(correction.error),
+                    "how": "leave-one-out error of the BEM/PSM ratio interpolated along each pass"})
+    elif model == "bem":
+        out.update({"baseline_rms": 0.0, "how": "the BEM at every pose"})
+    elif model == "psm":
+        out.update({"baseline_rms": None, "how": "not estimated: the bare PSM (its error near walls is several "
+                                                  "percent); use the default baseline to know it"})
+    else:
+        out.update({"baseline_rms": None, "how": "not estimated: the baseline was given by the caller"})
+    out["bem_discretisation"] = {
+        "free_space": "the sensor mesh's electrode-edge error in unbounded water is corrected against the converged "
+                      "ring-element BEM (bem.edge_correction)",
+        "in_the_tank": ("estimated at a few anchor poses as the change of the receiver currents on a 1.5x coarser "
+                        "sensor and tank mesh; each sample takes the estimate of the nearest such pose"
+                        if "bem_discretisation_rms" in out else "not estimated"),
+    }
+    base = out["baseline_rms"] or 0.0
+    out["noise_floor"] = float(np.hypot(noise, base))
+    out["rule"] = ("an effect is named only when its held-out gap is within 1.5x the noise floor, or it removes "
+                   "80 % of the gap and its gain exceeds the noise floor")
+    return out
+
+
+def ambiguity_set(selection: Selection, ranking: list, rules: SelectionRules, floor: float) -> list[dict]:
+    """Candidates that explain the data about as well as the first chosen one (held-out mean squares within one
+    floor^2), with the measurement that would separate each from it."""
+    from .select import _hint
+
+    if not selection.chosen:
+        return []
+    first = selection.chosen[0]
+    out = []
+    for c in ranking:
+        if c.name in ("none", first.name) or c.at_bound:
+            continue
+        if c.heldout_gap**2 - first.heldout_gap**2 < floor**2:
+            out.append({"effect": c.name, "heldout_gap": c.heldout_gap, "separate_by": _hint(first.name, c.name)})
+    return out

@@ -84,6 +84,50 @@ def _derived(name: str, params: dict, d: Diagnosis) -> dict:
     return out
 
 
+def readable_estimate(value: float, sd: float, unit: str = "", span: float | None = None) -> str:
+    """A parameter and its 1-sigma as a person reads it: the digits the uncertainty allows, or "not determined".
+
+    >>> readable_estimate(-0.025123, 0.00041)
+    '-0.0251 +- 0.0004'
+    >>> readable_estimate(7.867e-07, 3.7e2, "rad", span=0.4)
+    'not determined by these data (1-sigma 3.7e+02 rad, wider than the plausible range 0.4 rad)'
+    """
+    u = f" {unit}" if unit and unit != "1" else ""
+    if not np.isfinite(sd) or (span is not None and sd > 0.5 * span):
+        return f"not determined by these data (1-sigma {sd:.2g}{u}, wider than the plausible range {span:.2g}{u})"
+    if sd <= 0:
+        return f"{value:.4g}{u}"
+    digits = max(0, -int(math.floor(math.log10(sd))))
+    if abs(value) >= 1e4 or (0 < abs(value) < 1e-3 and sd < 1e-3):
+        return f"{value:.3e} +- {sd:.1e}{u}"
+    return f"{value:.{digits}f} +- {sd:.{digits}f}{u}"
+
+
+def readable_shrink(before: float, after: float) -> str:
+    """``"92 % of the gap removed"``, or ``"gap 3.1x larger"`` when a candidate makes it worse.
+
+    >>> readable_shrink(0.02, 0.0016), readable_shrink(0.001, 0.1047)
+    ('92 % of the gap removed', 'gap 105x larger (worse than nothing)')
+    """
+    if before <= 0:
+        return "no gap"
+    if after <= before:
+        return f"{100 * (1 - after / before):.0f} % of the gap removed"
+    return f"gap {after / before:.3g}x larger (worse than nothing)"
+
+
+def _readable_params(c: CandidateScore) -> dict:
+    out, i = {}, 0
+    sd = np.sqrt(np.clip(np.diag(c.fit.cov), 0, None)) if c.fit.cov.size else np.zeros(0)
+    for e in c.effects:
+        for j, p in enumerate(e.param_names):
+            key = p if len(c.effects) == 1 else f"{e.name}.{p}"
+            out[key] = readable_estimate(float(c.fit.theta[i + j]), float(sd[i + j]), e.units[j],
+                                         float(e.upper[j] - e.lower[j]))
+        i += e.n_params
+    return out
+
+
 def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
     before, before_r = d.gap_before, d.baseline.region_gap
     params = c.fit.params()
@@ -98,6 +142,8 @@ def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
         "n_params": c.n_params,
         "heldout_gap": c.heldout_gap,
         "shrink": 1 - c.heldout_gap / before if before > 0 else 0.0,
+        "shrink_text": readable_shrink(before, c.heldout_gap),
+        "readable": _readable_params(c),
         "heldout_gap_region": c.region_gap,
         "shrink_region": (1 - c.region_gap / before_r) if (before_r and c.region_gap is not None) else None,
         "train_gap": c.fit.train_rms,
@@ -135,6 +181,10 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "region": {"axis": d.where["concentration"]["axis"], "group": d.where["concentration"]["group"]},
         "verdict": d.selection.verdict,
         "chosen": d.chosen,
+        "nearest": d.selection.chosen[-1].name if d.selection.chosen else None,
+        "noise_floor": d.noise_floor,
+        "model_error": d.model_error,
+        "ambiguity": d.ambiguity,
         "combination": _candidate_row(final, d) if d.selection.chosen else None,
         "where": where,
         "model_split": d.model_split,
@@ -238,17 +288,20 @@ def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
     summary = Table(
         ["quantity", "value"],
         [["chosen", ", ".join(dd["chosen"]) or "(nothing)"], ["verdict", dd["verdict"]],
-         ["noise (%)", pct(dd["noise"])], ["gap before (held-out, %)", pct(dd["gap_before"])],
-         ["gap after (held-out, %)", pct(dd["gap_after"])], ["shrink", dd["shrink"]],
+         ["noise (%)", pct(dd["noise"])],
+         ["baseline's own error (%)", "unknown" if dd["model_error"].get("baseline_rms") is None
+          else pct(dd["model_error"]["baseline_rms"])],
+         ["noise floor (%)", pct(dd["noise_floor"])],
+         ["gap before (held-out, %)", pct(dd["gap_before"])],
+         ["gap after (held-out, %)", pct(dd["gap_after"])], ["shrink", readable_shrink(dd["gap_before"], dd["gap_after"])],
          [f"gap before in {dd['region']['group']} (%)", pct(dd["gap_before_region"])],
          [f"gap after in {dd['region']['group']} (%)", pct(dd["gap_after_region"])]],
         caption="verdict",
     )
     ranking = Table(
-        ["effect", "form", "parameters", "1-sigma", "held-out gap (%)", "shrink", "region shrink", "score - none"],
-        [[r["effect"], r["form"], ", ".join(f"{k}={v:.4g}" for k, v in r["params"].items()),
-          ", ".join(f"{v:.2g}" for v in r["uncertainty"].values()), pct(r["heldout_gap"]), r["shrink"],
-          r["shrink_region"], r["delta_score_vs_none"]] for r in dd["ranking"]],
+        ["effect", "form", "parameters (1-sigma)", "held-out gap (%)", "shrink", "score - none"],
+        [[r["effect"], r["form"], "; ".join(f"{k} = {v}" for k, v in r["readable"].items()),
+          pct(r["heldout_gap"]), r["shrink_text"], r["delta_score_vs_none"]] for r in dd["ranking"]],
         caption="every candidate alone, best first",
     )
     where_tables = [
@@ -262,8 +315,21 @@ def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
                   f"on {100 * c['fraction']:.0f} % of the values. Time trend of the mean residual: "
                   f"{100 * dd['where']['time_trend']['slope_per_hour']:.3g} +- "
                   f"{100 * dd['where']['time_trend']['slope_stderr']:.2g} %/h.")
+    me = dd["model_error"]
+    budget_rows = [["bench noise", pct(dd["noise"])],
+                   ["baseline error (" + str(me.get("baseline")) + ")",
+                    "unknown" if me.get("baseline_rms") is None else pct(me["baseline_rms"])]]
+    budget_rows += [[f"  baseline error at {g}", pct(v)] for g, v in (me.get("baseline_by_place") or {}).items()]
+    budget_rows += [["noise floor", pct(dd["noise_floor"])]]
+    budget = Table(["part", "RMS (%)"], budget_rows, caption="model-error budget")
+    ambiguity = [f"{a['effect']} explains the data about as well as {dd['chosen'][0] if dd['chosen'] else '?'} "
+                 f"(held-out gap {100 * a['heldout_gap']:.3g} %); to separate them: {a['separate_by']}."
+                 for a in dd["ambiguity"]]
     sections = [
         Section("Verdict", tables=[summary], notes=notes),
+        Section("Model-error budget", f"{me.get('how', '')}. {me.get('rule', '')}.", tables=[budget],
+                notes=[f"BEM discretisation: {k}: {v}" for k, v in me.get("bem_discretisation", {}).items()]),
+        Section("Ambiguity set", ambiguity or "no other candidate explains the data as well as the chosen one"),
         Section("Where the gap lies", where_text, tables=where_tables, figures=figs[:2]),
         Section("Which effect", "Each candidate fitted on training samples and scored on held-out ones.",
                 tables=[ranking], figures=figs[2:]),

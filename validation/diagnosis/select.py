@@ -72,6 +72,7 @@ class SelectionRules:
     confusable_deg: float = 15.0  # sensitivity subspaces closer than this: cannot be told apart
     nested_deg: float = 2.0  # a simpler candidate whose sensitivities lie within this angle of the best's span ...
     nested_excess: float = 1.0  # ... and whose held-out mean square is within this many s^2 of it is preferred
+    named_shrink: float = 0.8  # a combination that misses the floor is still named if it removes this share of the gap
 
 
 def _rms(x: np.ndarray, mask=None) -> float:
@@ -189,25 +190,32 @@ class Selection:
 
 
 def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rules: SelectionRules = SelectionRules(),
-                      region_mask=None) -> Selection:
-    """Greedy forward selection over the single-candidate fits of ``ranking``."""
+                      region_mask=None, floor: float | None = None) -> Selection:
+    """Greedy forward selection over the single-candidate fits of ``ranking``.
+
+    ``floor`` (default ``noise``) is the noise floor: the bench noise and the
+    baseline's own estimated error in quadrature. Every threshold of
+    :class:`SelectionRules` is in units of it: what the model itself cannot
+    vouch for is never named as a cause.
+    """
+    fl = noise if floor is None else max(float(floor), noise)
     baseline = next(c for c in ranking if c.name == "none")
     singles = {c.name: c for c in ranking if c.name != "none"}
     current = baseline
     in_current = lambda c: [e.name for e in c.effects if e.name != "none"]  # noqa: E731
     path: list[CandidateScore] = []
     steps = []
-    if baseline.heldout_gap <= rules.start_noise * noise:
-        return Selection([], "none", [{"stop": "the gap before any effect is within the noise"}])
+    if baseline.heldout_gap <= rules.start_noise * fl:
+        return Selection([], "none", [{"stop": "the gap before any effect is within the noise floor"}])
     while len(path) < rules.max_effects:
-        if path and current.heldout_gap <= rules.at_noise * noise:
+        if path and current.heldout_gap <= rules.at_noise * fl:
             steps.append({"stop": "the held-out gap is within the noise"})
             break
         tried = []
         for name, single in singles.items():
             if name in in_current(current):
                 continue
-            if any(_refines(single, singles.get(e), baseline, rules, noise) for e in in_current(current)):
+            if any(_refines(single, singles.get(e), baseline, rules, fl) for e in in_current(current)):
                 continue  # a richer variant of an effect already in: its extra parameters are refused (module doc)
             if not in_current(current):
                 tried.append(single)
@@ -219,8 +227,9 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         tried = [c for c in tried if not c.at_bound]
         if not tried:
             break
-        best = _parsimonious(min(tried, key=lambda c: c.score), tried, current, rules, noise)
-        excess = current.heldout_gap**2 - noise**2
+        best = _parsimonious(min(tried, key=lambda c: c.score), tried, current, rules, fl)
+        best = _fewest_reaching_floor(best, tried, current, rules, fl)
+        excess = current.heldout_gap**2 - fl**2
         gain = current.heldout_gap**2 - best.heldout_gap**2
         step = {"tried": {c.name: {"score": c.score, "heldout_gap": c.heldout_gap} for c in tried}, "best": best.name,
                 "refused_at_bounds": pinned}
@@ -239,12 +248,37 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps, rules, baseline)
         path[-1] = current
     if not path:
-        verdict = "none" if baseline.heldout_gap <= rules.none_ceiling * noise else "unexplained"
-    elif path[-1].heldout_gap > rules.none_ceiling * noise:
+        if baseline.heldout_gap <= rules.none_ceiling * noise:
+            verdict = "none"
+        else:
+            verdict = "unexplained"
+            if baseline.heldout_gap <= rules.none_ceiling * fl:
+                steps.append({"stop": f"the gap ({100 * baseline.heldout_gap:.3g} %) is above the bench noise but "
+                                      f"within the model's own error (noise floor {100 * fl:.3g} %): the model is the "
+                                      "limit, not the physics; nothing can be named"})
+    elif path[-1].heldout_gap <= rules.none_ceiling * fl:
+        verdict = "explained"
+    elif path[-1].heldout_gap <= (1 - rules.named_shrink) * baseline.heldout_gap:
         verdict = "partly explained"
     else:
-        verdict = "explained"
+        verdict = "unexplained"
+        steps.append({"stop": f"no combination brings the held-out gap within {rules.none_ceiling}x the noise floor "
+                              f"({100 * fl:.3g} %) nor removes {rules.named_shrink:.0%} of it: nothing is named "
+                              f"(nearest: {path[-1].name}, {100 * path[-1].heldout_gap:.3g} %)"})
     return Selection(path, verdict, steps)
+
+
+def _fewest_reaching_floor(best: CandidateScore, tried: list, current: CandidateScore, rules: SelectionRules,
+                           floor: float) -> CandidateScore:
+    """One parameter that explains the gap to the floor beats several: a one-parameter candidate whose held-out gap
+    is within ``at_noise`` x floor and within one floor^2 (in mean square) of the best's is taken instead (the
+    lowest score among such). Between richer candidates the score decides; the others that explain the data as
+    well are reported as the ambiguity set."""
+    if best.n_params <= 1 or best.heldout_gap > rules.at_noise * floor:
+        return best
+    reach = [c for c in tried if c.n_params == 1 and c.heldout_gap <= rules.at_noise * floor
+             and c.score < current.score and c.heldout_gap**2 - best.heldout_gap**2 < floor**2]
+    return min(reach, key=lambda c: c.score) if reach else best
 
 
 def nested_angle_deg(J_simple: np.ndarray, J_rich: np.ndarray) -> float:

@@ -1,0 +1,84 @@
+"""The BEM-anchored baseline's pieces, the model-error rules of the selection, readable numbers."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from meshes.tank import Tank
+from validation.diagnosis.anchored import AnchorStore, RBFInterpolant, pose_features, psm_usable
+from validation.diagnosis.report import readable_estimate, readable_shrink
+from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor
+from validation.diagnosis.unseen import random_passes, random_sensor, random_setup
+
+
+def test_closed_form_leave_one_out_equals_refitting():
+    rng = np.random.default_rng(3)
+    X = rng.uniform(-1, 1, (14, 3))
+    y = np.column_stack([np.sin(2 * X[:, 0]) + X[:, 1] ** 2, np.cos(X[:, 2])])
+    loo = RBFInterpolant(X, y).leave_one_out
+    for i in range(len(X)):
+        keep = np.delete(np.arange(len(X)), i)
+        direct = y[i] - RBFInterpolant(X[keep], y[keep])(X[i:i + 1])[0]
+        assert loo[i] == pytest.approx(direct, rel=1e-6, abs=1e-9)
+
+
+def test_interpolant_reproduces_nodes_and_linear_fields():
+    rng = np.random.default_rng(4)
+    X = rng.uniform(0, 1, (20, 6))
+    y = X @ rng.normal(size=(6, 2)) + 0.5
+    f = RBFInterpolant(X, y)
+    assert np.allclose(f(X), y, atol=1e-8)
+    Z = rng.uniform(0, 1, (5, 6))
+    assert np.allclose(f(Z), Z @ np.linalg.lstsq(np.c_[X], y - 0.5, rcond=None)[0] + 0.5, atol=1e-6)
+    assert np.abs(f.leave_one_out).max() < 1e-6  # a linear field is predicted exactly from the others
+
+
+def test_anchor_store_is_keyed_by_geometry_never_by_name(tmp_path):
+    rng = np.random.default_rng(5)
+    sensor = random_sensor(rng, 4, name="../../evil name")
+    renamed = random_sensor(np.random.default_rng(5), 4, name="other")
+    tank = Tank((0.8, 0.6, 0.5), 0.4)
+    a, b = AnchorStore(sensor, tank, folder=tmp_path), AnchorStore(renamed, tank, folder=tmp_path)
+    assert a.key == b.key and "evil" not in str(a.path) and a.path.parent == tmp_path
+    assert AnchorStore(sensor, Tank((0.8, 0.6, 0.5), 0.35), folder=tmp_path).key != a.key
+    assert a.load() is None
+    a.save({"poses": np.zeros((2, 4)), "K_unit": np.ones((2, 4, 4)), "focus_m": np.zeros((3, 3))})
+    assert b.load()["K_unit"].shape == (2, 4, 4)
+
+
+def test_random_setups_are_valid_and_passes_fit_the_tank():
+    for seed in range(6):
+        setup = random_setup(np.random.default_rng(seed))
+        assert 3 <= setup.sensor.n_electrodes <= 6
+        poses, t, passes = random_passes(setup, np.random.default_rng(seed + 10), 3, 9)
+        tips = pose_features(setup.sensor, poses).reshape(-1, 2, 3)
+        assert np.all(setup.tank.distance_to_boundary_m(tips) > 0.01)
+        assert np.all(np.diff(t) > 0) and set(passes.tolist()) == {0, 1, 2}
+
+
+def test_psm_usable_flags_spheres_beyond_a_wall():
+    model = SimpleNamespace(centres_m=np.array([[0.1, 0, 0], [-0.1, 0, 0]]), radii_m=np.array([0.01, 0.01]))
+    tank = Tank((1.0, 1.0, 1.0))
+    poses = np.array([[0.0, 0, 0, 0], [0.385, 0, 0, 0], [0.395, 0, 0, 0]])
+    assert psm_usable(model, poses, tank).tolist() == [True, True, False]
+
+
+def _cand(name, gap, score, k):
+    return SimpleNamespace(name=name, heldout_gap=gap, score=score, n_params=k)
+
+
+def test_one_parameter_reaching_the_floor_beats_three():
+    rules, floor = SelectionRules(), 0.001
+    current = _cand("none", 0.02, 1e4, 0)
+    three = _cand("channel_gain", 0.0010, 900.0, 3)
+    one = _cand("conductivity", 0.0012, 950.0, 1)
+    assert _fewest_reaching_floor(three, [three, one], current, rules, floor) is one
+    far = _cand("conductivity", 0.0019, 1900.0, 1)  # beyond 1.5x the floor: not a full explanation
+    assert _fewest_reaching_floor(three, [three, far], current, rules, floor) is three
+
+
+def test_numbers_a_person_can_read():
+    assert readable_estimate(-0.025123, 0.00041) == "-0.0251 +- 0.0004"
+    assert readable_estimate(7.867e-07, 3.7e2, "rad", span=0.4).startswith("not determined")
+    assert "e+04" not in readable_shrink(0.001, 0.1047) and "worse" in readable_shrink(0.001, 0.1047)
+    assert readable_shrink(0.02, 0.0016) == "92 % of the gap removed"

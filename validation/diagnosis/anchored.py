@@ -1,0 +1,488 @@
+"""The default baseline of the diagnosis: the PSM corrected by the BEM at adaptive anchor poses, cached on disk.
+
+The diagnosis may only blame the water for a gap that the model does not
+make itself. The BEM is the reference; the PSM is fast but off it by up to
+several percent near the walls, which is twenty times the bench noise. Here:
+
+1. the calibrated PSM is evaluated at every logged pose where it can be (it
+   refuses poses where one of its spheres crosses a wall: those poses get the
+   BEM itself);
+2. the BEM (:class:`bem.PoseSweep`, built once per scene) is run at a first
+   spread of *anchor* poses, dense where the tank's effect changes fastest;
+3. the ratio log(K_bem / K_psm) of every entry of K is interpolated over pose
+   space (cubic radial basis functions of the sensor's tip positions, with a
+   linear trend), and its leave-one-out error at every anchor is computed in
+   closed form (Rippa's formula);
+4. the estimated error of each sample (the leave-one-out error of its nearest
+   anchors: an upper estimate, the anchors being denser with the pose back in;
+   zero at the anchors themselves) is compared with ``target`` (a third of the
+   bench noise by default); while the RMS error, over all samples or over any
+   region of the tank, exceeds it, the BEM is run at the samples of largest
+   estimated error, up to every logged pose (then the baseline *is* the BEM).
+
+The BEM's answers are kept on disk (:class:`AnchorStore`), keyed by a hash of
+the sensor's geometry, the tank, the known objects, the BEM's settings and
+the model code's version (never by the sensor's name), at unit conductivity
+(K is proportional to sigma); a later log of the same sensor in the same tank
+reuses them and runs the BEM only where they do not reach.
+
+Example
+-------
+>>> import numpy as np
+>>> X = np.linspace(0, 1, 9)[:, None]
+>>> y = np.sin(3 * X)
+>>> interp = RBFInterpolant(X, y)
+>>> float(np.abs(interp(np.array([[0.3]])) - np.sin(0.9)).max()) < 1e-2
+True
+>>> bool(np.abs(interp.leave_one_out).max() < 0.05)
+True
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .forward import receiver_currents
+
+__all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features",
+           "psm_usable", "anchor_cache_dir", "SENSOR_EDGE_FACTOR", "default_bem_options"]
+
+#: sensor mesh edge of the anchors' BEM, in units of the mesher's default: the per-pose cost is the tank's
+#: Schur complement plus O(N_sensor^2); with the free-space edge correction a coarser sensor mesh moves K by
+#: about 2e-4 mid-tank, 1e-3 with a tip 1.5 cm from a wall (5-electrode sensor, factors 2 against 3), which
+#: the budget's discretisation estimate reports
+SENSOR_EDGE_FACTOR = 3.0
+
+#: wall-clock seconds of BEM poses after which no more anchors are added (the estimated error is then
+#: reported as it stands, and raises the noise floor)
+MAX_BEM_SECONDS = 480.0
+
+
+def default_bem_options(sensor, options: dict | None = None) -> dict:
+    """The anchors' BEM options: ``options`` with the sensor edge length defaulting to
+    :data:`SENSOR_EDGE_FACTOR` times the mesher's default."""
+    from meshes.sensor_mesh import default_edge_length_m
+
+    out = dict(options or {})
+    if out.get("edge_length_m") is None:
+        out["edge_length_m"] = SENSOR_EDGE_FACTOR * default_edge_length_m(sensor)
+    return out
+
+
+# ------------------------------------------------------------------ interpolation
+class RBFInterpolant:
+    """Cubic radial basis interpolation (phi = r^3) with a linear trend, and its leave-one-out errors.
+
+    ``leave_one_out`` (B, k) is the error of predicting each node from all
+    the others, in closed form: e_i = c_i / (M^-1)_ii with M the augmented
+    interpolation matrix (Rippa 1999). With fewer nodes than the trend has
+    terms, the trend is a constant.
+    """
+
+    def __init__(self, X: np.ndarray, y: np.ndarray):
+        self.X = np.asarray(X, float)
+        y = np.asarray(y, float)
+        self.shape = y.shape[1:]
+        Y = y.reshape(len(y), -1)
+        B, d = self.X.shape
+        self.linear = B > d + 2
+        Pm = self._trend(self.X)
+        q = Pm.shape[1]
+        M = np.zeros((B + q, B + q))
+        M[:B, :B] = self._phi(self.X, self.X)
+        M[:B, B:] = Pm
+        M[B:, :B] = Pm.T
+        Minv = np.linalg.pinv(M, rcond=1e-13, hermitian=True)
+        rhs = np.vstack([Y, np.zeros((q, Y.shape[1]))])
+        self.coef = Minv @ rhs
+        diag = np.diag(Minv)[:B]
+        loo = self.coef[:B] / np.where(np.abs(diag) > 0, diag, np.inf)[:, None]
+        self.leave_one_out = loo.reshape((B,) + self.shape)
+
+    @staticmethod
+    def _phi(A, B):
+        r = np.linalg.norm(A[:, None, :] - B[None, :, :], axis=-1)
+        return r**3
+
+    def _trend(self, X):
+        return np.hstack([np.ones((len(X), 1)), X]) if self.linear else np.ones((len(X), 1))
+
+    def __call__(self, X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X, float)
+        A = np.hstack([self._phi(X, self.X), self._trend(X)])
+        return (A @ self.coef).reshape((len(X),) + self.shape)
+
+
+def pose_features(sensor, poses: np.ndarray) -> np.ndarray:
+    """(P, 6): the tank-frame positions (m) of the sensor's two tips, a metric on poses that includes the heading."""
+    from meshes.pose import sensor_to_tank
+
+    tips = np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]])
+    return sensor_to_tank(tips, np.asarray(poses, float)).reshape(len(poses), 6)
+
+
+def psm_usable(model, poses: np.ndarray, tank) -> np.ndarray:
+    """(P,) bool: poses where every sphere of the PSM ``model`` lies inside the water (the PSM refuses the others)."""
+    from psm.conductance import sphere_centres_m
+
+    if tank is None:
+        return np.ones(len(poses), bool)
+    X = sphere_centres_m(model, np.asarray(poses, float))
+    gap = tank.distance_to_boundary_m(X) - np.asarray(model.radii_m)[None, :, None]
+    return np.all(gap > 1e-4, axis=(1, 2))
+
+
+# --------------------------------------------------------------------- the store
+def anchor_cache_dir() -> Path:
+    """``$ESENSE_CACHE_DIR/diagnosis-anchors`` or the user's cache folder."""
+    base = os.environ.get("ESENSE_CACHE_DIR")
+    if not base:
+        from platformdirs import user_cache_dir
+
+        base = user_cache_dir("electrosense")
+    return Path(base) / "diagnosis-anchors"
+
+
+@dataclass
+class AnchorStore:
+    """BEM conductances (at 1 S/m) of one sensor in one scene, on disk; one entry per tank mesh (focus).
+
+    The file name is a hash of the sensor's geometry (its name left out), the
+    tank, the objects, the BEM options and :func:`validation.models.code_version`.
+    """
+
+    sensor: object
+    tank: object
+    objects: tuple = ()
+    bem_options: dict = field(default_factory=dict)
+    folder: Path | None = None
+
+    def __post_init__(self):
+        from validation.models import code_version
+
+        geometry = {k: v for k, v in self.sensor.to_dict().items() if k not in ("name", "notes")}
+        text = json.dumps({"sensor": geometry, "tank": repr(self.tank), "objects": repr(tuple(self.objects)),
+                           "bem": {k: repr(v) for k, v in sorted(self.bem_options.items())},
+                           "code": code_version()}, sort_keys=True)
+        self.key = hashlib.sha256(text.encode()).hexdigest()[:24]
+        self.folder = Path(self.folder) if self.folder is not None else anchor_cache_dir()
+
+    @property
+    def path(self) -> Path:
+        return self.folder / f"{self.key}.npz"
+
+    def load(self) -> dict | None:
+        """``{"poses", "K_unit", "focus_m", "bem_error"}`` or None."""
+        try:
+            with np.load(self.path) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, KeyError, EOFError):
+            return None
+
+    def save(self, entry: dict) -> None:
+        """Write atomically (a concurrent reader sees the old entry or the new one); a failure only warns."""
+        import warnings
+
+        try:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            partial = self.path.with_name(f"{self.key}.{os.getpid()}.partial.npz")
+            np.savez(partial, **entry)
+            os.replace(partial, self.path)
+        except OSError as exc:
+            warnings.warn(f"BEM anchors not cached ({exc})", RuntimeWarning, stacklevel=2)
+
+
+# ----------------------------------------------------------------------- baseline
+@dataclass
+class AnchoredBaseline:
+    """The corrected baseline at the logged poses and what is known of its error."""
+
+    K: np.ndarray  # (P, n, n) at the observations' conductivity
+    error: np.ndarray  # (P, m) estimated relative error of the receiver currents (0 at BEM poses)
+    anchors: np.ndarray  # (A,) sample indices computed by the BEM (new or from the cache)
+    refused: np.ndarray  # (R,) sample indices the PSM refuses (covered by the BEM)
+    n_bem_new: int
+    n_cached: int
+    target: float
+    rounds: list
+    psm_vs_bem_rms: float
+    loo_rms: float
+    seconds: float
+    bem_error: np.ndarray | None = None  # (P, m) estimated discretisation error of the BEM itself
+    stopped: str = ""
+
+    @property
+    def interpolation_rms(self) -> float:
+        return float(np.sqrt(np.mean(self.error**2)))
+
+    @property
+    def total_error(self) -> np.ndarray:
+        """(P, m): interpolation and BEM discretisation errors in quadrature."""
+        return self.error if self.bem_error is None else np.hypot(self.error, self.bem_error)
+
+    @property
+    def rms_error(self) -> float:
+        return float(np.sqrt(np.mean(self.total_error**2)))
+
+
+def _offdiag_log_ratio(K_bem, K_psm):
+    n = K_bem.shape[-1]
+    iu = np.triu_indices(n, 1)
+    a, b = K_bem[:, iu[0], iu[1]], K_psm[:, iu[0], iu[1]]
+    if np.any(a / b <= 0):
+        raise ValueError("the BEM and the PSM disagree in the sign of a transfer conductance")
+    return np.log(a / b)
+
+
+def _apply_log_ratio(K_psm, L):
+    n = K_psm.shape[-1]
+    iu = np.triu_indices(n, 1)
+    K = np.array(K_psm, float)
+    K[:, iu[0], iu[1]] *= np.exp(L)
+    K[:, iu[1], iu[0]] = K[:, iu[0], iu[1]]
+    off = K * (1 - np.eye(n))
+    return off - np.eye(n) * off.sum(axis=-1, keepdims=True)
+
+
+def _receiver_entries(sensor):
+    """Positions, in the upper-triangle list, of the entries (receiver, emitter)."""
+    n, e = sensor.n_electrodes, sensor.emitter - 1
+    iu = list(zip(*np.triu_indices(n, 1)))
+    return [iu.index((min(k, e), max(k, e))) for k in range(n) if k != e]
+
+
+def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) -> np.ndarray:
+    """About ``k`` of ``candidates``, both ends of each pass, spread in the cumulative ``1 + weight`` along the pass."""
+    from .multifidelity import choose_bem_poses
+
+    chosen = choose_bem_poses(weight, passes, k)
+    return np.intersect1d(chosen, candidates)
+
+
+def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_model=None, bem_options=None,
+                      store: AnchorStore | None = None, first_fraction: float = 0.2, step_fraction: float = 0.1,
+                      max_bem_s: float = MAX_BEM_SECONDS, check_discretisation: bool = True,
+                      progress=None) -> AnchoredBaseline:
+    """The PSM corrected by the BEM at an adaptive set of logged poses until its estimated error is below
+    ``target_factor * noise`` (module doc); K at the observations' conductivity."""
+    from validation.models import calibrated_psm, pose_evaluator
+
+    from .where import place_labels
+
+    t0 = time.perf_counter()
+    say = progress or (lambda s: None)
+    sensor, tank, objects = obs.sensor, obs.tank, tuple(obs.objects)
+    bem_options = default_bem_options(sensor, bem_options)
+    store = store or AnchorStore(sensor, tank, objects, bem_options)
+    P, n = obs.n_poses, sensor.n_electrodes
+    target = max(target_factor * noise, 1e-7)
+    model = psm_model if psm_model is not None else calibrated_psm(sensor)
+    ok = psm_usable(model, obs.poses, tank)
+    if ok.mean() < 0.5:  # its spheres do not fit the tank (or the calibration degenerated): spheres at the electrodes
+        from .forward import geometric_psm
+
+        geometric = geometric_psm(sensor, model)
+        if psm_usable(geometric, obs.poses, tank).sum() > ok.sum():
+            model = geometric
+            ok = psm_usable(model, obs.poses, tank)
+            say("the calibrated PSM does not fit these poses; its radii with the spheres at the electrodes are used")
+    K_psm = np.full((P, n, n), np.nan)
+    if ok.any():
+        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=obs.poses[ok])
+        K_psm[ok] = ev.conductance(obs.poses[ok]).K_S
+    F = pose_features(sensor, obs.poses)
+    entry = store.load()
+    cached_poses = np.zeros((0, 4)) if entry is None else entry["poses"]
+    cached_K = np.zeros((0, n, n)) if entry is None else entry["K_unit"]
+    from meshes.scene_mesh import trajectory_focus_m
+
+    focus_new = trajectory_focus_m(sensor, obs.poses)
+    # reuse the stored tank mesh if it was graded towards this log's trajectory (within a few mm)
+    covered = False
+    if entry is not None and len(entry.get("focus_m", [])):
+        from scipy.spatial import cKDTree
+
+        dist, _ = cKDTree(entry["focus_m"]).query(focus_new)
+        covered = bool(np.max(dist) < 0.005)
+    if not covered:
+        cached_poses, cached_K = np.zeros((0, 4)), np.zeros((0, n, n))
+    focus = entry["focus_m"] if covered else focus_new
+    # a cached BEM pose within 0.05 mm of a logged one: that sample is exact
+    exact = np.full(P, -1)
+    if len(cached_poses):
+        from scipy.spatial import cKDTree
+
+        d, j = cKDTree(pose_features(sensor, cached_poses)).query(F)
+        exact[d < 5e-5] = j[d < 5e-5]
+    K_bem = np.full((P, n, n), np.nan)
+    K_bem[exact >= 0] = cached_K[exact[exact >= 0]]
+    sweep = None
+    n_new = 0
+    new_poses, new_K = [], []
+    bem_seconds = [0.0, 0]  # wall seconds of BEM poses, count (for the time budget)
+
+    def run_bem(idx):
+        nonlocal sweep, n_new
+        idx = np.asarray([i for i in idx if not np.isfinite(K_bem[i, 0, 0])], int)
+        if not len(idx):
+            return
+        if sweep is None:
+            from bem import PoseSweep
+
+            sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
+        say(f"BEM at {len(idx)} poses")
+        t_bem = time.perf_counter()
+        K = sweep.conductance(obs.poses[idx]).K_S
+        bem_seconds[0] += time.perf_counter() - t_bem
+        bem_seconds[1] += len(idx)
+        K_bem[idx] = K
+        n_new += len(idx)
+        new_poses.append(obs.poses[idx])
+        new_K.append(K)
+
+    # the PSM refuses: the BEM covers
+    run_bem(np.flatnonzero(~ok))
+    rec = _receiver_entries(sensor)
+    passes = obs.pass_indices()
+    # where the tank matters most: the PSM's own tank effect (unit for refused poses)
+    if ok.any():
+        free = receiver_currents(pose_evaluator("psm", sensor, None, 1.0, (), psm_model=model).conductance(
+            obs.poses[:1]).K_S, obs.emitter)[0]
+        tank_effect = np.ones(P)
+        tank_effect[ok] = np.max(np.abs(receiver_currents(K_psm[ok], obs.emitter) / free - 1), axis=1)
+    else:
+        tank_effect = np.ones(P)
+    rounds = []
+    stopped = ""
+    labels = place_labels(obs)
+    # cached anchors off the log's poses still serve as interpolation nodes (PSM at them as well)
+    extra = np.zeros(len(cached_poses), bool)
+    if len(cached_poses):
+        extra = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0]) & psm_usable(model, cached_poses, tank)
+    K_psm_extra = None
+    if extra.any():
+        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=cached_poses[extra])
+        K_psm_extra = ev.conductance(cached_poses[extra]).K_S
+    error = np.zeros((P, n - 1))
+    loo_all = np.zeros((0, n - 1))
+    psm_vs_bem = np.zeros((0, n - 1))
+    L = np.zeros((P, n * (n - 1) // 2))
+    first = True
+    while True:
+        have = np.isfinite(K_bem[:, 0, 0])
+        nodes = np.flatnonzero(have & ok)
+        if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
+            k = max(8, int(np.ceil(first_fraction * ok.sum())))
+            ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
+            run_bem(_spread(np.flatnonzero(ok), tank_effect, ok_passes, k))
+            first = False
+            continue
+        first = False
+        have = np.isfinite(K_bem[:, 0, 0])
+        nodes = np.flatnonzero(have & ok)
+        Xn, Ln = F[nodes], _offdiag_log_ratio(K_bem[nodes], K_psm[nodes])
+        if K_psm_extra is not None:
+            Xn = np.vstack([Xn, pose_features(sensor, cached_poses[extra])])
+            Ln = np.vstack([Ln, _offdiag_log_ratio(cached_K[extra], K_psm_extra)])
+        todo = np.flatnonzero(ok & ~have)
+        if len(Xn) == 0:
+            run_bem(todo)
+            continue
+        interp = RBFInterpolant(Xn, Ln)
+        loo = np.abs(np.expm1(interp.leave_one_out[:, rec]))  # (B, m) relative error of receiver currents
+        loo_all = loo[: len(nodes)]
+        psm_vs_bem = np.abs(np.expm1(Ln[: len(nodes)][:, rec]))
+        error = np.zeros((P, n - 1))
+        if len(todo):
+            L[todo] = interp(F[todo])
+            # the leave-one-out errors of the two nearest nodes, weighted by inverse distance
+            from scipy.spatial import cKDTree
+
+            d, j = cKDTree(Xn).query(F[todo], k=min(2, len(Xn)))
+            d, j = d.reshape(len(todo), -1), j.reshape(len(todo), -1)
+            w = 1.0 / np.maximum(d, 1e-9)
+            error[todo] = np.einsum("pk,pkm->pm", w, loo[j]) / w.sum(axis=1, keepdims=True)
+        region_rms = {g: float(np.sqrt(np.mean(error[labels == g] ** 2))) for g in dict.fromkeys(labels.tolist())}
+        total = float(np.sqrt(np.mean(error**2)))
+        worst_region = max(region_rms.values()) if region_rms else 0.0
+        rounds.append({"bem_poses": int(have.sum()), "rms_error": total, "worst_region_rms": worst_region})
+        say(f"baseline error {100 * total:.4f} % RMS (worst region {100 * worst_region:.4f} %) with the BEM at "
+            f"{int(have.sum())} of {P} poses; target {100 * target:.4f} %")
+        if (total <= target and worst_region <= target) or not len(todo):
+            break
+        k = max(4, int(np.ceil(step_fraction * P)))
+        per_pose = bem_seconds[0] / max(bem_seconds[1], 1)
+        if bem_seconds[0] + k * per_pose > max_bem_s:
+            stopped = (f"time budget: {bem_seconds[0]:.0f} s of BEM poses spent, {max_bem_s:.0f} s allowed; the "
+                       "estimated error is reported as it stands")
+            say(stopped)
+            break
+        worst = todo[np.argsort(np.max(error[todo], axis=1))[::-1][:k]]
+        run_bem(worst)
+    have = np.isfinite(K_bem[:, 0, 0])
+    K = np.where(have[:, None, None], K_bem, 0.0)
+    fill = ~have
+    if fill.any():
+        K[fill] = _apply_log_ratio(K_psm[fill], L[fill])
+    # the BEM's own discretisation: a coarser mesh at a few anchor poses (cached with the anchors)
+    check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
+    if check_discretisation and not check and len(np.flatnonzero(have)):
+        try:
+            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem, have,
+                                          tank_effect, rec, say)
+        except Exception as exc:  # the estimate is optional; say so in the budget
+            say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
+            check = {}
+    bem_error = None
+    if check:
+        from scipy.spatial import cKDTree
+
+        _, j = cKDTree(pose_features(sensor, check["poses"])).query(F)
+        bem_error = check["error"][j]
+    if new_poses or (check and "check_poses" not in (entry or {})):
+        entry_poses = np.vstack([cached_poses] + new_poses)
+        entry_K = np.vstack([cached_K] + new_K)
+        saved = {"poses": entry_poses, "K_unit": entry_K, "focus_m": focus}
+        saved.update({f"check_{k}": v for k, v in check.items()})
+        store.save(saved)
+    anchors = np.flatnonzero(have)
+    return AnchoredBaseline(
+        K=K * obs.sigma_S_per_m, error=error, anchors=anchors, refused=np.flatnonzero(~ok), n_bem_new=n_new,
+        n_cached=int(np.sum(exact >= 0)) + int(extra.sum()), target=target, rounds=rounds,
+        psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
+        loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
+        seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped,
+    )
+
+
+#: the coarser mesh of the discretisation check, in units of the anchors' (sensor edge, tank edge)
+CHECK_COARSENING = 1.5
+
+
+def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_bem, have, tank_effect, rec, say,
+                          n_check: int = 4) -> dict:
+    """The BEM at ``n_check`` anchor poses (strongest, median and weakest tank effect) on a mesh
+    :data:`CHECK_COARSENING` times coarser: |K_coarse / K - 1| of the receiver currents (about the anchors' own
+    discretisation error for a first-order convergence, an upper estimate for a faster one)."""
+    from bem import PoseSweep
+    from meshes.scene_mesh import default_tank_edge_length_m
+
+    idx = np.flatnonzero(have)
+    order = idx[np.argsort(tank_effect[idx])]
+    pick = np.unique(order[np.round(np.linspace(0, len(order) - 1, min(n_check, len(order)))).astype(int)])
+    opts = dict(bem_options)
+    opts["edge_length_m"] = min(CHECK_COARSENING * opts["edge_length_m"], 1.9 * sensor.radius_m)  # mesher's limit
+    opts["tank_edge_length_m"] = CHECK_COARSENING * (opts.get("tank_edge_length_m")
+                                                     or default_tank_edge_length_m(sensor))
+    say(f"BEM discretisation check at {len(pick)} poses (mesh {CHECK_COARSENING}x coarser)")
+    coarse = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **opts).conductance(poses[pick]).K_S
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    err = np.abs(coarse[:, r, e] / K_bem[pick][:, r, e] - 1.0)
+    return {"poses": poses[pick], "error": err}

@@ -1,0 +1,91 @@
+"""Contact impedance as the BEM's boundary condition, in the diagnosis's lumped form: effective areas.
+
+The diagnosis applies a contact impedance z_c to a baseline K as series
+resistances z_c / A_k (:func:`validation.diagnosis.forward.series_contact`).
+With the electrode's geometric area A_k that is 10-20 % off the BEM, whose
+boundary condition sees the current crowd at the electrode's edges
+(:mod:`psm.contact`). Here the areas are replaced by *effective* areas
+A_k(z_c), fitted so that the lumped network reproduces the BEM with the
+contact boundary condition for the sensor alone in unbounded water (ring
+elements on the meridian, :func:`bem.meridian.meridian_conductance`: exact
+for a sensor of revolution, about a second a solve) on a grid of z_c; between
+grid values A_k is interpolated in log z_c. The environment changes the
+water's resistance but hardly the distribution of the current over an
+electrode's surface, which is what the effective area carries.
+
+Example
+-------
+>>> from meshes.sensor import preset
+>>> ea = effective_areas(preset("angels-2"), 0.0354)
+>>> from psm.contact import electrode_areas_m2
+>>> bool(np.all(ea(1e-3) < electrode_areas_m2(preset("angels-2"))))   # crowding at the edges: smaller
+True
+"""
+from __future__ import annotations
+
+import functools
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from meshes.sensor import SensorDescription
+from psm.contact import electrode_areas_m2
+
+__all__ = ["EffectiveAreas", "effective_areas", "Z_GRID_OHM_M2"]
+
+#: contact impedances (ohm m^2) at which the BEM is solved
+Z_GRID_OHM_M2 = np.array([1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0])  # beyond 1 ohm m^2 the areas are geometric to 1 %
+
+
+@dataclass(frozen=True)
+class EffectiveAreas:
+    """A_k(z_c) (m^2): the lumped series z_c / A_k that reproduces the BEM's boundary condition."""
+
+    z_grid_ohm_m2: np.ndarray
+    areas_m2: np.ndarray  # (Z, n)
+    geometric_m2: np.ndarray  # (n,)
+    fit_error: np.ndarray  # (Z,) max relative error of the lumped network against the BEM at each grid z
+
+    def __call__(self, z_ohm_m2) -> np.ndarray:
+        """Effective areas (n,) for contact impedances ``z_ohm_m2`` (scalar or (n,), one per electrode)."""
+        z = np.broadcast_to(np.asarray(z_ohm_m2, float), self.geometric_m2.shape)
+        lz = np.log(np.clip(z, self.z_grid_ohm_m2[0], self.z_grid_ohm_m2[-1]))
+        lg = np.log(self.z_grid_ohm_m2)
+        return np.array([np.interp(lz[k], lg, self.areas_m2[:, k]) for k in range(len(z))])
+
+
+def _fit_areas(K0, Kz, z, A0):
+    from scipy.optimize import least_squares
+
+    from .forward import series_contact
+
+    n = K0.shape[0]
+    off = ~np.eye(n, dtype=bool)
+
+    def res(logA):
+        return (series_contact(K0, z / np.exp(logA))[off] / Kz[off]) - 1.0
+
+    sol = least_squares(res, np.log(A0), method="lm")
+    return np.exp(sol.x), float(np.max(np.abs(res(sol.x))))
+
+
+@functools.lru_cache(maxsize=16)
+def _cached(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
+    from bem.meridian import meridian_conductance
+
+    sensor = SensorDescription.from_dict(json.loads(sensor_json))
+    A0 = electrode_areas_m2(sensor)
+    K0 = meridian_conductance(sensor, sigma_S_per_m).K_S
+    areas, errors = [], []
+    for z in Z_GRID_OHM_M2:
+        Kz = meridian_conductance(sensor, sigma_S_per_m, contact_impedance_ohm_m2=float(z)).K_S
+        A, e = _fit_areas(K0, Kz, float(z), areas[-1] if areas else A0)
+        areas.append(A)
+        errors.append(e)
+    return EffectiveAreas(Z_GRID_OHM_M2.copy(), np.array(areas), A0, np.array(errors))
+
+
+def effective_areas(sensor: SensorDescription, sigma_S_per_m: float) -> EffectiveAreas:
+    """:class:`EffectiveAreas` of ``sensor`` at ``sigma_S_per_m`` (computed once per process)."""
+    return _cached(json.dumps(sensor.to_dict(), sort_keys=True), float(sigma_S_per_m))
