@@ -99,7 +99,7 @@ def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_im
     cls, n_cls = ring_classes(boundary)
     # collocation targets: up to targets_per_class faces of each class, spread over the class
     targets = []
-    for c, members in enumerate(np.split(np.argsort(cls, kind="stable"), np.cumsum(np.bincount(cls))[:-1])):
+    for members in np.split(np.argsort(cls, kind="stable"), np.cumsum(np.bincount(cls))[:-1]):
         if targets_per_class is None or targets_per_class >= len(members):
             targets.append(members)
             continue

@@ -23,7 +23,7 @@ META = {"sensor": "angels-4", "emitter": 4, "tank_m": [1.0, 1.0, 1.0], "sigma_S_
 def standin_simulate(model, sensor, poses, tank, sigma_S_per_m, objects=(), psm_model=None,
                      contact_impedance_ohm_m2=None, **options):
     """A trivial stand-in for the models: a valid K (symmetric, zero row sums) varying with x."""
-    n, P = sensor.n_electrodes, len(poses)
+    n = sensor.n_electrodes
     g = sigma_S_per_m * 0.02 * (1.0 + np.asarray(poses)[:, 0] ** 2)
     off = -1.0 / (1.0 + np.abs(np.subtract.outer(np.arange(n), np.arange(n))))
     np.fill_diagonal(off, 0.0)

@@ -310,7 +310,7 @@ def sensor_timings(full: bool):
     code = ("import time; t=time.perf_counter(); from bem import conductance_matrix; from meshes import Scene, preset; "
             "conductance_matrix(Scene(preset('angels-4')), 1.0); print(time.perf_counter()-t)")
     t0 = time.perf_counter()
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     out["angels-4 unbounded, fresh process"] = (time.perf_counter() - t0, 20.0, "imports + cached kernels")
     tank = Tank((1.0, 1.0, 1.0))
     n_poses = 161 if full else 21
