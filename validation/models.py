@@ -45,6 +45,7 @@ from meshes.tank import Tank
 
 __all__ = [
     "MODELS",
+    "EvaluatorCache",
     "ModelError",
     "PSMEvaluator",
     "pose_evaluator",
@@ -427,3 +428,35 @@ def simulate(
         poses=poses, prepare=False, **bem_options,
     )
     return evaluator.conductance(poses, progress=progress)
+
+
+class EvaluatorCache:
+    """Pose evaluators (BEM pose sweeps, PSMs) shared by the logs of one scene.
+
+    The BEM's pose-invariant blocks (sensor and tank matrices) are built once
+    per (model, sensor, tank, conductivity, objects) and reused for every log
+    of that scene.
+    """
+
+    def __init__(self, psm_model=None, **bem_options):
+        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
+        self.psm_model = psm_model
+        self.bem_options = bem_options
+        self._evaluators = {}
+
+    def _key(self, model, sensor, tank, sigma, objects):
+        tank_key = None if tank is None else (tank.size_m, tank.water_depth_m)
+        return (model, json.dumps(sensor.to_dict(), sort_keys=True), tank_key, float(sigma), repr(tuple(objects)))
+
+    def get(self, model: str, sensor, tank, sigma_S_per_m: float, objects=()):
+        key = self._key(model, sensor, tank, sigma_S_per_m, objects)
+        if key not in self._evaluators:
+            options = dict(self.bem_options)
+            psm = None
+            if model == "psm":
+                psm = self.psm_model
+                if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
+                    psm = psm.get(sensor.name)
+                options = {k: v for k, v in options.items() if k == "edge_length_m"}
+            self._evaluators[key] = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
+        return self._evaluators[key]

@@ -36,7 +36,8 @@ def validate_logs(logs, models, psm=None, conductivity_correction=False, objects
     Shared by ``esense validate`` and ``esense demo``.
     """
     from validation.compare import NEAR_OBJECT_M, NEAR_WALL_M
-    from validation.compare.validate import EvaluatorCache, validate_log
+    from validation.compare.validate import validate_log
+    from validation.models import EvaluatorCache
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     evaluators = EvaluatorCache(psm_model=psm, **bem_options)

@@ -28,75 +28,13 @@ import numpy as np
 
 from .correction import ConductivityCorrection, fit_conductivity_scale
 from .metrics import Comparison, compare_currents
+from validation.models import EvaluatorCache
+
 from .regions import NEAR_OBJECT_M, NEAR_WALL_M, path_regions
 
-__all__ = ["LogValidation", "EvaluatorCache", "validate_log", "validation_summary_rows", "MODEL_ORDER"]
+__all__ = ["LogValidation", "validate_log", "validation_summary_rows", "MODEL_ORDER"]
 
 MODEL_ORDER = ("bem", "psm")
-
-
-class EvaluatorCache:
-    """Pose evaluators (BEM pose sweeps, PSMs) shared by the logs of one scene.
-
-    The BEM's pose-invariant blocks (sensor and tank matrices) are built once
-    per (model, sensor, tank, conductivity, objects) and reused for every log
-    of that scene.
-    """
-
-    def __init__(self, psm_model=None, **bem_options):
-        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
-        self.psm_model = psm_model
-        self.bem_options = bem_options
-        self._evaluators = {}
-
-    def _key(self, model, sensor, tank, sigma, objects):
-        tank_key = None if tank is None else (tank.size_m, tank.water_depth_m)
-        return (model, json.dumps(sensor.to_dict(), sort_keys=True), tank_key, float(sigma), repr(tuple(objects)))
-
-    def get(self, model: str, sensor, tank, sigma_S_per_m: float, objects=()):
-        from validation.models import pose_evaluator
-
-        key = self._key(model, sensor, tank, sigma_S_per_m, objects)
-        if key not in self._evaluators:
-            options = dict(self.bem_options)
-            psm = None
-            if model == "psm":
-                psm = self.psm_model
-                if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
-                    psm = psm.get(sensor.name)
-                options = {k: v for k, v in options.items() if k == "edge_length_m"}
-            try:
-                evaluator = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
-            except ImportError:  # an installation without bem.PoseSweep: one full solve per pose
-                if model != "bem":
-                    raise
-                evaluator = _PosewiseBem(sensor, tank, float(sigma_S_per_m), tuple(objects), options)
-            self._evaluators[key] = evaluator
-        return self._evaluators[key]
-
-
-@dataclass
-class _PosewiseBem:
-    """The BEM pose by pose (``bem.conductance_matrix`` of each scene), when no pose sweep is available."""
-
-    sensor: object
-    tank: object
-    sigma_S_per_m: float
-    objects: tuple
-    options: dict
-
-    def conductance(self, poses, progress: bool = False):
-        from tqdm.auto import tqdm
-
-        from bem import conductance_matrix
-        from bem.conductance import ConductanceMatrix
-        from meshes.pose import Pose
-        from meshes.scene import Scene
-
-        K = [conductance_matrix(Scene(self.sensor, Pose.from_array(p), self.tank, self.objects), self.sigma_S_per_m,
-                                **self.options).K_S
-             for p in tqdm(poses, desc="BEM poses", disable=not progress, leave=False)]
-        return ConductanceMatrix(np.array(K), self.sensor.emitter, self.sigma_S_per_m, {"model": "bem"})
 
 
 @dataclass

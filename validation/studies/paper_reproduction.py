@@ -142,7 +142,8 @@ def reproduce(sensor_name, log_path, bem_poses, edge_length_m, folder, say=print
     """One sensor: calibration, validation (PSM at every pose, BEM on a subset), figures; a summary dict."""
     from meshes.sensor import preset
     from validation.benchlog import read_bench_log
-    from validation.compare.validate import EvaluatorCache, validate_log
+    from validation.compare.validate import validate_log
+    from validation.models import EvaluatorCache
     from validation.compare.metrics import compare_currents
 
     sensor = preset(sensor_name)
