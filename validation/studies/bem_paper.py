@@ -28,11 +28,13 @@ import time
 
 import numpy as np
 
+from psm.paper import SIGMA_MEASURED_S_PER_M
+
 #: the paper's free-space S_BEM of the 4-electrode sensor, in units of sigma x cm (gamma/100 x ...)
 PAPER_S_BEM_SIGMA_CM = np.array([[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [-2.2540, -2.6875, 7.6781]])
 PAPER_A2_RADIUS_M = 0.0071
 LENGTH_M = 0.20
-SIGMA_PAPER = 0.0354
+SIGMA_PAPER = SIGMA_MEASURED_S_PER_M
 
 
 def angels(n: int, radius_m, cap_extent_m, ring_width_m, ring_centre_m):

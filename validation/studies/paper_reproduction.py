@@ -30,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-SIGMA_S_PER_M = 0.0354
+from psm.paper import SIGMA_MEASURED_S_PER_M
+
+SIGMA_S_PER_M = SIGMA_MEASURED_S_PER_M  # the paper's tank water
 
 #: The paper's figures (Jawad et al.), see docs/psm-model.md.
 PAPER = {

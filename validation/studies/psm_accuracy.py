@@ -21,6 +21,7 @@ Needs ``bem.conductance_matrix`` and ``bem.PoseSweep`` (docs/architecture.md).
 """
 from __future__ import annotations
 
+from validation.defaults import NOMINAL_SIGMA_S_PER_M
 import argparse
 import time
 
@@ -59,7 +60,7 @@ def main(argv=None):
     ap.add_argument("--sensors", default="angels-2,angels-4", help="comma-separated presets")
     ap.add_argument("--steps", type=int, default=39, help="poses along the trajectory")
     ap.add_argument("--edge-length", type=float, default=None, help="BEM edge length (m); default: the mesher's")
-    ap.add_argument("--sigma", type=float, default=0.0354, help="water conductivity (S/m)")
+    ap.add_argument("--sigma", type=float, default=NOMINAL_SIGMA_S_PER_M, help="water conductivity (S/m)")
     ap.add_argument("--interior", type=float, default=0.35,
                     help="also average over |x| <= this (m): the real tip at least 5 cm from the walls")
     args = ap.parse_args(argv)

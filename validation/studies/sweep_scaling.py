@@ -34,7 +34,9 @@ import numpy as np
 
 TARGET_SPEEDUP_2 = 1.8
 TARGET_OVERHEAD = 0.20
-SIGMA = 0.0354
+from validation.defaults import NOMINAL_SIGMA_S_PER_M  # noqa: E402
+
+SIGMA = NOMINAL_SIGMA_S_PER_M
 
 
 def _load() -> str:
