@@ -46,10 +46,27 @@ from meshes.objects import Sphere
 
 from .metrics import error_summary
 
-__all__ = ["SetupTable", "TransferComparison", "TransferMismatchError", "setup_table", "model_transfer_ohm",
-           "solved_transfer_ohm", "reciprocity_rel", "noise_floor", "drive_folds", "fit_linear", "score_fit",
-           "ring_offsets", "mean_by_offset", "ball_heights_m", "balls_at", "fit_ball_height", "compare_empty_tank",
-           "compare_objects", "compare_transfer_log"]
+__all__ = [
+    "SetupTable",
+    "TransferComparison",
+    "TransferMismatchError",
+    "ball_heights_m",
+    "balls_at",
+    "compare_empty_tank",
+    "compare_objects",
+    "compare_transfer_log",
+    "drive_folds",
+    "fit_ball_height",
+    "fit_linear",
+    "mean_by_offset",
+    "model_transfer_ohm",
+    "noise_floor",
+    "reciprocity_rel",
+    "ring_offsets",
+    "score_fit",
+    "setup_table",
+    "solved_transfer_ohm",
+]
 
 
 class TransferMismatchError(ValueError):
@@ -126,7 +143,7 @@ def noise_floor(rec) -> dict:
     0.0212
     """
     return {"reciprocity_rms_rel": _rms(rec), "reciprocity_median_abs_rel": float(np.median(np.abs(rec))),
-            "per_measurement_rms_rel": _rms(rec) / np.sqrt(2), "pairs": int(len(rec))}
+            "per_measurement_rms_rel": _rms(rec) / np.sqrt(2), "pairs": len(rec)}
 
 
 def drive_folds(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

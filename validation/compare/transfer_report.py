@@ -30,8 +30,15 @@ import numpy as np
 
 from validation.report.style import new_figure, save
 
-__all__ = ["GOALS", "empty_tank_figure", "difference_signals_figure", "geometry_figure", "report_markdown",
-           "summary_text", "write_transfer_report"]
+__all__ = [
+    "GOALS",
+    "difference_signals_figure",
+    "empty_tank_figure",
+    "geometry_figure",
+    "report_markdown",
+    "summary_text",
+    "write_transfer_report",
+]
 
 #: the goals of issue #13, printed beside the figures
 GOALS = "goals: empty_heldout_rms_rel <= 0.045; each object_rms_rel <= 0.15; diagnosis shrink >= 0.5"

@@ -27,6 +27,7 @@ Per-channel gains found on synthetic data (two measurement pairs, 1 % and
 >>> drive = np.array([[1, 2], [2, 3], [3, 4], [4, 1]] * 2); meas = np.array([[5, 6]] * 4 + [[6, 7]] * 4)
 >>> Zm = np.linspace(1.0, 2.0, 8); Zd = Zm * np.r_[[1.01] * 4, [0.99] * 4]
 >>> cols = channel_columns(Zm, meas)
+>>> from validation.compare.transfer import drive_folds
 >>> cands, _ = score_candidates({"channel_gains": cols["channel_gains"]}, Zd, drive_folds(drive)[2])
 >>> cands["channel_gains"]["gains_rel"], cands["channel_gains"]["heldout_rms_rel"] < 1e-5
 ([1.01, 0.99], True)
@@ -42,10 +43,24 @@ from bem.protocol import drive_impedances_ohm
 from bem.sensitivity import shift_sensitivities_ohm_per_m
 from meshes.surface_electrodes import DiscElectrode
 
-from ..compare.transfer import balls_at, drive_folds, model_transfer_ohm, score_fit, solved_transfer_ohm
+from ..compare.transfer import (
+    balls_at,
+    model_transfer_ohm,
+    score_fit,
+    solved_transfer_ohm,
+)
 
-__all__ = ["REMAINING", "wall_discs", "reshaped_tank", "channel_columns", "candidate_parameters",
-           "score_candidates", "contact_impedances", "diagnose_transfer", "one_geometry"]
+__all__ = [
+    "REMAINING",
+    "candidate_parameters",
+    "channel_columns",
+    "contact_impedances",
+    "diagnose_transfer",
+    "one_geometry",
+    "reshaped_tank",
+    "score_candidates",
+    "wall_discs",
+]
 
 #: what the candidates leave, in words (written beside the numbers)
 REMAINING = ("measurement-specific scatter that no smooth physical effect (depth, electrode angles, ground "
