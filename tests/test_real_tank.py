@@ -182,15 +182,19 @@ Avg1 = [[{ball[0]}, {ball[1]}]]
     return tmp_path / "phantom.mat"
 
 
-def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path):
-    """End to end: .mat -> transfer log -> ``esense validate`` (comparison) and ``esense diagnose`` (candidates)."""
+def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monkeypatch):
+    """End to end: .mat -> transfer log -> ``esense validate`` (comparison) and ``esense diagnose`` (candidates),
+    from the installed package alone (the studies are not importable)."""
     import json
+    import sys
 
     from click.testing import CliRunner
 
     from validation.cli import main
     from validation.transfer.eit_mat import eit_mat_to_transfer_log
 
+    for name in ("validation.studies", "validation.studies.real_tank"):
+        monkeypatch.setitem(sys.modules, name, None)        # any import of a study now fails
     mat = _synthetic_phantom(tmp_path, np.random.default_rng(11))
     log = eit_mat_to_transfer_log(mat, tmp_path / "phantom_log.csv", scene="tank.toml")
     runner = CliRunner()
@@ -242,3 +246,13 @@ first_angle_rad = 0.3
     a = np.array([e.radius_m for e in scene.electrodes])
     np.testing.assert_allclose(m.electrode_areas_m2(), np.pi * a ** 2, rtol=3e-3)
     assert np.all(tank.distance_to_boundary_m(np.array([e.centre_m for e in scene.electrodes]))[:, 0] < 1e-12)
+
+
+@pytest.mark.parametrize("module", ["validation.compare.transfer", "validation.compare.transfer_report",
+                                    "validation.diagnosis.transfer"])
+def test_transfer_modules_examples_run(module):
+    import doctest
+    import importlib
+
+    result = doctest.testmod(importlib.import_module(module))
+    assert result.attempted > 0 and result.failed == 0
