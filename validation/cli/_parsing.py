@@ -124,6 +124,16 @@ def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = 
     return decorate
 
 
+def sensor_option(spec: str, option: str = "--sensor"):
+    """The sensor a ``--sensor`` value names (a preset or a sensor file), refused naming the option."""
+    from meshes.sensor import load_sensor
+
+    try:
+        return load_sensor(spec)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint=option) from None
+
+
 def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unbounded=False, depth_m=None,
                        pose_text=None, sigma=None, edge_length_m=None, default_tank=None, **_ignored):
     """The one reader of the shared scene options: ``(Scene, sigma_S_per_m, scene-file settings)``.
@@ -135,7 +145,6 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
 
     from meshes.pose import Pose
     from meshes.scene_file import SceneFileError, apply_overrides, load_scene, load_scene_settings
-    from meshes.sensor import load_sensor
     from meshes.tank import Tank
     from validation.defaults import NOMINAL_SIGMA_S_PER_M
 
@@ -149,12 +158,7 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
             scene, settings = load_scene(scene_file), load_scene_settings(scene_file)
         except (SceneFileError, ValueError) as exc:
             raise click.BadParameter(str(exc), param_hint="--scene") from None
-    sensor = None
-    if sensor_spec:
-        try:
-            sensor = load_sensor(sensor_spec)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--sensor") from None
+    sensor = sensor_option(sensor_spec) if sensor_spec else None
     if scene is None and sensor is None:
         raise click.UsageError("no sensor: give --sensor (a preset or a sensor file) or --scene")
     tank = parse_tank(tank_text) if tank_text else None

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import finite_float
+from ._parsing import finite_float, sensor_option
 
 
 @click.command("calibrate")
@@ -47,10 +47,7 @@ def calibrate(reference_path, paper_table, output, symmetric, fix_length_m, sens
             raise click.ClickException(f"{reference_path}: {exc}") from None
     sensor_desc = None
     if sensor:
-        try:
-            sensor_desc = load_sensor(sensor)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--sensor") from None
+        sensor_desc = sensor_option(sensor)
     else:  # the reference's own sensor: a preset name or a full description
         own = ref.info.get("sensor")
         try:
