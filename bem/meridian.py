@@ -130,9 +130,10 @@ def ring_single_layer(x, r, xs, rs):
 
     Example
     -------
-    >>> # far from a ring of radius 1 mm the ring looks like a point charge 2 pi r'
+    >>> # on the axis, 1 m from a ring of radius 1 mm: every point of the ring is sqrt(1 + r'^2) away,
+    >>> # so the integral is 2 pi r' / (4 pi sqrt(1 + r'^2)) (a point charge 2 pi r' to 5e-7)
     >>> v = ring_single_layer(1.0, 0.0, 0.0, 1e-3)
-    >>> bool(abs(v / (2 * np.pi * 1e-3 / (4 * np.pi * 1.0)) - 1) < 1e-9)
+    >>> bool(abs(v / (1e-3 / (2 * np.sqrt(1 + 1e-6))) - 1) < 1e-12)
     True
     """
     a, _, K, _ = _ring_terms(x, r, xs, rs)
