@@ -7,7 +7,7 @@ import pytest
 from meshes.tank import Tank
 from validation.diagnosis.anchored import AnchorStore, RBFInterpolant, pose_features, psm_usable
 from validation.diagnosis.report import readable_estimate, readable_shrink
-from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor
+from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor, forward_selection
 from validation.diagnosis.unseen import random_passes, random_sensor, random_setup
 
 
@@ -75,6 +75,20 @@ def test_one_parameter_reaching_the_floor_beats_three():
     assert _fewest_reaching_floor(three, [three, one], current, rules, floor) is one
     far = _cand("conductivity", 0.0019, 1900.0, 1)  # beyond 1.5x the floor: not a full explanation
     assert _fewest_reaching_floor(three, [three, far], current, rules, floor) is three
+
+
+def test_gap_within_the_model_error_is_none_and_says_where_the_model_is_the_limit():
+    noise, floor = 0.001, 0.002  # the baseline's own error ~1.7e-3, largest near one wall
+    by_place = {"centre": 0.0005, "wall_y+": 0.003}
+    inside = forward_selection(None, [_cand("none", 0.0028, 50.0, 0)], [], noise, floor=floor,
+                               model_error_by_place=by_place)
+    assert inside.verdict == "none" and inside.chosen == []
+    note = inside.steps[-1]["stop"]
+    assert "within the model's own error" in note and "wall_y+" in note and "centre" not in note
+    beyond = forward_selection(None, [_cand("none", 0.0035, 50.0, 0)], [], noise, floor=floor)
+    assert beyond.verdict == "unexplained"
+    at_noise = forward_selection(None, [_cand("none", 0.0014, 50.0, 0)], [], noise, floor=noise)
+    assert at_noise.verdict == "none"
 
 
 def test_numbers_a_person_can_read():

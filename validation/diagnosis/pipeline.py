@@ -333,9 +333,11 @@ def diagnose(
     if skipped:
         notes.append(f"candidates not applicable to these data: {', '.join(skipped)}")
     ranking = rank_candidates(problem, lib, folds, noise, r0, mask, progress=lambda n: say(f"fitting {n}"))
-    selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor)
+    selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor,
+                                  model_error_by_place=budget.get("baseline_by_place"))
     confusable = confusable_pairs(ranking, rules)
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
+    notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
     split = None
     if model == "psm" and split_with_bem > 0:
         try:
