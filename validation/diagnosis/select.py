@@ -279,8 +279,8 @@ def _model_limit_note(gap: float, noise: float, floor: float, by_place: dict | N
 
     Example
     -------
-    >>> _model_limit_note(0.002, 0.0005, 0.0015, {"centre": 0.0003, "wall_x-": 0.002})
-    'the gap (0.2 %) is above the bench noise (0.05 %) but within the model\'s own error (noise floor 0.15 %): nothing is named; the model is the limit at wall_x- (0.2 %)'
+    >>> print(_model_limit_note(0.002, 0.0005, 0.0015, {"centre": 0.0003, "wall_x-": 0.002}))
+    the gap (0.2 %) is above the bench noise (0.05 %) but within the model's own error (noise floor 0.15 %): nothing is named; the model is the limit at wall_x- (0.2 %)
     """
     note = (f"the gap ({100 * gap:.3g} %) is above the bench noise ({100 * noise:.3g} %) but within the model's own "
             f"error (noise floor {100 * floor:.3g} %): nothing is named")
