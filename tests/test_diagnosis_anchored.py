@@ -96,3 +96,45 @@ def test_numbers_a_person_can_read():
     assert readable_estimate(7.867e-07, 3.7e2, "rad", span=0.4).startswith("not determined")
     assert "e+04" not in readable_shrink(0.001, 0.1047) and "worse" in readable_shrink(0.001, 0.1047)
     assert readable_shrink(0.02, 0.0016) == "92 % of the gap removed"
+
+
+def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypatch):
+    """Passes that repeat a path log the same poses: the BEM runs once per distinct pose (a stand-in sweep counts
+    them and answers the PSM's K, slightly changed, so that the bookkeeping is checked without the BEM's cost)."""
+    import bem
+    from validation.diagnosis.anchored import anchored_baseline, AnchorStore
+    from validation.diagnosis.blind import assemble
+    from validation.models import pose_evaluator
+
+    rng = np.random.default_rng(11)
+    setup = random_setup(rng, 4)
+    path, t, passes = random_passes(setup, rng, 1, 12)
+    poses = np.vstack([path, path[::-1], path])
+    t = np.arange(len(poses)) * 5.0
+    passes = np.repeat([0, 1, 2], len(path))
+    solved = []
+
+    class CountingSweep:
+        def __init__(self, sensor, tank, objects, sigma_S_per_m, focus_m=None, **options):
+            self.ev = pose_evaluator("psm", sensor, None, 1.0, objects)  # answers at every pose
+            self.sensor = sensor
+
+        def conductance(self, poses_, progress=False):
+            solved.append(np.array(poses_))
+            K = self.ev.conductance(poses_).K_S
+            wiggle = 1 + 0.01 * np.sin(7 * poses_[:, 0])[:, None, None]
+            return SimpleNamespace(K_S=K * wiggle)
+
+    monkeypatch.setattr(bem, "PoseSweep", CountingSweep)
+    I = np.ones((len(poses), setup.sensor.n_electrodes - 1))
+    obs = assemble(setup, poses, t, passes, I, np.random.default_rng(0), position_noise_m=0.0)
+    store = AnchorStore(setup.sensor, setup.tank, folder=tmp_path)
+    base = anchored_baseline(obs, 1e-4, store=store, check_discretisation=False)
+    every = np.vstack(solved)
+    assert len(every) == len(np.unique(np.round(every, 12), axis=0)) == base.n_bem_new  # no pose solved twice
+    assert base.n_bem_new <= len(path)
+    exact = np.isin(np.arange(len(poses)), base.anchors)
+    for i in np.flatnonzero(exact):  # every sample at a solved pose has the BEM's K
+        same = np.flatnonzero(np.all(poses == poses[i], axis=1))
+        assert np.isin(same, base.anchors).all()
+        assert np.allclose(base.K[same], base.K[i])

@@ -50,7 +50,7 @@ import numpy as np
 
 from .forward import receiver_currents
 
-__all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features",
+__all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
            "psm_usable", "anchor_cache_dir", "SENSOR_EDGE_FACTOR", "default_bem_options"]
 
 #: sensor mesh edge of the anchors' BEM, in units of the mesher's default: the per-pose cost is the tank's
@@ -257,6 +257,29 @@ def _receiver_entries(sensor):
     return [iu.index((min(k, e), max(k, e))) for k in range(n) if k != e]
 
 
+def same_pose_groups(features: np.ndarray, tol_m: float = 5e-5) -> np.ndarray:
+    """(P,) labels: samples whose poses coincide (every tip coordinate within ``tol_m``) share one, numbered in
+    order of first appearance (passes that repeat a path log the same nominal poses: one BEM solve serves them all).
+
+    Example
+    -------
+    >>> F = np.array([[0, 0, 0, 1, 0, 0], [0.1, 0, 0, 1.1, 0, 0], [0, 0, 0, 1, 0, 0]], float)
+    >>> same_pose_groups(F).tolist()
+    [0, 1, 0]
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    F = np.asarray(features, float)
+    pairs = cKDTree(F).query_pairs(tol_m, p=np.inf, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(F), len(F)))
+    _, labels = connected_components(graph, directed=False)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # renumber by first appearance
+    return order[inverse.ravel()]
+
+
 def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) -> np.ndarray:
     """About ``k`` of ``candidates``, both ends of each pass, spread in the cumulative ``1 + weight`` along the pass."""
     from .multifidelity import choose_bem_poses
@@ -297,6 +320,9 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=obs.poses[ok])
         K_psm[ok] = ev.conductance(obs.poses[ok]).K_S
     F = pose_features(sensor, obs.poses)
+    group = same_pose_groups(F)
+    first_of = np.full(group.max() + 1, P)
+    np.minimum.at(first_of, group, np.arange(P))
     entry = store.load()
     cached_poses = np.zeros((0, 4)) if entry is None else entry["poses"]
     cached_K = np.zeros((0, n, n)) if entry is None else entry["K_unit"]
@@ -336,14 +362,17 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
             from bem import PoseSweep
 
             sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
-        say(f"BEM at {len(idx)} poses")
+        groups = np.unique(group[idx])  # one solve per distinct pose, shared by every sample at it
+        rep = first_of[groups]
+        say(f"BEM at {len(rep)} poses" + (f" ({len(idx)} samples)" if len(idx) > len(rep) else ""))
         t_bem = time.perf_counter()
-        K = sweep.conductance(obs.poses[idx]).K_S
+        K = sweep.conductance(obs.poses[rep]).K_S
         bem_seconds[0] += time.perf_counter() - t_bem
-        bem_seconds[1] += len(idx)
-        K_bem[idx] = K
-        n_new += len(idx)
-        new_poses.append(obs.poses[idx])
+        bem_seconds[1] += len(rep)
+        members = np.flatnonzero(np.isin(group, groups) & ~np.isfinite(K_bem[:, 0, 0]))
+        K_bem[members] = K[np.searchsorted(groups, group[members])]
+        n_new += len(rep)
+        new_poses.append(obs.poses[rep])
         new_K.append(K)
 
     # the PSM refuses: the BEM covers
@@ -377,6 +406,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     while True:
         have = np.isfinite(K_bem[:, 0, 0])
         nodes = np.flatnonzero(have & ok)
+        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
         if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
             k = max(8, int(np.ceil(first_fraction * ok.sum())))
             ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
@@ -386,6 +416,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         first = False
         have = np.isfinite(K_bem[:, 0, 0])
         nodes = np.flatnonzero(have & ok)
+        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
         Xn, Ln = F[nodes], _offdiag_log_ratio(K_bem[nodes], K_psm[nodes])
         if K_psm_extra is not None:
             Xn = np.vstack([Xn, pose_features(sensor, cached_poses[extra])])
@@ -423,8 +454,9 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
                        "estimated error is reported as it stands")
             say(stopped)
             break
-        worst = todo[np.argsort(np.max(error[todo], axis=1))[::-1][:k]]
-        run_bem(worst)
+        by_error = todo[np.argsort(np.max(error[todo], axis=1))[::-1]]
+        distinct = np.sort(np.unique(group[by_error], return_index=True)[1])
+        run_bem(by_error[distinct[:k]])
     have = np.isfinite(K_bem[:, 0, 0])
     K = np.where(have[:, None, None], K_bem, 0.0)
     fill = ~have
@@ -434,8 +466,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
     if check_discretisation and not check and len(np.flatnonzero(have)):
         try:
-            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem, have,
-                                          tank_effect, rec, say)
+            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem,
+                                          have & (np.arange(P) == first_of[group]), tank_effect, rec, say)
         except Exception as exc:  # the estimate is optional; say so in the budget
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}
