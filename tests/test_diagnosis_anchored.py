@@ -138,3 +138,19 @@ def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypa
         same = np.flatnonzero(np.all(poses == poses[i], axis=1))
         assert np.isin(same, base.anchors).all()
         assert np.allclose(base.K[same], base.K[i])
+
+
+def test_estimated_error_bounds_the_true_one_and_vanishes_at_the_nodes():
+    from validation.diagnosis.anchored import estimated_error
+
+    rng = np.random.default_rng(8)
+    f = lambda X: np.column_stack([np.sin(3 * X[:, 0]) * np.cos(2 * X[:, 1]), np.exp(X[:, 0] * X[:, 1])])  # noqa: E731
+    X = rng.uniform(0, 1, (30, 2))
+    interp = RBFInterpolant(X, f(X))
+    loo = np.abs(interp.leave_one_out)
+    Z = rng.uniform(0.1, 0.9, (200, 2))
+    true = np.abs(interp(Z) - f(Z))
+    est = estimated_error(X, loo, Z)
+    assert np.sqrt(np.mean(true**2)) <= np.sqrt(np.mean(est**2))
+    near = X[:5] + 1e-4  # a fraction of a millimetre off an anchor (position noise of a second log)
+    assert np.all(estimated_error(X, loo, near) < 0.05 * loo[:5].max(axis=0) + 1e-12)

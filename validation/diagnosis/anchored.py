@@ -14,8 +14,9 @@ several percent near the walls, which is twenty times the bench noise. Here:
    linear trend), and its leave-one-out error at every anchor is computed in
    closed form (Rippa's formula);
 4. the estimated error of each sample (the leave-one-out error of its nearest
-   anchors: an upper estimate, the anchors being denser with the pose back in;
-   zero at the anchors themselves) is compared with ``target`` (a third of the
+   anchors scaled by its distance from them, :func:`estimated_error`: an
+   upper estimate, the anchors being denser with the pose back in; zero at
+   the anchors themselves) is compared with ``target`` (a third of the
    bench noise by default); while the RMS error, over all samples or over any
    region of the tank, exceeds it, the BEM is run at the samples of largest
    estimated error, up to every logged pose (then the baseline *is* the BEM).
@@ -51,7 +52,7 @@ import numpy as np
 from .forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
-           "psm_usable", "anchor_cache_dir", "SENSOR_EDGE_FACTOR", "default_bem_options"]
+           "psm_usable", "anchor_cache_dir", "estimated_error", "SENSOR_EDGE_FACTOR", "default_bem_options"]
 
 #: sensor mesh edge of the anchors' BEM, in units of the mesher's default: the per-pose cost is the tank's
 #: Schur complement plus O(N_sensor^2); with the free-space edge correction a coarser sensor mesh moves K by
@@ -280,6 +281,37 @@ def same_pose_groups(features: np.ndarray, tol_m: float = 5e-5) -> np.ndarray:
     return order[inverse.ravel()]
 
 
+def estimated_error(X_nodes: np.ndarray, loo: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(p, m) estimated interpolation error at ``X`` from the nodes' leave-one-out errors ``loo`` (B, m).
+
+    Leaving node j out opens a hole of radius h_j (its distance to the nearest
+    other node); its leave-one-out error e_j is the error of interpolating at
+    h_j from the nearest node. At a distance d < h_j from node j the error is
+    taken as e_j d / h_j (first order: the interpolant is exact at the node;
+    for a smooth ratio the error grows as d^2, so this is an upper estimate);
+    the two nearest nodes' estimates are weighted by inverse distance. A
+    logged pose a fraction of a millimetre from an anchor (a second log with
+    the robot's position noise) is then known to the anchor's accuracy.
+
+    Example
+    -------
+    >>> Xn = np.array([[0.0], [1.0], [2.0]])
+    >>> loo = np.array([[0.1], [0.2], [0.1]])
+    >>> estimated_error(Xn, loo, np.array([[1.01], [1.5]])).round(4).tolist()
+    [[0.003], [0.075]]
+    """
+    from scipy.spatial import cKDTree
+
+    X_nodes, X = np.asarray(X_nodes, float), np.asarray(X, float)
+    tree = cKDTree(X_nodes)
+    h = tree.query(X_nodes, k=2)[0][:, 1] if len(X_nodes) > 1 else np.full(1, np.inf)
+    d, j = tree.query(X, k=min(2, len(X_nodes)))
+    d, j = d.reshape(len(X), -1), j.reshape(len(X), -1)
+    near = np.minimum(1.0, d / np.maximum(h[j], 1e-12))[..., None] * loo[j]  # (p, k, m)
+    w = 1.0 / np.maximum(d, 1e-9)
+    return np.einsum("pk,pkm->pm", w, near) / w.sum(axis=1, keepdims=True)
+
+
 def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) -> np.ndarray:
     """About ``k`` of ``candidates``, both ends of each pass, spread in the cumulative ``1 + weight`` along the pass."""
     from .multifidelity import choose_bem_poses
@@ -432,13 +464,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         error = np.zeros((P, n - 1))
         if len(todo):
             L[todo] = interp(F[todo])
-            # the leave-one-out errors of the two nearest nodes, weighted by inverse distance
-            from scipy.spatial import cKDTree
-
-            d, j = cKDTree(Xn).query(F[todo], k=min(2, len(Xn)))
-            d, j = d.reshape(len(todo), -1), j.reshape(len(todo), -1)
-            w = 1.0 / np.maximum(d, 1e-9)
-            error[todo] = np.einsum("pk,pkm->pm", w, loo[j]) / w.sum(axis=1, keepdims=True)
+            error[todo] = estimated_error(Xn, loo, F[todo])
         region_rms = {g: float(np.sqrt(np.mean(error[labels == g] ** 2))) for g in dict.fromkeys(labels.tolist())}
         total = float(np.sqrt(np.mean(error**2)))
         worst_region = max(region_rms.values()) if region_rms else 0.0
