@@ -422,7 +422,8 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
             "interpolation_rms": anchored.interpolation_rms,
             "interpolation_by_place": by_place(anchored.error),
             "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; interpolation error = leave-one-out "
-                   "error at the nearest BEM poses (an upper estimate, zero at the BEM poses), in quadrature with the "
+                   "error at the nearest BEM poses scaled by the distance from them (an upper estimate, zero at the "
+                   "BEM poses), in quadrature with the "
                    "BEM's own discretisation error",
             "bem_poses": int(len(anchored.anchors)), "bem_poses_new": int(anchored.n_bem_new),
             "bem_poses_cached": int(anchored.n_cached), "psm_refused_poses": int(len(anchored.refused)),
