@@ -7,7 +7,7 @@ import pytest
 from meshes.tank import Tank
 from validation.diagnosis.anchored import AnchorStore, RBFInterpolant, pose_features, psm_usable
 from validation.diagnosis.report import readable_estimate, readable_shrink
-from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor
+from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor, forward_selection
 from validation.diagnosis.unseen import random_passes, random_sensor, random_setup
 
 
@@ -77,8 +77,80 @@ def test_one_parameter_reaching_the_floor_beats_three():
     assert _fewest_reaching_floor(three, [three, far], current, rules, floor) is three
 
 
+def test_gap_within_the_model_error_is_none_and_says_where_the_model_is_the_limit():
+    noise, floor = 0.001, 0.002  # the baseline's own error ~1.7e-3, largest near one wall
+    by_place = {"centre": 0.0005, "wall_y+": 0.003}
+    inside = forward_selection(None, [_cand("none", 0.0028, 50.0, 0)], [], noise, floor=floor,
+                               model_error_by_place=by_place)
+    assert inside.verdict == "none" and inside.chosen == []
+    note = inside.steps[-1]["stop"]
+    assert "within the model's own error" in note and "wall_y+" in note and "centre" not in note
+    beyond = forward_selection(None, [_cand("none", 0.0035, 50.0, 0)], [], noise, floor=floor)
+    assert beyond.verdict == "unexplained"
+    at_noise = forward_selection(None, [_cand("none", 0.0014, 50.0, 0)], [], noise, floor=noise)
+    assert at_noise.verdict == "none"
+
+
 def test_numbers_a_person_can_read():
     assert readable_estimate(-0.025123, 0.00041) == "-0.0251 +- 0.0004"
     assert readable_estimate(7.867e-07, 3.7e2, "rad", span=0.4).startswith("not determined")
     assert "e+04" not in readable_shrink(0.001, 0.1047) and "worse" in readable_shrink(0.001, 0.1047)
     assert readable_shrink(0.02, 0.0016) == "92 % of the gap removed"
+
+
+def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypatch):
+    """Passes that repeat a path log the same poses: the BEM runs once per distinct pose (a stand-in sweep counts
+    them and answers the PSM's K, slightly changed, so that the bookkeeping is checked without the BEM's cost)."""
+    import bem
+    from validation.diagnosis.anchored import anchored_baseline, AnchorStore
+    from validation.diagnosis.blind import assemble
+    from validation.models import pose_evaluator
+
+    rng = np.random.default_rng(11)
+    setup = random_setup(rng, 4)
+    path, t, passes = random_passes(setup, rng, 1, 12)
+    poses = np.vstack([path, path[::-1], path])
+    t = np.arange(len(poses)) * 5.0
+    passes = np.repeat([0, 1, 2], len(path))
+    solved = []
+
+    class CountingSweep:
+        def __init__(self, sensor, tank, objects, sigma_S_per_m, focus_m=None, **options):
+            self.ev = pose_evaluator("psm", sensor, None, 1.0, objects)  # answers at every pose
+            self.sensor = sensor
+
+        def conductance(self, poses_, progress=False):
+            solved.append(np.array(poses_))
+            K = self.ev.conductance(poses_).K_S
+            wiggle = 1 + 0.01 * np.sin(7 * poses_[:, 0])[:, None, None]
+            return SimpleNamespace(K_S=K * wiggle)
+
+    monkeypatch.setattr(bem, "PoseSweep", CountingSweep)
+    I = np.ones((len(poses), setup.sensor.n_electrodes - 1))
+    obs = assemble(setup, poses, t, passes, I, np.random.default_rng(0), position_noise_m=0.0)
+    store = AnchorStore(setup.sensor, setup.tank, folder=tmp_path)
+    base = anchored_baseline(obs, 1e-4, store=store, check_discretisation=False)
+    every = np.vstack(solved)
+    assert len(every) == len(np.unique(np.round(every, 12), axis=0)) == base.n_bem_new  # no pose solved twice
+    assert base.n_bem_new <= len(path)
+    exact = np.isin(np.arange(len(poses)), base.anchors)
+    for i in np.flatnonzero(exact):  # every sample at a solved pose has the BEM's K
+        same = np.flatnonzero(np.all(poses == poses[i], axis=1))
+        assert np.isin(same, base.anchors).all()
+        assert np.allclose(base.K[same], base.K[i])
+
+
+def test_estimated_error_bounds_the_true_one_and_vanishes_at_the_nodes():
+    from validation.diagnosis.anchored import estimated_error
+
+    rng = np.random.default_rng(8)
+    f = lambda X: np.column_stack([np.sin(3 * X[:, 0]) * np.cos(2 * X[:, 1]), np.exp(X[:, 0] * X[:, 1])])  # noqa: E731
+    X = rng.uniform(0, 1, (30, 2))
+    interp = RBFInterpolant(X, f(X))
+    loo = np.abs(interp.leave_one_out)
+    Z = rng.uniform(0.1, 0.9, (200, 2))
+    true = np.abs(interp(Z) - f(Z))
+    est = estimated_error(X, loo, Z)
+    assert np.sqrt(np.mean(true**2)) <= np.sqrt(np.mean(est**2))
+    near = X[:5] + 1e-4  # a fraction of a millimetre off an anchor (position noise of a second log)
+    assert np.all(estimated_error(X, loo, near) < 0.05 * loo[:5].max(axis=0) + 1e-12)

@@ -14,8 +14,9 @@ several percent near the walls, which is twenty times the bench noise. Here:
    linear trend), and its leave-one-out error at every anchor is computed in
    closed form (Rippa's formula);
 4. the estimated error of each sample (the leave-one-out error of its nearest
-   anchors: an upper estimate, the anchors being denser with the pose back in;
-   zero at the anchors themselves) is compared with ``target`` (a third of the
+   anchors scaled by its distance from them, :func:`estimated_error`: an
+   upper estimate, the anchors being denser with the pose back in; zero at
+   the anchors themselves) is compared with ``target`` (a third of the
    bench noise by default); while the RMS error, over all samples or over any
    region of the tank, exceeds it, the BEM is run at the samples of largest
    estimated error, up to every logged pose (then the baseline *is* the BEM).
@@ -50,8 +51,8 @@ import numpy as np
 
 from .forward import receiver_currents
 
-__all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features",
-           "psm_usable", "anchor_cache_dir", "SENSOR_EDGE_FACTOR", "default_bem_options"]
+__all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
+           "psm_usable", "anchor_cache_dir", "estimated_error", "SENSOR_EDGE_FACTOR", "default_bem_options"]
 
 #: sensor mesh edge of the anchors' BEM, in units of the mesher's default: the per-pose cost is the tank's
 #: Schur complement plus O(N_sensor^2); with the free-space edge correction a coarser sensor mesh moves K by
@@ -59,8 +60,9 @@ __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseli
 #: the budget's discretisation estimate reports
 SENSOR_EDGE_FACTOR = 3.0
 
-#: wall-clock seconds of BEM poses after which no more anchors are added (the estimated error is then
-#: reported as it stands, and raises the noise floor)
+#: CPU seconds (this process) of BEM poses after which no more anchors are added (the estimated error is then
+#: reported as it stands, and raises the noise floor); CPU, not wall-clock: on a machine busy with other work the
+#: same log gets the same anchors and the same answer
 MAX_BEM_SECONDS = 480.0
 
 
@@ -257,6 +259,60 @@ def _receiver_entries(sensor):
     return [iu.index((min(k, e), max(k, e))) for k in range(n) if k != e]
 
 
+def same_pose_groups(features: np.ndarray, tol_m: float = 5e-5) -> np.ndarray:
+    """(P,) labels: samples whose poses coincide (every tip coordinate within ``tol_m``) share one, numbered in
+    order of first appearance (passes that repeat a path log the same nominal poses: one BEM solve serves them all).
+
+    Example
+    -------
+    >>> F = np.array([[0, 0, 0, 1, 0, 0], [0.1, 0, 0, 1.1, 0, 0], [0, 0, 0, 1, 0, 0]], float)
+    >>> same_pose_groups(F).tolist()
+    [0, 1, 0]
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    F = np.asarray(features, float)
+    pairs = cKDTree(F).query_pairs(tol_m, p=np.inf, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(F), len(F)))
+    _, labels = connected_components(graph, directed=False)
+    _, first, inverse = np.unique(labels, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # renumber by first appearance
+    return order[inverse.ravel()]
+
+
+def estimated_error(X_nodes: np.ndarray, loo: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(p, m) estimated interpolation error at ``X`` from the nodes' leave-one-out errors ``loo`` (B, m).
+
+    Leaving node j out opens a hole of radius h_j (its distance to the nearest
+    other node); its leave-one-out error e_j is the error of interpolating at
+    h_j from the nearest node. At a distance d < h_j from node j the error is
+    taken as e_j d / h_j (first order: the interpolant is exact at the node;
+    for a smooth ratio the error grows as d^2, so this is an upper estimate);
+    the two nearest nodes' estimates are weighted by inverse distance. A
+    logged pose a fraction of a millimetre from an anchor (a second log with
+    the robot's position noise) is then known to the anchor's accuracy.
+
+    Example
+    -------
+    >>> Xn = np.array([[0.0], [1.0], [2.0]])
+    >>> loo = np.array([[0.1], [0.2], [0.1]])
+    >>> estimated_error(Xn, loo, np.array([[1.01], [1.5]])).round(4).tolist()
+    [[0.003], [0.075]]
+    """
+    from scipy.spatial import cKDTree
+
+    X_nodes, X = np.asarray(X_nodes, float), np.asarray(X, float)
+    tree = cKDTree(X_nodes)
+    h = tree.query(X_nodes, k=2)[0][:, 1] if len(X_nodes) > 1 else np.full(1, np.inf)
+    d, j = tree.query(X, k=min(2, len(X_nodes)))
+    d, j = d.reshape(len(X), -1), j.reshape(len(X), -1)
+    near = np.minimum(1.0, d / np.maximum(h[j], 1e-12))[..., None] * loo[j]  # (p, k, m)
+    w = 1.0 / np.maximum(d, 1e-9)
+    return np.einsum("pk,pkm->pm", w, near) / w.sum(axis=1, keepdims=True)
+
+
 def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) -> np.ndarray:
     """About ``k`` of ``candidates``, both ends of each pass, spread in the cumulative ``1 + weight`` along the pass."""
     from .multifidelity import choose_bem_poses
@@ -297,6 +353,9 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=obs.poses[ok])
         K_psm[ok] = ev.conductance(obs.poses[ok]).K_S
     F = pose_features(sensor, obs.poses)
+    group = same_pose_groups(F)
+    first_of = np.full(group.max() + 1, P)
+    np.minimum.at(first_of, group, np.arange(P))
     entry = store.load()
     cached_poses = np.zeros((0, 4)) if entry is None else entry["poses"]
     cached_K = np.zeros((0, n, n)) if entry is None else entry["K_unit"]
@@ -325,7 +384,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     sweep = None
     n_new = 0
     new_poses, new_K = [], []
-    bem_seconds = [0.0, 0]  # wall seconds of BEM poses, count (for the time budget)
+    bem_seconds = [0.0, 0]  # CPU seconds of BEM poses, count (for the budget: the same answer on a busy machine)
 
     def run_bem(idx):
         nonlocal sweep, n_new
@@ -336,14 +395,17 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
             from bem import PoseSweep
 
             sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
-        say(f"BEM at {len(idx)} poses")
-        t_bem = time.perf_counter()
-        K = sweep.conductance(obs.poses[idx]).K_S
-        bem_seconds[0] += time.perf_counter() - t_bem
-        bem_seconds[1] += len(idx)
-        K_bem[idx] = K
-        n_new += len(idx)
-        new_poses.append(obs.poses[idx])
+        groups = np.unique(group[idx])  # one solve per distinct pose, shared by every sample at it
+        rep = first_of[groups]
+        say(f"BEM at {len(rep)} poses" + (f" ({len(idx)} samples)" if len(idx) > len(rep) else ""))
+        t_bem = time.process_time()
+        K = sweep.conductance(obs.poses[rep]).K_S
+        bem_seconds[0] += time.process_time() - t_bem
+        bem_seconds[1] += len(rep)
+        members = np.flatnonzero(np.isin(group, groups) & ~np.isfinite(K_bem[:, 0, 0]))
+        K_bem[members] = K[np.searchsorted(groups, group[members])]
+        n_new += len(rep)
+        new_poses.append(obs.poses[rep])
         new_K.append(K)
 
     # the PSM refuses: the BEM covers
@@ -377,6 +439,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     while True:
         have = np.isfinite(K_bem[:, 0, 0])
         nodes = np.flatnonzero(have & ok)
+        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
         if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
             k = max(8, int(np.ceil(first_fraction * ok.sum())))
             ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
@@ -386,6 +449,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         first = False
         have = np.isfinite(K_bem[:, 0, 0])
         nodes = np.flatnonzero(have & ok)
+        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
         Xn, Ln = F[nodes], _offdiag_log_ratio(K_bem[nodes], K_psm[nodes])
         if K_psm_extra is not None:
             Xn = np.vstack([Xn, pose_features(sensor, cached_poses[extra])])
@@ -401,13 +465,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         error = np.zeros((P, n - 1))
         if len(todo):
             L[todo] = interp(F[todo])
-            # the leave-one-out errors of the two nearest nodes, weighted by inverse distance
-            from scipy.spatial import cKDTree
-
-            d, j = cKDTree(Xn).query(F[todo], k=min(2, len(Xn)))
-            d, j = d.reshape(len(todo), -1), j.reshape(len(todo), -1)
-            w = 1.0 / np.maximum(d, 1e-9)
-            error[todo] = np.einsum("pk,pkm->pm", w, loo[j]) / w.sum(axis=1, keepdims=True)
+            error[todo] = estimated_error(Xn, loo, F[todo])
         region_rms = {g: float(np.sqrt(np.mean(error[labels == g] ** 2))) for g in dict.fromkeys(labels.tolist())}
         total = float(np.sqrt(np.mean(error**2)))
         worst_region = max(region_rms.values()) if region_rms else 0.0
@@ -419,12 +477,13 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         k = max(4, int(np.ceil(step_fraction * P)))
         per_pose = bem_seconds[0] / max(bem_seconds[1], 1)
         if bem_seconds[0] + k * per_pose > max_bem_s:
-            stopped = (f"time budget: {bem_seconds[0]:.0f} s of BEM poses spent, {max_bem_s:.0f} s allowed; the "
+            stopped = (f"time budget: {bem_seconds[0]:.0f} s CPU of BEM poses spent, {max_bem_s:.0f} s allowed; the "
                        "estimated error is reported as it stands")
             say(stopped)
             break
-        worst = todo[np.argsort(np.max(error[todo], axis=1))[::-1][:k]]
-        run_bem(worst)
+        by_error = todo[np.argsort(np.max(error[todo], axis=1))[::-1]]
+        distinct = np.sort(np.unique(group[by_error], return_index=True)[1])
+        run_bem(by_error[distinct[:k]])
     have = np.isfinite(K_bem[:, 0, 0])
     K = np.where(have[:, None, None], K_bem, 0.0)
     fill = ~have
@@ -434,8 +493,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
     if check_discretisation and not check and len(np.flatnonzero(have)):
         try:
-            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem, have,
-                                          tank_effect, rec, say)
+            check = _discretisation_check(sensor, tank, objects, bem_options, focus, obs.poses, K_bem,
+                                          have & (np.arange(P) == first_of[group]), tank_effect, rec, say)
         except Exception as exc:  # the estimate is optional; say so in the budget
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}

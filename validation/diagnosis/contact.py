@@ -70,8 +70,45 @@ def _fit_areas(K0, Kz, z, A0):
     return np.exp(sol.x), float(np.max(np.abs(res(sol.x))))
 
 
+def _disk_path(sensor_json: str, sigma_S_per_m: float):
+    """The file of the effective areas of one sensor geometry (its name left out) at one conductivity, keyed as
+    well by the model code's version (:func:`validation.models.code_version`)."""
+    import hashlib
+
+    from validation.models import code_version
+
+    from .anchored import anchor_cache_dir
+
+    geometry = {k: v for k, v in json.loads(sensor_json).items() if k not in ("name", "notes")}
+    text = json.dumps({"sensor": geometry, "sigma": repr(float(sigma_S_per_m)), "z": Z_GRID_OHM_M2.tolist(),
+                       "code": code_version()}, sort_keys=True)
+    return anchor_cache_dir().parent / "diagnosis-contact" / f"{hashlib.sha256(text.encode()).hexdigest()[:24]}.npz"
+
+
 @functools.lru_cache(maxsize=16)
 def _cached(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
+    """Computed once per sensor and conductivity, kept on disk (7 meridian BEM solves)."""
+    import os
+
+    path = _disk_path(sensor_json, sigma_S_per_m)
+    try:
+        with np.load(path) as z:
+            return EffectiveAreas(z["z_grid_ohm_m2"], z["areas_m2"], z["geometric_m2"], z["fit_error"])
+    except (OSError, ValueError, KeyError, EOFError):
+        pass
+    out = _compute(sensor_json, sigma_S_per_m)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.npz")
+        np.savez(partial, z_grid_ohm_m2=out.z_grid_ohm_m2, areas_m2=out.areas_m2, geometric_m2=out.geometric_m2,
+                 fit_error=out.fit_error)
+        os.replace(partial, path)
+    except OSError:  # not cached: computed again next time
+        pass
+    return out
+
+
+def _compute(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
     from bem.meridian import meridian_conductance
 
     sensor = SensorDescription.from_dict(json.loads(sensor_json))

@@ -71,6 +71,7 @@ class Scenario:
     contact_ohm_m2: np.ndarray | None  # (n,)
     gain: np.ndarray  # (m,)
     geometry_changed: bool = False
+    rows: np.ndarray | None = None  # (p,) the sample indices it holds (sorted); None: those asked for
 
 
 @dataclass
@@ -115,7 +116,7 @@ class Problem:
             self.T_ref_C = None
         self.areas_m2 = electrode_areas_m2(obs.sensor)
         self._effective_areas = None
-        self._memo = {}
+        self._memo = {self._scene_key(obs.poses, obs.tank, obs.objects): self.K_effect0}
         self.I_base = receiver_currents(self.K_base, obs.emitter) * obs.U_V[:, None]
         if self.weight is None:
             self.weight = np.ones_like(self.I_base)
@@ -128,36 +129,66 @@ class Problem:
         return Scenario(
             poses=obs.poses[idx].copy(), tank=obs.tank, objects=tuple(obs.objects),
             sigma_scale=np.ones(len(idx)), contact_ohm_m2=None, gain=np.ones(obs.n_receivers),
+            rows=np.asarray(idx),
         )
 
     def predict(self, scenario: Scenario, idx: np.ndarray) -> np.ndarray:
-        """Receiver currents (p, m) of ``scenario`` for the samples ``idx``."""
+        """Receiver currents (p, m) of ``scenario`` for the samples ``idx``.
+
+        ``scenario`` may hold more samples than ``idx`` (its ``rows``, sorted):
+        the effect model is then evaluated at all of them once per scene
+        (memoised: a training set and its held-out set at one parameter
+        vector cost one evaluation), and only where that scene refuses a
+        pose outside ``idx`` at ``idx`` alone.
+        """
+        idx = np.asarray(idx)
+        rows = scenario.rows
+        at = slice(None) if rows is None or (len(rows) == len(idx) and np.array_equal(rows, idx)) \
+            else np.searchsorted(rows, idx)
         K = self.K_base[idx]
         if scenario.geometry_changed:
             # relative change of every entry of K, as the effect model sees it; zero row sums restored
-            K = K * (self._effect_K(scenario) / self.K_effect0[idx])
+            K = K * (self._effect_K_at(scenario, at) / self.K_effect0[idx])
             n = K.shape[-1]
             off = K * (1 - np.eye(n))
             K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
-        K = K * scenario.sigma_scale[:, None, None]
+        K = K * np.asarray(scenario.sigma_scale)[at][:, None, None]
         if scenario.contact_ohm_m2 is not None:
             z = np.asarray(scenario.contact_ohm_m2, float)
             K = series_contact(K, z / self.contact_areas_m2(z))
         I = receiver_currents(K, self.obs.emitter) * self.obs.U_V[idx, None]
         return I * scenario.gain[None, :]
 
+    def _effect_K_at(self, scenario: Scenario, at) -> np.ndarray:
+        """The effect model's K of ``scenario`` at its rows ``at`` (every row's scene evaluated once)."""
+        if isinstance(at, slice):
+            return self._effect_K(scenario)
+        try:
+            return self._effect_K(scenario)[at]
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):  # refused at a row not asked for
+            return self._effect_K(replace(scenario, poses=scenario.poses[at], rows=None))
+
     def _effect_K(self, scenario: Scenario) -> np.ndarray:
         """The effect model's K for a changed scene, memoised (finite differences along the other,
-        non-geometric parameters ask for the same scene again)."""
-        key = (hashlib.sha1(np.ascontiguousarray(scenario.poses).tobytes()).hexdigest(), scenario.tank,
-               tuple(scenario.objects))
+        non-geometric parameters ask for the same scene again; the nominal scene is ``K_effect0``; a scene
+        the model refuses is remembered as refused)."""
+        key = self._scene_key(scenario.poses, scenario.tank, scenario.objects)
         K = self._memo.get(key)
         if K is None:
-            K = self.effect_model(scenario.poses, scenario.tank, scenario.objects)
+            try:
+                K = self.effect_model(scenario.poses, scenario.tank, scenario.objects)
+            except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+                K = exc
             if len(self._memo) >= 256:
                 self._memo.pop(next(iter(self._memo)))
             self._memo[key] = K
+        if isinstance(K, Exception):
+            raise K
         return K
+
+    @staticmethod
+    def _scene_key(poses, tank, objects) -> tuple:
+        return hashlib.sha1(np.ascontiguousarray(poses, float).tobytes()).hexdigest(), tank, tuple(objects)
 
     def contact_areas_m2(self, z_ohm_m2) -> np.ndarray:
         """Areas (n,) of the lumped contact z / A that reproduce the BEM's contact boundary condition

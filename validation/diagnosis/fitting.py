@@ -110,11 +110,18 @@ def _split(effects, theta):
 
 
 def predict(problem: Problem, effects, theta, idx) -> np.ndarray:
-    """Receiver currents (p, m) with ``effects`` at physical parameters ``theta`` for samples ``idx``."""
-    sc = problem.nominal(idx)
+    """Receiver currents (p, m) with ``effects`` at physical parameters ``theta`` for samples ``idx``.
+
+    A geometric effect changes the scene at every sample (the effect model is then evaluated once per
+    parameter vector for all samples and memoised, whichever subset asks: the training set of a fold and its
+    held-out set share it); the others only at ``idx``.
+    """
+    idx = np.asarray(idx)
+    rows = np.arange(problem.obs.n_poses) if any(e.geometric for e in effects) else idx
+    sc = problem.nominal(rows)
     parts = _split(effects, theta)
     for k in sorted(range(len(effects)), key=lambda j: effects[j].order):
-        sc = effects[k].apply(parts[k], sc, problem, idx)
+        sc = effects[k].apply(parts[k], sc, problem, rows)
     return problem.predict(sc, idx)
 
 

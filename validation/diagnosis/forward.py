@@ -309,10 +309,26 @@ class CompositeEffectModel:
     psm: PSMEffectModel
     points: PointElectrodeSimulator
     calls: int = 0
+    scenes: dict = field(default_factory=dict, repr=False, compare=False)  # see _memo
 
     @property
     def name(self) -> str:
         return "psm+kelvin"
+
+    def _memo(self, model, poses, tank, contact_impedance_ohm_m2) -> np.ndarray:
+        """``model(poses, tank, ())``, remembered for the last few scenes: a sphere moved by a fit leaves the
+        scene without it unchanged."""
+        import hashlib
+
+        poses = np.ascontiguousarray(poses, float)
+        key = (id(model), hashlib.sha1(poses.tobytes()).hexdigest(), tank,
+               None if contact_impedance_ohm_m2 is None else np.asarray(contact_impedance_ohm_m2, float).tobytes())
+        memo = self.scenes
+        if key not in memo:
+            if len(memo) >= 16:
+                memo.pop(next(iter(memo)))
+            memo[key] = model(poses, tank, (), contact_impedance_ohm_m2)
+        return memo[key]
 
     @property
     def sensor(self):
@@ -320,10 +336,10 @@ class CompositeEffectModel:
 
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
         self.calls += 1
-        K = self.psm(poses, tank, (), contact_impedance_ohm_m2)
+        K = self._memo(self.psm, poses, tank, contact_impedance_ohm_m2)
         if not objects:
             return K
-        ratio = self.points(poses, tank, tuple(objects)) / self.points(poses, tank, ())
+        ratio = self.points(poses, tank, tuple(objects)) / self._memo(self.points, poses, tank, None)
         K = K * ratio
         n = K.shape[-1]
         off = K * (1 - np.eye(n))

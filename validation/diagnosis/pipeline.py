@@ -333,9 +333,11 @@ def diagnose(
     if skipped:
         notes.append(f"candidates not applicable to these data: {', '.join(skipped)}")
     ranking = rank_candidates(problem, lib, folds, noise, r0, mask, progress=lambda n: say(f"fitting {n}"))
-    selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor)
+    selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor,
+                                  model_error_by_place=budget.get("baseline_by_place"))
     confusable = confusable_pairs(ranking, rules)
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
+    notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
     split = None
     if model == "psm" and split_with_bem > 0:
         try:
@@ -420,7 +422,8 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
             "interpolation_rms": anchored.interpolation_rms,
             "interpolation_by_place": by_place(anchored.error),
             "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; interpolation error = leave-one-out "
-                   "error at the nearest BEM poses (an upper estimate, zero at the BEM poses), in quadrature with the "
+                   "error at the nearest BEM poses scaled by the distance from them (an upper estimate, zero at the "
+                   "BEM poses), in quadrature with the "
                    "BEM's own discretisation error",
             "bem_poses": int(len(anchored.anchors)), "bem_poses_new": int(anchored.n_bem_new),
             "bem_poses_cached": int(anchored.n_cached), "psm_refused_poses": int(len(anchored.refused)),

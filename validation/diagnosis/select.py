@@ -36,9 +36,11 @@ candidate (a gain per receiver may have soaked up part of another effect's
 signature before that effect was in); the penalised score decides.
 
 ``none`` is answered when no effect is accepted and the gap is within the
-noise (RMS <= ``none_ceiling`` x s): nothing is invented. When the gap is
-above the noise and no candidate removes it, nothing is chosen and the
-verdict says "unexplained".
+noise floor (RMS <= ``none_ceiling`` x floor, the floor being the noise and
+the baseline's own error in quadrature): nothing is invented; a gap above
+the bench noise but within the floor is noted as the model's own limit.
+When the gap is above the floor and no candidate removes it, nothing is
+chosen and the verdict says "unexplained".
 
 Example
 -------
@@ -190,13 +192,19 @@ class Selection:
 
 
 def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rules: SelectionRules = SelectionRules(),
-                      region_mask=None, floor: float | None = None) -> Selection:
+                      region_mask=None, floor: float | None = None,
+                      model_error_by_place: dict | None = None) -> Selection:
     """Greedy forward selection over the single-candidate fits of ``ranking``.
 
     ``floor`` (default ``noise``) is the noise floor: the bench noise and the
     baseline's own estimated error in quadrature. Every threshold of
     :class:`SelectionRules` is in units of it: what the model itself cannot
-    vouch for is never named as a cause.
+    vouch for is never named as a cause: with no effect accepted, a baseline
+    gap within ``none_ceiling`` x floor is answered ``none`` (with a note,
+    when it is above the bench noise, that the model's own error is the
+    limit, and where: ``model_error_by_place`` maps a place to the
+    baseline's estimated RMS error there); ``unexplained`` only when it is
+    above that.
     """
     fl = noise if floor is None else max(float(floor), noise)
     baseline = next(c for c in ranking if c.name == "none")
@@ -248,14 +256,12 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps, rules, baseline)
         path[-1] = current
     if not path:
-        if baseline.heldout_gap <= rules.none_ceiling * noise:
+        if baseline.heldout_gap <= rules.none_ceiling * fl:
             verdict = "none"
+            if baseline.heldout_gap > rules.none_ceiling * noise:
+                steps.append({"stop": _model_limit_note(baseline.heldout_gap, noise, fl, model_error_by_place)})
         else:
             verdict = "unexplained"
-            if baseline.heldout_gap <= rules.none_ceiling * fl:
-                steps.append({"stop": f"the gap ({100 * baseline.heldout_gap:.3g} %) is above the bench noise but "
-                                      f"within the model's own error (noise floor {100 * fl:.3g} %): the model is the "
-                                      "limit, not the physics; nothing can be named"})
     elif path[-1].heldout_gap <= rules.none_ceiling * fl:
         verdict = "explained"
     elif path[-1].heldout_gap <= (1 - rules.named_shrink) * baseline.heldout_gap:
@@ -266,6 +272,22 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
                               f"({100 * fl:.3g} %) nor removes {rules.named_shrink:.0%} of it: nothing is named "
                               f"(nearest: {path[-1].name}, {100 * path[-1].heldout_gap:.3g} %)"})
     return Selection(path, verdict, steps)
+
+
+def _model_limit_note(gap: float, noise: float, floor: float, by_place: dict | None) -> str:
+    """Why a gap above the bench noise is still answered ``none``: it is within the model's own error.
+
+    Example
+    -------
+    >>> print(_model_limit_note(0.002, 0.0005, 0.0015, {"centre": 0.0003, "wall_x-": 0.002}))
+    the gap (0.2 %) is above the bench noise (0.05 %) but within the model's own error (noise floor 0.15 %): nothing is named; the model is the limit at wall_x- (0.2 %)
+    """
+    note = (f"the gap ({100 * gap:.3g} %) is above the bench noise ({100 * noise:.3g} %) but within the model's own "
+            f"error (noise floor {100 * floor:.3g} %): nothing is named")
+    worst = sorted(((e, g) for g, e in (by_place or {}).items() if e is not None and e > noise), reverse=True)
+    if worst:
+        note += "; the model is the limit at " + ", ".join(f"{g} ({100 * e:.3g} %)" for e, g in worst)
+    return note
 
 
 def _fewest_reaching_floor(best: CandidateScore, tried: list, current: CandidateScore, rules: SelectionRules,
