@@ -13,12 +13,12 @@ single_layer, double_layer
     Dense collocation matrices of the Laplace layer potentials on flat triangles.
 
 A sensor alone in unbounded water is solved by the axisymmetric reduction
-(:mod:`bem.axisymmetric`, within 1e-4 of the full collocation).
+(:mod:`electrosense.bem.axisymmetric`, within 1e-4 of the full collocation).
 """
-from .conductance import ConductanceMatrix, K_from_S, S_from_K, isolate
-from .boundary_conditions import BoundaryError, WaterBoundary
-from .memory import MemoryRefusal
-from .solve import BemSolution, SingularSystemError, conductance_matrix, solve, solve_scene
+from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
+from electrosense.bem.conductance import ConductanceMatrix, K_from_S, S_from_K, isolate
+from electrosense.bem.memory import MemoryRefusal
+from electrosense.bem.solve import BemSolution, SingularSystemError, conductance_matrix, solve, solve_scene
 
 _LAZY = {
     "single_layer": "operators", "double_layer": "operators",

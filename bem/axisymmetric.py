@@ -1,6 +1,6 @@
 """Axisymmetric reduction for a sensor of revolution alone in unbounded water.
 
-A sensor meshed by :func:`meshes.sensor_mesh.mesh_sensor` is a stack of
+A sensor meshed by :func:`electrosense.meshes.sensor_mesh.mesh_sensor` is a stack of
 bands between rings of vertices. In unbounded water every electrode
 potential pattern is axisymmetric, and so is the solution: on each band the
 triangles pointing up (two vertices on the upper ring) share one value and
@@ -8,7 +8,7 @@ those pointing down another, up to the mesh's small departures from
 rotational symmetry. With one unknown per (band, orientation) class, the
 system is a Petrov-Galerkin projection of the collocation system:
 
-* columns summed per class (:func:`bem.operators.mixed_system_reduced`),
+* columns summed per class (:func:`electrosense.bem.operators.mixed_system_reduced`),
 * rows averaged per class with area weights, collocating at up to
   ``targets_per_class`` triangles of each class (spread around the ring).
 
@@ -19,9 +19,9 @@ as a collocation point, and within 1e-4 of it (tests/test_bem_api.py).
 
 Example
 -------
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
->>> from bem.boundary_conditions import WaterBoundary
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.bem.boundary_conditions import WaterBoundary
 >>> wb = WaterBoundary.from_meshes(mesh_sensor(preset("angels-2")))
 >>> cls, n = ring_classes(wb)
 >>> bool(n < wb.n_triangles / 10)
@@ -33,14 +33,14 @@ import time
 
 import numpy as np
 
-from .conductance import check_conductivity
-from .boundary_conditions import WaterBoundary
-from .linear_solve import SingularSystemError
-from .operators import TriangleSet, mixed_system_reduced
-from .solution import unit_solutions
-from .system import BemSystem, column_coefficients, contact_impedances
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.conductance import check_conductivity
+from electrosense.bem.linear_solve import SingularSystemError
+from electrosense.bem.operators import TriangleSet, mixed_system_reduced
+from electrosense.bem.solution import unit_solutions
+from electrosense.bem.system import BemSystem, column_coefficients, contact_impedances
 
-#: collocation points per ring class in :func:`bem.solve.solve_scene`: K within 6e-6 of all of them (angels-4)
+#: collocation points per ring class in :func:`electrosense.bem.solve.solve_scene`: K within 6e-6 of all of them (angels-4)
 AXISYMMETRIC_TARGETS_PER_CLASS = 16
 
 __all__ = ["ring_classes", "is_axisymmetric_sensor", "solve_axisymmetric"]
@@ -81,7 +81,7 @@ def is_axisymmetric_sensor(boundary: WaterBoundary, tol: float = 1e-9) -> bool:
 
 def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                        emitter: int | None = None, targets_per_class: int | None = None):
-    """The BEM solution by the axisymmetric reduction (a :class:`bem.solution.BemSolution`).
+    """The BEM solution by the axisymmetric reduction (a :class:`electrosense.bem.solution.BemSolution`).
 
     ``targets_per_class``: collocate at that many triangles of each class
     (``None``: all of them, the area-weighted average of the full collocation

@@ -16,7 +16,7 @@ the folder to reclaim the space.
 Example
 -------
 >>> import numpy as np, tempfile
->>> from bem.block_cache import BlockCache
+>>> from electrosense.bem.block_cache import BlockCache
 >>> cache = BlockCache(tempfile.mkdtemp())
 >>> key = cache.key(np.arange(6.0))
 >>> cache.load(key, ("lu",)) is None

@@ -18,8 +18,8 @@ tank's water box already has its normals out of the water.
 
 Example
 -------
->>> from meshes.sensor import preset
->>> from meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
 >>> wb = WaterBoundary.from_meshes(mesh_sensor(preset("angels-2")))
 >>> wb.n_electrodes, wb.unbounded
 (2, True)
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
 
 __all__ = ["WaterBoundary", "BoundaryError", "check_electrodes"]
 
@@ -155,7 +155,7 @@ class WaterBoundary:
         if not parts:
             raise BoundaryError("nothing bounds the water: no sensor, no tank, no object")
         if check:
-            from meshes.quality import check_mesh
+            from electrosense.meshes.quality import check_mesh
 
             for mesh, name in zip(parts, names):
                 check_mesh(mesh, min_angle_deg=1.0, max_aspect_ratio=60.0, name=f"{name} mesh")

@@ -30,7 +30,7 @@ Arrays may carry leading batch axes (one matrix per pose): ``K`` of shape
 Example
 -------
 >>> import numpy as np
->>> from bem.conductance import ConductanceMatrix
+>>> from electrosense.bem.conductance import ConductanceMatrix
 >>> g = 0.05
 >>> c = ConductanceMatrix(np.array([[g, -g], [-g, g]]), emitter=2, sigma_S_per_m=1.0)
 >>> c.S_S

@@ -10,7 +10,7 @@ same wherever the sensor is. The correction
     dK = K_meridian(sensor, unbounded) - K_surface(sensor mesh, unbounded)
 
 is the surface mesh's own error in unbounded water, measured against the
-ring-element BEM of :mod:`bem.meridian` (converged to ~1e-4 in a second,
+ring-element BEM of :mod:`electrosense.bem.meridian` (converged to ~1e-4 in a second,
 since the meridian is one-dimensional and graded to 1e-7 m). Added to the
 surface BEM's matrix of any scene with that sensor and that mesh (in a tank,
 near a wall, with objects), it removes the edge error and leaves the error of
@@ -19,15 +19,15 @@ which is a few percent of K and converges fast: a defect correction, as in
 multi-fidelity schemes.
 
 ``dK`` is symmetric with zero row sums (both matrices are), so ``K + dK``
-keeps the conventions of :mod:`bem.conductance`. It applies to the sensor's
+keeps the conventions of :mod:`electrosense.bem.conductance`. It applies to the sensor's
 conductance matrix only, not to the surface solution or the fields, and only
-to sensors of revolution described by a :class:`meshes.sensor.SensorDescription`
+to sensors of revolution described by a :class:`electrosense.meshes.sensor.SensorDescription`
 (a user's mesh file is solved as it is).
 
 Example
 -------
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
 >>> s = preset("angels-2")
 >>> dK = free_space_correction(s, 1.0, None, mesh_sensor(s))
 >>> bool(0.001 < dK[0, 0] / 0.0464 < 0.01)   # the default surface mesh is ~0.4 % low
@@ -39,10 +39,10 @@ import hashlib
 
 import numpy as np
 
-from .axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
-from .boundary_conditions import WaterBoundary
-from .meridian import meridian_conductance, mesh_meridian
-from .solution import solve
+from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.meridian import meridian_conductance, mesh_meridian
+from electrosense.bem.solution import solve
 
 __all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING"]
 
@@ -60,11 +60,11 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
     sigma_S_per_m : float
     contact_impedance_ohm_m2 : None, float or sequence (ohm m^2)
     sensor_mesh : LabelledMesh
-        The sensor's surface mesh in its own frame (:func:`meshes.sensor_mesh.mesh_sensor`),
+        The sensor's surface mesh in its own frame (:func:`electrosense.meshes.sensor_mesh.mesh_sensor`),
         the one the scene is solved with.
     targets_per_class : int, optional
         Collocation points per ring class of the axisymmetric reduction
-        (default: :data:`bem.axisymmetric.AXISYMMETRIC_TARGETS_PER_CLASS`).
+        (default: :data:`electrosense.bem.axisymmetric.AXISYMMETRIC_TARGETS_PER_CLASS`).
     surface_K_S : (n, n) array, optional
         The mesh's free-space K when the caller has just solved it (saves that solve).
     """

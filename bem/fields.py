@@ -5,14 +5,14 @@ Green's representation at a point ``x`` in the water (normals out of the water):
     u(x) = sum_j S_j(x) q_j - sum_j D_j(x) u_j,
 
 with the exact single and double layers of every triangle
-(:mod:`bem.operators`), so points close to the surface are as accurate as
+(:mod:`electrosense.bem.operators`), so points close to the surface are as accurate as
 far ones. The current density ``J = -sigma grad u`` is taken by central
 differences of that representation (step 1e-6 of the sensor's size).
 
 Example
 -------
->>> from meshes import Scene, preset
->>> from bem.solve import solve_scene
+>>> from electrosense.meshes import Scene, preset
+>>> from electrosense.bem.solve import solve_scene
 >>> sol = solve_scene(Scene(preset("angels-2")), 1.0)       # doctest: +SKIP
 >>> sol.potential_at([[0.0, 0.05, 0.0]])                      # doctest: +SKIP
 """
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .operators import TriangleSet, layer_matrices
+from electrosense.bem.operators import TriangleSet, layer_matrices
 
 __all__ = ["potential_at", "current_density_at", "surface_polydata", "plane_points"]
 

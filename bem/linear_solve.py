@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import scipy.linalg
 
-from .boundary_conditions import BoundaryError
+from electrosense.bem.boundary_conditions import BoundaryError
 
 __all__ = ["SingularSystemError", "factorise", "solve_dense", "solve_refined"]
 

@@ -6,7 +6,7 @@ assembly's scratch add a few ``N``-vectors per electrode.
 
 Example
 -------
->>> from bem.memory import dense_system_bytes
+>>> from electrosense.bem.memory import dense_system_bytes
 >>> dense_system_bytes(10_000) / 1e9
 0.8
 """

@@ -1,6 +1,6 @@
 """Ring boundary elements on the meridian of a sensor of revolution in unbounded water.
 
-A sensor of :mod:`meshes.sensor` (cylinder, hemispherical ends, electrodes
+A sensor of :mod:`electrosense.meshes.sensor` (cylinder, hemispherical ends, electrodes
 that are caps or rings) alone in unbounded water has an axisymmetric
 solution for every pattern of electrode potentials. Integrating the Laplace
 kernel ``G = 1/(4 pi |x - y|)`` around the axis turns the surface integrals
@@ -14,7 +14,7 @@ complete elliptic integrals ``K(m)``, ``E(m)``)::
     double_layer:  int dG/dn_y dA_y     = int [ -n_r' (K(m) + (r'^2 - r^2 - (x - x')^2) E(m) / b^2)
                                                  + n_x' 2 r' (x - x') E(m) / b^2 ] / (2 pi a) ds'
 
-The direct formulation is the one of :mod:`bem.system`: with ``n`` out of
+The direct formulation is the one of :mod:`electrosense.bem.system`: with ``n`` out of
 the body into the water and ``q = -du/dn``,
 ``u/2 = single_layer[q] + double_layer[u]`` at every collocation point of
 the (smooth) meridian. Elements are arcs of the exact meridian (no faceting
@@ -30,15 +30,15 @@ second. :func:`converged_conductance` refines such meridians until the
 conductance matrix settles and extrapolates (Richardson); it is the
 mesh-converged reference the surface BEM is checked against
 (``validation/studies/bem_paper.py``) and the source of its free-space
-discretisation correction (:mod:`bem.edge_correction`).
+discretisation correction (:mod:`electrosense.bem.edge_correction`).
 
-Conventions as in :mod:`bem.conductance`: ``K[i, j]`` is the current (A)
+Conventions as in :mod:`electrosense.bem.conductance`: ``K[i, j]`` is the current (A)
 leaving electrode ``i`` into the water when electrode ``j`` is at 1 V and the
 others at 0 V, the sensor isolated (currents sum to zero).
 
 Example
 -------
->>> from meshes import preset
+>>> from electrosense.meshes import preset
 >>> g = meridian_conductance(preset("angels-2"), 1.0)
 >>> bool(abs(g.K_S.sum(axis=1)).max() < 1e-12 * abs(g.K_S).max())
 True
@@ -51,11 +51,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ellipe, ellipkm1
 
-from meshes.sensor import SensorDescription
-from meshes.sensor_mesh import SensorProfile, graded_arc_lengths
-
-from .conductance import ConductanceMatrix, check_conductivity, isolate
-from .system import contact_impedances
+from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
+from electrosense.bem.system import contact_impedances
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.meshes.sensor_mesh import SensorProfile, graded_arc_lengths
 
 __all__ = ["MeridianMesh", "mesh_meridian", "ring_single_layer", "ring_double_layer",
            "single_layer", "double_layer", "meridian_conductance", "converged_conductance"]
@@ -98,7 +97,7 @@ def mesh_meridian(sensor: SensorDescription, h_far_m: float | None = None, h_edg
 
     Example
     -------
-    >>> from meshes import preset
+    >>> from electrosense.meshes import preset
     >>> m = mesh_meridian(preset("angels-4"))
     >>> sorted(set(m.electrode.tolist()))
     [0, 1, 2, 3, 4]

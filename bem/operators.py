@@ -6,7 +6,7 @@ P0), with the Laplace kernel ``G(x, y) = 1 / (4 pi |x - y|)``:
 * ``single_layer[i, j] = int_{T_j} G(x_i, y) dS_y`` (m),
 * ``double_layer[i, j] = int_{T_j} dG/dn_y (x_i, y) dS_y = -Omega_ij / (4 pi)``,
   ``n_y`` the triangle's right-hand normal and ``Omega_ij`` the solid angle
-  of ``T_j`` seen from ``x_i`` (:func:`bem.triangle_integrals.solid_angle`).
+  of ``T_j`` seen from ``x_i`` (:func:`electrosense.bem.triangle_integrals.solid_angle`).
   When ``x_i`` is the centroid of its own triangle ``own[i] = j`` the
   principal value is 0.
 
@@ -24,7 +24,7 @@ and parallel over the collocation points.
 Example
 -------
 >>> import numpy as np, trimesh
->>> from bem.operators import double_layer
+>>> from electrosense.bem.operators import double_layer
 >>> s = trimesh.creation.icosphere(2)
 >>> tri = s.vertices[s.faces]
 >>> D = double_layer(tri.mean(axis=1), tri, own=np.arange(len(tri)))
@@ -38,8 +38,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .quadrature import DUNAVANT_5, rule_points
-from .triangle_integrals import inverse_distance_integral, solid_angle
+from electrosense.bem.quadrature import DUNAVANT_5, rule_points
+from electrosense.bem.triangle_integrals import inverse_distance_integral, solid_angle
 
 __all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "mixed_system_reduced", "TriangleSet",
            "NEAR", "MID", "FAR"]

@@ -1,7 +1,7 @@
 """Measurement protocols from one conductance matrix: four-electrode transfer impedances and drive voltages.
 
 Everything follows from the nodal conductance matrix ``K`` of ALL the
-electrodes of a closed tank (:mod:`bem.conductance`: ``I_leaving = K V``),
+electrodes of a closed tank (:mod:`electrosense.bem.conductance`: ``I_leaving = K V``),
 solved once (one factorisation serves every drive pattern):
 
 * a current source drives 1 A from electrode ``a`` into the water and back
@@ -13,7 +13,7 @@ solved once (one factorisation serves every drive pattern):
 * the drive pair's own impedance ``V_a - V_b`` carries the contact
   impedances of ``a`` and ``b`` when ``K`` was computed with them;
 * on the fish-like bench (fixed voltage) the currents are ``K V`` directly
-  (:meth:`bem.conductance.ConductanceMatrix.receiver_currents_A`).
+  (:meth:`electrosense.bem.conductance.ConductanceMatrix.receiver_currents_A`).
 
 Reciprocity: ``Z(a, b; p, q) = Z(p, q; a, b)`` because ``K`` is symmetric.
 

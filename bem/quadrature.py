@@ -6,7 +6,7 @@ Integrals over a flat triangle ``T`` of area ``A``:
 Example
 -------
 >>> import numpy as np
->>> from bem.quadrature import DUNAVANT_5
+>>> from electrosense.bem.quadrature import DUNAVANT_5
 >>> bary, w = DUNAVANT_5
 >>> float(w.sum()), bary.shape
 (1.0, (7, 3))

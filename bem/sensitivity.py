@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .protocol import node_potentials_V
+from electrosense.bem.protocol import node_potentials_V
 
 __all__ = ["pair_gradients", "combine_shift_sensitivities", "shift_sensitivities_ohm_per_m"]
 
@@ -41,7 +41,7 @@ def pair_gradients(solution, pairs, centres_m, normals_out, tangents, step_m, de
     ``centres_m``, ``normals_out`` (out of the water), ``tangents`` (unit) and
     ``step_m``, ``depth_m`` are per electrode (E,...).
     """
-    from .fields import potential_at
+    from electrosense.bem.fields import potential_at
 
     c = np.asarray(centres_m, float).reshape(-1, 3)
     n = np.asarray(normals_out, float).reshape(-1, 3)

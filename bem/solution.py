@@ -9,14 +9,14 @@ Currents. The current leaving electrode ``m`` into the water is
 ``sigma * sum_j a_j q_j`` over its faces. In a closed tank the currents of
 the unit solutions form the isolated ``K`` directly. In unbounded water they
 form the grounded ``C`` (far field at 0 V), and the isolated sensor's ``K``
-is ``bem.conductance.isolate(C)``: the sensor floats to the common potential
+is ``electrosense.bem.conductance.isolate(C)``: the sensor floats to the common potential
 at which its currents sum to zero.
 
 Example
 -------
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
->>> from bem.boundary_conditions import WaterBoundary
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.bem.boundary_conditions import WaterBoundary
 >>> wb = WaterBoundary.from_meshes(mesh_sensor(preset("angels-2"), edge_length_m=0.02))
 >>> s = solve(wb, sigma_S_per_m=1.0)
 >>> bool(abs(s.K_S.sum(axis=1)).max() < 1e-10 * abs(s.K_S).max())
@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .boundary_conditions import BoundaryError, WaterBoundary
-from .conductance import ConductanceMatrix, isolate
-from .fields import current_density_at, potential_at, surface_polydata
-from .linear_solve import SingularSystemError, solve_dense
-from .system import BemSystem, assemble_system
+from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
+from electrosense.bem.conductance import ConductanceMatrix, isolate
+from electrosense.bem.fields import current_density_at, potential_at, surface_polydata
+from electrosense.bem.linear_solve import SingularSystemError, solve_dense
+from electrosense.bem.system import BemSystem, assemble_system
 
 __all__ = ["BemSolution", "solve", "unit_solutions"]
 
@@ -60,7 +60,7 @@ class BemSolution:
     info : dict
     K_correction_S : (n, n) array, optional
         Added to the conductance matrix (not to the surface solution): the
-        free-space electrode-edge correction of :mod:`bem.edge_correction`.
+        free-space electrode-edge correction of :mod:`electrosense.bem.edge_correction`.
     """
 
     boundary: WaterBoundary

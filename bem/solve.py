@@ -1,16 +1,16 @@
 """Solving a scene: mesh it, solve the water boundary, correct the electrode edges.
 
-:func:`solve_scene` meshes a :class:`meshes.scene.Scene` (or takes a user's
+:func:`solve_scene` meshes a :class:`electrosense.meshes.scene.Scene` (or takes a user's
 sensor mesh), solves it by the axisymmetric reduction when the sensor is
 alone in unbounded water (:mod:`.axisymmetric`), else by the full
-collocation (:func:`bem.solution.solve`), and adds the free-space
+collocation (:func:`electrosense.bem.solution.solve`), and adds the free-space
 electrode-edge correction (:mod:`.edge_correction`) to K.
 :func:`conductance_matrix` is its :class:`ConductanceMatrix`.
 
 Example
 -------
->>> from meshes import Scene, preset
->>> from bem.solve import conductance_matrix
+>>> from electrosense.meshes import Scene, preset
+>>> from electrosense.bem.solve import conductance_matrix
 >>> g = conductance_matrix(Scene(preset("angels-2")), sigma_S_per_m=1.0)
 >>> bool(g.S_S[0, 0] > 0 and g.asymmetry < 1e-6)
 True
@@ -21,12 +21,12 @@ import time
 
 import numpy as np
 
-from .axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
-from .boundary_conditions import WaterBoundary
-from .conductance import ConductanceMatrix
-from .edge_correction import free_space_correction
-from .linear_solve import SingularSystemError, factorise, solve_refined
-from .solution import BemSolution, solve
+from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.bem.edge_correction import free_space_correction
+from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_refined
+from electrosense.bem.solution import BemSolution, solve
 
 __all__ = ["BemSolution", "solve", "solve_scene", "conductance_matrix", "factorise", "solve_refined",
            "SingularSystemError", "check_object_materials"]
@@ -42,16 +42,16 @@ def check_object_materials(objects) -> None:
 
 def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge_length_m=None,
                 axisymmetric: bool | None = None, edge_correction: bool = True, **mesh_options) -> BemSolution:
-    """Mesh a :class:`meshes.scene.Scene` (or take a sensor ``LabelledMesh`` in unbounded water) and solve it.
+    """Mesh a :class:`electrosense.meshes.scene.Scene` (or take a sensor ``LabelledMesh`` in unbounded water) and solve it.
 
-    ``axisymmetric``: use the axisymmetric reduction (:mod:`bem.axisymmetric`);
+    ``axisymmetric``: use the axisymmetric reduction (:mod:`electrosense.bem.axisymmetric`);
     default: for a scene whose sensor is alone in unbounded water (meshed by
     ``mesh_sensor``), not for a user's mesh.
     ``edge_correction``: add the sensor mesh's free-space electrode-edge error
-    to the conductance matrix (:mod:`bem.edge_correction`; scenes only, not a
+    to the conductance matrix (:mod:`electrosense.bem.edge_correction`; scenes only, not a
     user's mesh). ``info["edge_correction_max_relative"]`` says how large it was.
     """
-    from meshes.labelled_mesh import LabelledMesh
+    from electrosense.meshes.labelled_mesh import LabelledMesh
 
     t0 = time.perf_counter()
     if isinstance(scene, LabelledMesh):
@@ -59,7 +59,7 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
         emitter = None
         t_mesh = time.perf_counter() - t0
     else:
-        from meshes.scene_mesh import mesh_scene
+        from electrosense.meshes.scene_mesh import mesh_scene
 
         check_object_materials(scene.objects)
         sm = mesh_scene(scene, edge_length_m, **mesh_options)
@@ -117,7 +117,7 @@ def conductance_matrix(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=Non
     edge_length_m : float, optional
         Sensor mesh edge length far from electrode edges (default: the mesher's).
     edge_correction : bool
-        Add the free-space electrode-edge correction (:mod:`bem.edge_correction`,
+        Add the free-space electrode-edge correction (:mod:`electrosense.bem.edge_correction`,
         scenes only): the default mesh is then within about 0.1 % of the
         mesh-converged matrix instead of about 0.5 %.
 

@@ -10,7 +10,7 @@ the same in every pose, computed in the sensor frame) and the environment's
 
 The sensor's block is LU-factorised once, in float32, and kept on disk,
 keyed by a hash of everything it depends on, so that the next process
-reuses it (:mod:`bem.block_cache`); ``y0 = A_ss^-1 r_s`` is computed once,
+reuses it (:mod:`electrosense.bem.block_cache`); ``y0 = A_ss^-1 r_s`` is computed once,
 refined to float64 accuracy. Per pose, the coupling blocks are assembled
 and the coupling ``A_se`` (sensor points x environment triangles: a smooth
 kernel, numerically low rank) is compressed by a truncated SVD,
@@ -34,8 +34,8 @@ pose-invariant state can be scattered to workers.
 Example
 -------
 >>> import numpy as np
->>> from meshes import Tank, preset
->>> from bem.sweep import PoseSweep
+>>> from electrosense.meshes import Tank, preset
+>>> from electrosense.bem.sweep import PoseSweep
 >>> sweep = PoseSweep(preset("angels-2"), Tank((1.0, 1.0, 1.0)), sigma_S_per_m=0.0354)   # doctest: +SKIP
 >>> g = sweep.conductance(np.array([[0.0, 0, 0, 0], [0.2, 0, 0, 0]]))                   # doctest: +SKIP
 >>> g.K_S.shape                                                                         # doctest: +SKIP
@@ -48,19 +48,18 @@ import time
 import numpy as np
 import scipy.linalg
 
-from meshes.pose import Pose, poses_array, rotation_z
-
-from .boundary_conditions import WaterBoundary
-from .conductance import ConductanceMatrix, check_conductivity, isolate
-from .edge_correction import free_space_correction
-from .low_rank import right_singular_vectors
-from .memory import check_memory
-from .operators import TriangleSet, mixed_system
-from .axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
-from .linear_solve import factorise, solve_refined
-from .solution import solve
-from .solve import check_object_materials
-from .system import column_coefficients, contact_impedances
+from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
+from electrosense.bem.edge_correction import free_space_correction
+from electrosense.bem.linear_solve import factorise, solve_refined
+from electrosense.bem.low_rank import right_singular_vectors
+from electrosense.bem.memory import check_memory
+from electrosense.bem.operators import TriangleSet, mixed_system
+from electrosense.bem.solution import solve
+from electrosense.bem.solve import check_object_materials
+from electrosense.bem.system import column_coefficients, contact_impedances
+from electrosense.meshes.pose import Pose, poses_array, rotation_z
 
 __all__ = ["PoseSweep"]
 
@@ -82,24 +81,24 @@ class PoseSweep:
         Tank edge length nearest the trajectory (default: the scene mesher's).
     tank_grading : float, optional
         Growth of the tank's edge length per metre from the trajectory
-        (default: the scene mesher's, :data:`meshes.scene_mesh.DEFAULT_TANK_GRADING`).
+        (default: the scene mesher's, :data:`electrosense.meshes.scene_mesh.DEFAULT_TANK_GRADING`).
     focus_m : (P, 3) array, optional
         Tank-frame points the tank mesh is graded towards; default: the
         sensor's axis at every pose of the first call.
     tol : float
         Relative truncation of the coupling's SVD (singular values below
         ``tol`` times the largest are dropped; randomised range finding,
-        :mod:`bem.low_rank`). ``angels-2`` in the 1 m tank, tip 1 cm from a
+        :mod:`electrosense.bem.low_rank`). ``angels-2`` in the 1 m tank, tip 1 cm from a
         wall: K within 1e-8 of the solution at 1e-10.
     block_cache : bool, str, Path or None
         Keep the sensor block's LU factors on disk and reuse them in later
-        processes (:mod:`bem.block_cache`): ``True`` in the user's cache
+        processes (:mod:`electrosense.bem.block_cache`): ``True`` in the user's cache
         directory, a directory, ``False`` never; ``None`` (default): only
         when the sensor mesh has at least ``CACHE_MIN_TRIANGLES`` triangles
         (where factorising costs more than reading).
     edge_correction : bool
         Add the sensor mesh's free-space electrode-edge error to every pose's
-        K (:mod:`bem.edge_correction`; computed once, about a second).
+        K (:mod:`electrosense.bem.edge_correction`; computed once, about a second).
 
     Example
     -------
@@ -109,7 +108,7 @@ class PoseSweep:
     def __init__(self, sensor, tank=None, objects=(), sigma_S_per_m: float = 1.0, contact_impedance_ohm_m2=None,
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
                  edge_correction: bool = True, tank_grading: float | None = None, **sensor_mesh_options):
-        from meshes.sensor_mesh import mesh_sensor
+        from electrosense.meshes.sensor_mesh import mesh_sensor
 
         sigma_S_per_m = check_conductivity(sigma_S_per_m)
 
@@ -120,7 +119,7 @@ class PoseSweep:
         self.sigma_S_per_m = float(sigma_S_per_m)
         self.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
         self.tank_edge_length_m = tank_edge_length_m
-        from meshes.scene_mesh import DEFAULT_TANK_GRADING
+        from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
 
         self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
@@ -148,7 +147,7 @@ class PoseSweep:
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _prepare_free(self):
-        """Alone in unbounded water K does not depend on the pose: one solve, as :func:`bem.solve.solve_scene`
+        """Alone in unbounded water K does not depend on the pose: one solve, as :func:`electrosense.bem.solve.solve_scene`
         does it (the axisymmetric reduction for a sensor of revolution), and no sensor block at all."""
 
         wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter)
@@ -170,7 +169,7 @@ class PoseSweep:
         self._cs_s, self._cd_s, self._grp_s = cs, cd, grp
         Ns = len(self.sensor_tris)
         check_memory(Ns, 1.1, what="the sensor block")
-        from .block_cache import CACHE_MIN_TRIANGLES, BlockCache
+        from electrosense.bem.block_cache import CACHE_MIN_TRIANGLES, BlockCache
 
         cache = None
         if self.block_cache or (self.block_cache is None and Ns >= CACHE_MIN_TRIANGLES):
@@ -202,10 +201,10 @@ class PoseSweep:
         self._electrode_weight = (self.sigma_S_per_m / self.scale_m) * self.sensor_tris.areas[on_e]
 
     def _prepare_environment(self, poses: np.ndarray):
-        from meshes.object_mesh import mesh_object
-        from meshes.scene_mesh import default_tank_edge_length_m, sensor_axis_points_m
-        from meshes.scene import Scene
-        from meshes.tank_mesh import mesh_tank
+        from electrosense.meshes.object_mesh import mesh_object
+        from electrosense.meshes.scene import Scene
+        from electrosense.meshes.scene_mesh import default_tank_edge_length_m, sensor_axis_points_m
+        from electrosense.meshes.tank_mesh import mesh_tank
 
         tank_mesh = None
         if self.tank is not None:
@@ -265,8 +264,8 @@ class PoseSweep:
         return A_se, A_es, -B_es
 
     def _check_pose(self, pose):
-        from meshes.scene import Scene
-        from meshes.scene_mesh import check_scene
+        from electrosense.meshes.scene import Scene
+        from electrosense.meshes.scene_mesh import check_scene
 
         check_scene(Scene(self.sensor, Pose.from_array(pose), self.tank, self.objects))
 

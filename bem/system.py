@@ -6,7 +6,7 @@ every triangle (a smooth point of a flat face: free term 1/2) reads
 
     sum_j (1/2 delta_ij + D_ij) u_j  =  sum_j S_ij q_j,
 
-``S`` the single layer and ``D`` the double layer (:mod:`bem.operators`).
+``S`` the single layer and ``D`` the double layer (:mod:`electrosense.bem.operators`).
 It holds for the closed tank and for unbounded water (u -> 0 at infinity).
 Per triangle one of ``u_j``, ``q_j`` is known:
 
@@ -24,12 +24,12 @@ triangle size, so that every column is O(1).
 Example
 -------
 >>> import numpy as np, trimesh
->>> from meshes.labelled_mesh import LabelledMesh
->>> from bem.boundary_conditions import WaterBoundary
+>>> from electrosense.meshes.labelled_mesh import LabelledMesh
+>>> from electrosense.bem.boundary_conditions import WaterBoundary
 >>> s = trimesh.creation.icosphere(1)
 >>> a = LabelledMesh(s.vertices * 0.01, s.faces, np.ones(80, int), None, ("sensor",))
 >>> b = LabelledMesh(s.vertices * 0.01 + [0.1, 0, 0], s.faces, np.full(80, 2), None, ("sensor",))
->>> from meshes.labelled_mesh import concatenate
+>>> from electrosense.meshes.labelled_mesh import concatenate
 >>> wb = WaterBoundary.from_meshes(concatenate([a, b]), check=False)
 >>> system = assemble_system(wb, sigma_S_per_m=1.0)
 >>> system.matrix.shape, system.rhs.shape
@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .conductance import check_conductivity
-from .boundary_conditions import BoundaryError, WaterBoundary
-from .memory import check_memory
+from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
+from electrosense.bem.conductance import check_conductivity
+from electrosense.bem.memory import check_memory
 
 __all__ = ["BemSystem", "assemble_system", "contact_impedances", "column_coefficients"]
 
@@ -63,7 +63,7 @@ def contact_impedances(contact_impedance_ohm_m2, n_electrodes: int) -> np.ndarra
 
 
 def column_coefficients(boundary: WaterBoundary, sigma_S_per_m: float, z_c: np.ndarray, scale_m: float):
-    """(c_single, c_double, group) of every triangle's column (see :func:`bem.operators.mixed_system`)."""
+    """(c_single, c_double, group) of every triangle's column (see :func:`electrosense.bem.operators.mixed_system`)."""
     n = boundary.n_electrodes
     electrode, conductor = boundary.electrode, boundary.conductor
     c_single = np.zeros(boundary.n_triangles)
@@ -94,7 +94,7 @@ class BemSystem:
 def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                     triangles=None) -> BemSystem:
     """Assemble the dense mixed system on ``boundary`` (refusing what does not fit in memory)."""
-    from .operators import FAR, TriangleSet, mixed_system  # numba kernels, loaded on first use
+    from electrosense.bem.operators import FAR, TriangleSet, mixed_system  # numba kernels, loaded on first use
 
     sigma_S_per_m = check_conductivity(sigma_S_per_m)
     n = boundary.n_electrodes

@@ -8,7 +8,7 @@ rule on the vertex order):
 * :func:`solid_angle`: ``Omega = int_T n . (y - x) / |y - x|^3 dS_y``, the solid
   angle under which ``T`` is seen from ``x`` (van Oosterom and Strackee 1983),
   positive when ``n`` points away from ``x``. The constant double layer over
-  ``T`` is ``-Omega / (4 pi)`` (see :mod:`bem.operators`). For ``x`` inside
+  ``T`` is ``-Omega / (4 pi)`` (see :mod:`electrosense.bem.operators`). For ``x`` inside
   ``T`` the formula returns +-2 pi; its principal value is 0 and callers pass
   ``own=True`` for that case.
 
@@ -20,7 +20,7 @@ and small jobs.
 Example
 -------
 >>> import numpy as np
->>> from bem.triangle_integrals import solid_angles
+>>> from electrosense.bem.triangle_integrals import solid_angles
 >>> tri = np.array([[[0, 0, 1], [1, 0, 1], [0, 1, 1]]], float)
 >>> bool(solid_angles(np.zeros((1, 3)), tri)[0, 0] > 0)
 True

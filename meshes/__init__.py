@@ -1,10 +1,10 @@
 """meshes: labelled triangle meshes of sensors, the tank and objects (pure geometry, no physics)."""
-from .labelled_mesh import LabelledMesh, concatenate
-from .objects import Box, Cylinder, Sphere, parse_material
-from .pose import Pose, poses_array, rotation_z
-from .scene import Scene
-from .sensor import Electrode, SensorDescription, load_sensor, preset, save_sensor
-from .tank import TANK_REGIONS, Tank
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.objects import Box, Cylinder, Sphere, parse_material
+from electrosense.meshes.pose import Pose, poses_array, rotation_z
+from electrosense.meshes.scene import Scene
+from electrosense.meshes.sensor import Electrode, SensorDescription, load_sensor, preset, save_sensor
+from electrosense.meshes.tank import TANK_REGIONS, Tank
 
 # meshing, files and pictures load scipy/pyvista: imported on first use
 _LAZY = {

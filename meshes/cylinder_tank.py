@@ -6,14 +6,14 @@ Moulded tanks and pails taper: narrower at the floor than at the top. With
 (``z = +height/2``); without it the wall is a straight cylinder.
 
 Tank frame: the axis is the z axis, the origin at mid-height of the tank's
-inner volume (as for the box :class:`meshes.tank.Tank`), floor at
+inner volume (as for the box :class:`electrosense.meshes.tank.Tank`), floor at
 ``z = -height/2``, free surface at ``-height/2 + water_depth``. Walls, floor
 and free surface are insulating unless a scene puts electrodes on them
-(:mod:`meshes.surface_electrodes`).
+(:mod:`electrosense.meshes.surface_electrodes`).
 
 Example
 -------
->>> from meshes.cylinder_tank import CylinderTank
+>>> from electrosense.meshes.cylinder_tank import CylinderTank
 >>> t = CylinderTank(radius_m=0.15, height_m=0.3, water_depth_m=0.3)
 >>> t.floor_z_m, t.free_surface_z_m, t.region_names
 (-0.15, 0.15, ('wall', 'floor', 'free_surface'))

@@ -2,10 +2,10 @@
 
 The water cylinder is one closed, watertight shell with three regions
 (``wall``, ``floor``, ``free_surface``), normals OUT OF THE WATER. Disc
-electrodes (:class:`meshes.surface_electrodes.DiscElectrode`) on the wall, the
+electrodes (:class:`electrosense.meshes.surface_electrodes.DiscElectrode`) on the wall, the
 floor or the free surface are embedded: their rim is a polygon of mesh nodes
 (with the disc's true area) and the mesh is graded towards every rim
-(:func:`meshes.surface_electrodes.electrode_size_function`). Faces of
+(:func:`electrosense.meshes.surface_electrodes.electrode_size_function`). Faces of
 electrode k carry the label k.
 
 The wall is meshed in its developed (arc length, z) plane and rolled up; the
@@ -14,9 +14,9 @@ conforming. The seam of the developed wall is put where no electrode is.
 
 Example
 -------
->>> from meshes.cylinder_tank import CylinderTank
->>> from meshes.surface_electrodes import DiscElectrode
->>> from meshes.cylinder_tank_mesh import mesh_cylinder_tank
+>>> from electrosense.meshes.cylinder_tank import CylinderTank
+>>> from electrosense.meshes.surface_electrodes import DiscElectrode
+>>> from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
 >>> t = CylinderTank(0.1, 0.1)
 >>> m = mesh_cylinder_tank(t, [DiscElectrode((0.1, 0.0, 0.0), 0.01), DiscElectrode((0.0, 0.0, -0.05), 0.01)],
 ...                        edge_length_m=0.03)
@@ -27,11 +27,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cylinder_tank import CYLINDER_TANK_REGIONS, CylinderTank
-from .labelled_mesh import LabelledMesh, concatenate
-from .surface_electrodes import (DEFAULT_EDGE_FRACTION, DEFAULT_ELECTRODE_GRADING, DiscElectrode, PlateElectrode,
-                                 disc_rim_nodes, electrode_size_function)
-from .tank_mesh import _weld, equidistributed_nodes, graded_size_function, mesh_convex_polygon
+from electrosense.meshes.cylinder_tank import CYLINDER_TANK_REGIONS, CylinderTank
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.surface_electrodes import (
+    DEFAULT_EDGE_FRACTION,
+    DEFAULT_ELECTRODE_GRADING,
+    DiscElectrode,
+    PlateElectrode,
+    disc_rim_nodes,
+    electrode_size_function,
+)
+from electrosense.meshes.tank_mesh import _weld, equidistributed_nodes, graded_size_function, mesh_convex_polygon
 
 __all__ = ["mesh_cylinder_tank", "electrode_surface", "mesh_plane_with_discs"]
 

@@ -16,9 +16,9 @@ A user's own labelled mesh (.vtp, .vtk, .vtu, .ply, .obj...) is read by
 Example
 -------
 >>> import tempfile, pathlib
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
->>> from meshes.io import read_mesh, write_mesh
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes.io import read_mesh, write_mesh
 >>> m = mesh_sensor(preset("angels-2"))
 >>> path = pathlib.Path(tempfile.mkdtemp()) / "sensor.vtp"
 >>> _ = write_mesh(m, path)
@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .labelled_mesh import LabelledMesh
+from electrosense.meshes.labelled_mesh import LabelledMesh
 
 __all__ = ["write_mesh", "read_mesh", "to_polydata", "from_polydata", "MeshFileError", "MESH_SUFFIXES"]
 

@@ -3,7 +3,7 @@
 A :class:`LabelledMesh` is a triangle soup with two integer labels per face:
 
 * ``electrode``: 0 on insulating faces, ``k`` on the faces of electrode ``k``
-  (1-based, head to tail, see :mod:`meshes.sensor`);
+  (1-based, head to tail, see :mod:`electrosense.meshes.sensor`);
 * ``region``: an index into ``region_names`` that says which part of a scene
   the face belongs to (``"sensor"``, ``"wall_x-"``, ..., ``"free_surface"``,
   ``"object_1"``).
@@ -16,7 +16,7 @@ water.
 Example
 -------
 >>> import numpy as np
->>> from meshes.labelled_mesh import LabelledMesh
+>>> from electrosense.meshes.labelled_mesh import LabelledMesh
 >>> tet = LabelledMesh(
 ...     vertices_m=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float),
 ...     faces=np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]),
@@ -29,7 +29,7 @@ Example
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Iterable, Sequence
 
 import numpy as np
@@ -173,7 +173,7 @@ class LabelledMesh:
     def transformed(self, pose) -> "LabelledMesh":
         """A new mesh moved rigidly from the sensor frame to the tank frame by ``pose``.
 
-        ``pose`` is a :class:`meshes.pose.Pose` or anything with a ``to_tank``
+        ``pose`` is a :class:`electrosense.meshes.pose.Pose` or anything with a ``to_tank``
         method; a rigid motion keeps the winding and so the outward normals.
         """
         return LabelledMesh(

@@ -12,8 +12,8 @@ of the object, into the water.
 
 Example
 -------
->>> from meshes.objects import Sphere
->>> from meshes.object_mesh import mesh_object
+>>> from electrosense.meshes.objects import Sphere
+>>> from electrosense.meshes.object_mesh import mesh_object
 >>> m = mesh_object(Sphere(centre_m=(0.1, 0.0, 0.0), radius_m=0.02), edge_length_m=0.005)
 >>> m.region_names, m.to_trimesh().is_watertight
 (('object',), True)
@@ -22,10 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .labelled_mesh import LabelledMesh
-from .objects import Box, Cylinder, Sphere
-from .pose import rotation_z
-from .tank_mesh import _weld, graded_size_function, mesh_axis_box, mesh_convex_polygon
+from electrosense.meshes.labelled_mesh import LabelledMesh
+from electrosense.meshes.objects import Box, Cylinder, Sphere
+from electrosense.meshes.pose import rotation_z
+from electrosense.meshes.tank_mesh import _weld, graded_size_function, mesh_axis_box, mesh_convex_polygon
 
 __all__ = ["mesh_object", "mesh_sphere", "mesh_box", "mesh_cylinder", "default_object_edge_length_m"]
 

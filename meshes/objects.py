@@ -6,7 +6,7 @@ BEM handles these two limits; the PSM's dipole term takes any value.
 
 Example
 -------
->>> from meshes.objects import Sphere
+>>> from electrosense.meshes.objects import Sphere
 >>> Sphere(centre_m=(0.2, 0.0, 0.0), radius_m=0.02, conductivity_S_per_m=float("inf")).is_conducting
 True
 """

@@ -9,7 +9,7 @@ and the tail (the emitter) to -x.
 Example
 -------
 >>> import numpy as np
->>> from meshes.pose import Pose
+>>> from electrosense.meshes.pose import Pose
 >>> p = Pose(0.1, 0.0, 0.0, np.pi / 2)
 >>> np.round(p.to_tank(np.array([[0.1, 0.0, 0.0]])), 12)
 array([[0.1, 0.1, 0. ]])

@@ -14,9 +14,9 @@ quadrature and their collocation points are meaningless).
 
 Example
 -------
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
->>> from meshes.quality import check_mesh
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes.quality import check_mesh
 >>> q = check_mesh(mesh_sensor(preset("angels-2")))
 >>> q.is_watertight, q.is_outward
 (True, True)
@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .labelled_mesh import LabelledMesh
+from electrosense.meshes.labelled_mesh import LabelledMesh
 
 __all__ = ["MeshQuality", "MeshError", "mesh_quality", "check_mesh", "triangle_angles_deg", "aspect_ratios",
            "overlapping_shells"]
@@ -267,7 +267,7 @@ def overlapping_shells(mesh: LabelledMesh) -> list[tuple[int, int, int]]:
     Example
     -------
     >>> import trimesh
-    >>> from meshes.labelled_mesh import LabelledMesh
+    >>> from electrosense.meshes.labelled_mesh import LabelledMesh
     >>> a, b = trimesh.creation.icosphere(2, 0.01), trimesh.creation.icosphere(2, 0.01)
     >>> both = trimesh.util.concatenate([a, b.apply_translation([0.015, 0, 0])])
     >>> m = LabelledMesh(both.vertices, both.faces, np.zeros(len(both.faces), dtype=int))

@@ -10,9 +10,9 @@ of the sensor.
 Example
 -------
 >>> import tempfile, pathlib
->>> from meshes import preset
->>> from meshes.sensor_mesh import mesh_sensor
->>> from meshes.render import render_mesh
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes.render import render_mesh
 >>> png = pathlib.Path(tempfile.mkdtemp()) / "sensor.png"
 >>> render_mesh(mesh_sensor(preset("angels-4")), png, title="angels-4").exists()
 True
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .labelled_mesh import LabelledMesh
+from electrosense.meshes.labelled_mesh import LabelledMesh
 
 __all__ = ["offscreen_backend", "can_render_3d", "RenderUnavailable", "require_3d", "render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "EMITTER_COLOUR", "INSULATOR_COLOUR",
            "electrode_colour", "facing_emitter", "electrode_legend"]

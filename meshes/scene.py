@@ -1,7 +1,7 @@
 """A scene: the sensor at a pose, optionally in a tank, with objects and electrodes of its own.
 
 The sensor may be absent (``None``): a tank with field electrodes in its
-walls (:mod:`meshes.surface_electrodes`) is a scene too. Scene electrodes are
+walls (:mod:`electrosense.meshes.surface_electrodes`) is a scene too. Scene electrodes are
 numbered after the sensor's electrodes.
 
 A scene is geometry only. The water's conductivity and the electrodes'
@@ -9,10 +9,10 @@ contact impedance are physics and are passed to the solvers separately.
 
 Example
 -------
->>> from meshes.scene import Scene
->>> from meshes.sensor import preset
->>> from meshes.tank import Tank
->>> from meshes.pose import Pose
+>>> from electrosense.meshes.scene import Scene
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.meshes.pose import Pose
 >>> scene = Scene(preset("angels-2"), Pose(0.0, 0.0, 0.0, 0.0), Tank((1.0, 1.0, 1.0)))
 >>> scene.is_unbounded
 False
@@ -21,12 +21,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from .objects import SceneObject
-from .pose import Pose
-from .sensor import SensorDescription
-from .cylinder_tank import CylinderTank
-from .surface_electrodes import SurfaceElectrode
-from .tank import Tank
+from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.objects import SceneObject
+from electrosense.meshes.pose import Pose
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.meshes.surface_electrodes import SurfaceElectrode
+from electrosense.meshes.tank import Tank
 
 __all__ = ["Scene"]
 

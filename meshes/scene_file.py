@@ -65,7 +65,7 @@ geometry does not use (``[water]``...) are returned by
 Example
 -------
 >>> import tempfile, pathlib
->>> from meshes.scene_file import load_scene
+>>> from electrosense.meshes.scene_file import load_scene
 >>> path = pathlib.Path(tempfile.mkdtemp()) / "bench.toml"
 >>> _ = path.write_text('[tank]\\nsize_m = [1, 1, 0.5]\\n[sensor]\\npreset = "angels-2"\\npose = [0.1, 0, 0, 0]\\n')
 >>> scene = load_scene(path)
@@ -75,19 +75,19 @@ Example
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
-from .objects import Box, Cylinder, Sphere, parse_material
-from .pose import Pose
-from .scene import Scene
-from .sensor import load_sensor
-from .cylinder_tank import CylinderTank
-from .surface_electrodes import DiscElectrode, PlateElectrode
-from .tank import Tank
+from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.objects import Box, Cylinder, Sphere, parse_material
+from electrosense.meshes.pose import Pose
+from electrosense.meshes.scene import Scene
+from electrosense.meshes.sensor import load_sensor
+from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode
+from electrosense.meshes.tank import Tank
 
 __all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
 
@@ -135,7 +135,7 @@ def load_scene(path: str | Path) -> Scene:
 
     Raises :class:`SceneFileError` naming the file and the faulty entry.
     The scene is not checked for collisions here; see
-    :func:`meshes.scene_mesh.check_scene`.
+    :func:`electrosense.meshes.scene_mesh.check_scene`.
     """
     path = Path(path)
     data = _read_toml(path)
@@ -284,7 +284,7 @@ def _toml_value(v) -> str:
 
 def scene_to_toml(scene: Scene, sensor_file: str | None = None, settings: dict | None = None) -> str:
     """The scene as scene-file text (a preset sensor by name, else ``sensor_file``)."""
-    from .sensor import PRESETS, preset
+    from electrosense.meshes.sensor import PRESETS, preset
 
     lines = []
     if scene.tank is not None:

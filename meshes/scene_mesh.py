@@ -16,8 +16,8 @@ in the tank frame, one region per part.
 
 Example
 -------
->>> from meshes import Pose, Scene, Sphere, Tank, preset
->>> from meshes.scene_mesh import check_scene
+>>> from electrosense.meshes import Pose, Scene, Sphere, Tank, preset
+>>> from electrosense.meshes.scene_mesh import check_scene
 >>> scene = Scene(preset("angels-2"), Pose(0.0, 0.0, 0.0, 0.0), Tank((1.0, 1.0, 1.0)),
 ...               (Sphere(centre_m=(0.05, 0.0, 0.0), radius_m=0.02),))
 >>> try:
@@ -33,13 +33,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .labelled_mesh import LabelledMesh, concatenate
-from .object_mesh import mesh_object
-from .objects import Box, Cylinder, Sphere
-from .pose import Pose
-from .scene import Scene
-from .cylinder_tank import CylinderTank
-from .tank import TANK_REGIONS
+from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.object_mesh import mesh_object
+from electrosense.meshes.objects import Box, Cylinder, Sphere
+from electrosense.meshes.pose import Pose
+from electrosense.meshes.scene import Scene
+from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
            "trajectory_focus_m", "default_tank_edge_length_m", "DEFAULT_TANK_GRADING",
@@ -82,11 +82,11 @@ def trajectory_focus_m(sensor, poses, n_per_pose: int = 5) -> np.ndarray:
 
     Example
     -------
-    >>> from meshes import preset
+    >>> from electrosense.meshes import preset
     >>> trajectory_focus_m(preset("angels-2"), [[0.0, 0.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0]], 2).round(2).tolist()
     [[-0.09, 0.0, 0.0], [0.09, 0.0, 0.0], [0.01, 0.0, 0.0], [0.19, 0.0, 0.0]]
     """
-    from .pose import poses_array, sensor_to_tank
+    from electrosense.meshes.pose import poses_array, sensor_to_tank
 
     half_core = 0.5 * sensor.length_m - sensor.radius_m
     x = np.linspace(-half_core, half_core, n_per_pose)
@@ -282,7 +282,7 @@ def mesh_scene(scene: Scene, edge_length_m: float | None = None, *, tank_edge_le
     ----------
     scene : Scene
     edge_length_m : float, optional
-        Sensor edge length, passed to :func:`meshes.sensor_mesh.mesh_sensor`.
+        Sensor edge length, passed to :func:`electrosense.meshes.sensor_mesh.mesh_sensor`.
     tank_edge_length_m : float, optional
         Tank edge length nearest the sensor (default
         :func:`default_tank_edge_length_m`); it grows by ``tank_grading`` per
@@ -299,13 +299,13 @@ def mesh_scene(scene: Scene, edge_length_m: float | None = None, *, tank_edge_le
 
     Example
     -------
-    >>> from meshes import Pose, Scene, Tank, preset
+    >>> from electrosense.meshes import Pose, Scene, Tank, preset
     >>> sm = mesh_scene(Scene(preset("angels-2"), Pose(0.1, 0.0, 0.0, 0.0), Tank((0.6, 0.4, 0.3))))
     >>> sm.combined().region_names[:2]
     ('sensor', 'wall_x-')
     """
-    from .sensor_mesh import mesh_sensor
-    from .tank_mesh import mesh_tank
+    from electrosense.meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.tank_mesh import mesh_tank
 
     if check:
         check_scene(scene)
@@ -330,9 +330,9 @@ def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_
                           object_edge_length_m, edge_fraction=None, electrode_grading=None,
                           **sensor_options) -> SceneMesh:
     """A scene with electrodes on its tank, or a cylindrical tank, or no sensor."""
-    from .cylinder_tank_mesh import mesh_cylinder_tank
-    from .sensor_mesh import mesh_sensor
-    from .surface_electrodes import DEFAULT_EDGE_FRACTION, DEFAULT_ELECTRODE_GRADING
+    from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
+    from electrosense.meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.surface_electrodes import DEFAULT_EDGE_FRACTION, DEFAULT_ELECTRODE_GRADING
 
     sensor = None
     focus = [] if tank_focus_m is None else [np.asarray(tank_focus_m, float).reshape(-1, 3)]

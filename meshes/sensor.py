@@ -18,7 +18,7 @@ band of the cylinder. Everything not covered by an electrode is insulating.
 
 Example
 -------
->>> from meshes.sensor import preset
+>>> from electrosense.meshes.sensor import preset
 >>> s = preset("angels-4")
 >>> s.n_electrodes, s.emitter
 (4, 4)

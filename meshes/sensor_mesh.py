@@ -1,7 +1,7 @@
 """Graded surface mesh of an axisymmetric sensor (hemispherical ends + cylinder).
 
 The sensor's surface is a surface of revolution about the x axis (sensor
-frame, :mod:`meshes.sensor`). Its meridian is parametrised by the arc length
+frame, :mod:`electrosense.meshes.sensor`). Its meridian is parametrised by the arc length
 ``s`` from the head tip (``s = 0``, x = +L/2) to the tail tip. The mesh is
 built ring by ring:
 
@@ -41,8 +41,8 @@ insulator) and the only region is ``"sensor"``.
 
 Example
 -------
->>> from meshes.sensor import preset
->>> from meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
 >>> m = mesh_sensor(preset("angels-4"))
 >>> m.to_trimesh().is_watertight, m.electrodes
 (True, (1, 2, 3, 4))
@@ -51,8 +51,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .labelled_mesh import LabelledMesh
-from .sensor import SensorDescription
+from electrosense.meshes.labelled_mesh import LabelledMesh
+from electrosense.meshes.sensor import SensorDescription
 
 __all__ = ["mesh_sensor", "estimate_triangles", "MAX_SENSOR_TRIANGLES", "SensorProfile", "default_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
 
@@ -67,7 +67,7 @@ class SensorProfile:
 
     Example
     -------
-    >>> from meshes.sensor import preset
+    >>> from electrosense.meshes.sensor import preset
     >>> p = SensorProfile(preset("angels-2"))
     >>> x, r = p.point(0.0)
     >>> float(x), float(r)
@@ -126,7 +126,7 @@ def electrode_edge_arc_lengths(sensor: SensorDescription) -> np.ndarray:
 
     Example
     -------
-    >>> from meshes.sensor import preset
+    >>> from electrosense.meshes.sensor import preset
     >>> electrode_edge_arc_lengths(preset("angels-2")).size
     2
     """
@@ -146,7 +146,7 @@ def graded_arc_lengths(sensor: SensorDescription, h_far_m: float, h_edge_m: floa
 
     Example
     -------
-    >>> from meshes.sensor import preset
+    >>> from electrosense.meshes.sensor import preset
     >>> s, h = graded_arc_lengths(preset("angels-2"), 0.005, 0.0005, 1.2)
     >>> bool(s[0] == 0.0 and np.all(np.diff(s) > 0))
     True
@@ -261,7 +261,7 @@ def estimate_triangles(sensor: SensorDescription, edge_length_m: float | None = 
 
     Example
     -------
-    >>> from meshes.sensor import preset
+    >>> from electrosense.meshes.sensor import preset
     >>> estimate_triangles(preset("angels-2"), 0.004) == mesh_sensor(preset("angels-2"), 0.004).n_triangles
     True
     """
@@ -322,7 +322,7 @@ def mesh_sensor(
 
     Example
     -------
-    >>> from meshes.sensor import preset
+    >>> from electrosense.meshes.sensor import preset
     >>> import numpy as np
     >>> s = preset("angels-2")
     >>> m = mesh_sensor(s, edge_length_m=0.004)

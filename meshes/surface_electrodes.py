@@ -1,6 +1,6 @@
 """Electrodes on the boundaries of a scene: discs flush with a tank's wall or floor, and plates.
 
-A sensor carries its own electrodes (:mod:`meshes.sensor`). A scene may also
+A sensor carries its own electrodes (:mod:`electrosense.meshes.sensor`). A scene may also
 have electrodes of its own, on the tank (field electrodes in the walls, a
 ground electrode on the floor, a plate covering a whole wall):
 
@@ -21,7 +21,7 @@ distance to electrode k's rim and ``h_k = edge_fraction * radius_k``.
 Example
 -------
 >>> import numpy as np
->>> from meshes.surface_electrodes import DiscElectrode, electrode_size_function
+>>> from electrosense.meshes.surface_electrodes import DiscElectrode, electrode_size_function
 >>> e = DiscElectrode(centre_m=(0.15, 0.0, -0.05), radius_m=0.004)
 >>> h = electrode_size_function([e], h_far_m=0.03)
 >>> h(np.array([[0.15, 0.004, -0.05], [0.15, 0.1, 0.1]])).round(4).tolist()

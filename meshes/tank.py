@@ -1,13 +1,13 @@
 """The tank: the inner box of a rectangular tank, filled to a water depth.
 
 The water occupies ``|x| <= Lx/2, |y| <= Ly/2, -Lz/2 <= z <= -Lz/2 + depth``
-in the tank frame (see :mod:`meshes.pose`). Walls, floor and the free surface
+in the tank frame (see :mod:`electrosense.meshes.pose`). Walls, floor and the free surface
 are all insulating boundaries for the physics packages. ``None`` in place of
 a tank means unbounded water.
 
 Example
 -------
->>> from meshes.tank import Tank
+>>> from electrosense.meshes.tank import Tank
 >>> t = Tank((1.0, 1.0, 1.0), water_depth_m=0.8)
 >>> t.free_surface_z_m
 0.30000000000000004

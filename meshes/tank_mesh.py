@@ -1,7 +1,7 @@
 """Mesh of the tank's water box: four walls, the floor and the free surface.
 
 The water box ``|x| <= Lx/2, |y| <= Ly/2, floor <= z <= free surface`` (tank
-frame, :mod:`meshes.tank`) is meshed as one closed, watertight shell with six
+frame, :mod:`electrosense.meshes.tank`) is meshed as one closed, watertight shell with six
 labelled regions (``TANK_REGIONS``) whose normals point OUT OF THE WATER.
 Neighbouring faces share their edge nodes, so the mesh is conforming where
 walls meet.
@@ -22,8 +22,8 @@ quadtree, a few Persson-Strang (distmesh) smoothing steps, then Delaunay.
 
 Example
 -------
->>> from meshes.tank import Tank
->>> from meshes.tank_mesh import mesh_tank
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.meshes.tank_mesh import mesh_tank
 >>> m = mesh_tank(Tank((1.0, 0.6, 0.5), water_depth_m=0.4), edge_length_m=0.1)
 >>> m.region_names[-1], m.to_trimesh().is_watertight
 ('free_surface', True)
@@ -35,8 +35,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
-from .labelled_mesh import LabelledMesh, concatenate
-from .tank import TANK_REGIONS, Tank
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.tank import TANK_REGIONS, Tank
 
 __all__ = ["mesh_tank", "mesh_axis_box", "mesh_convex_polygon", "graded_size_function", "equidistributed_nodes"]
 

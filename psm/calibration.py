@@ -28,7 +28,7 @@ stated in the result).
 
 Example
 -------
->>> from psm.paper import paper_reference
+>>> from electrosense.psm.paper import paper_reference
 >>> cal = calibrate(paper_reference(), symmetric=True)
 >>> np.round(cal.parameters * 100, 2).tolist()  # a_e, a_i, L_e, L_i in cm (paper: 0.72, 0.74, 7.85, 7.69)
 [0.72, 0.74, 7.87, 7.73]
@@ -40,12 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from bem.conductance import ConductanceMatrix, S_from_K
-
-from .conductance import conductance_array
-from .contact import electrode_areas_m2
-from .model import ModelError, PolySphericalModel
-from .potential_coefficients import isolated_conductance, potential_coefficients
+from electrosense.bem.conductance import ConductanceMatrix, S_from_K
+from electrosense.psm.conductance import conductance_array
+from electrosense.psm.contact import electrode_areas_m2
+from electrosense.psm.model import ModelError, PolySphericalModel
+from electrosense.psm.potential_coefficients import isolated_conductance, potential_coefficients
 
 __all__ = ["Calibration", "CalibrationError", "calibrate", "gamma_criterion", "Layout"]
 

@@ -1,10 +1,10 @@
-"""Conductance matrices of the PSM for whole trajectories (the contract's ``psm.conductance``).
+"""Conductance matrices of the PSM for whole trajectories (the contract's ``electrosense.psm.conductance``).
 
 For each pose the sphere centres are mapped into the tank frame, the
 potential coefficients ``M = (R + dR) / (4 pi sigma) + diag(z_c / A)`` are
-assembled (``dR``: tank images, :mod:`psm.images`; objects,
-:mod:`psm.objects`; contact impedance, :mod:`psm.contact`) and the isolated
-``K = P (P^T M P)^-1 P^T`` is returned as a :class:`bem.conductance.ConductanceMatrix`
+assembled (``dR``: tank images, :mod:`electrosense.psm.images`; objects,
+:mod:`electrosense.psm.objects`; contact impedance, :mod:`electrosense.psm.contact`) and the isolated
+``K = P (P^T M P)^-1 P^T`` is returned as a :class:`electrosense.bem.conductance.ConductanceMatrix`
 of batch shape (P,), in exactly the conventions of the BEM.
 
 The complete image series is summed in symmetric shells until K changes by
@@ -15,8 +15,8 @@ and the last change are recorded in ``info``.
 Example
 -------
 >>> import numpy as np
->>> from meshes.tank import Tank
->>> from psm.model import PolySphericalModel
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.psm.model import PolySphericalModel
 >>> m = PolySphericalModel.collinear([0.0071, 0.0071], [0.2])
 >>> C = conductance(m, np.array([[0.0, 0, 0, 0], [0.3, 0, 0, 0]]), 0.0354, tank=Tank((1.0, 1.0, 1.0)))
 >>> C.batch_shape, bool(C.resistance_ohm[1, 0] > C.resistance_ohm[0, 0])
@@ -26,16 +26,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from bem.conductance import ConductanceMatrix, check_conductivity
-from meshes.pose import poses_array
-from meshes.tank import TANK_REGIONS, Tank
-
-from .contact import electrode_areas_m2, series_resistance_ohm
-from .images import IMAGE_KINDS, ImageSet, image_sources
-from .kernels import conductance_kernel
-from .model import PolySphericalModel
-from .objects import object_terms
-from .potential_coefficients import potential_coefficients
+from electrosense.bem.conductance import ConductanceMatrix, check_conductivity
+from electrosense.meshes.pose import poses_array
+from electrosense.meshes.tank import TANK_REGIONS, Tank
+from electrosense.psm.contact import electrode_areas_m2, series_resistance_ohm
+from electrosense.psm.images import IMAGE_KINDS, ImageSet, image_sources
+from electrosense.psm.kernels import conductance_kernel
+from electrosense.psm.model import PolySphericalModel
+from electrosense.psm.objects import object_terms
+from electrosense.psm.potential_coefficients import potential_coefficients
 
 __all__ = ["conductance", "conductance_array", "sphere_centres_m", "PlacementError", "MAX_IMAGE_SHELLS"]
 
@@ -187,7 +186,7 @@ def conductance(model: PolySphericalModel, poses, sigma_S_per_m: float, tank: Ta
     tank : meshes.tank.Tank or None
         ``None``: unbounded water (no images whatever ``images`` says).
     images : {"complete", "paper8", "none"}
-        Image series for the tank (:mod:`psm.images`).
+        Image series for the tank (:mod:`electrosense.psm.images`).
     objects : sequence of meshes.objects.Sphere
         Small spheres (tank frame), any conductivity (0 and inf included).
     contact_impedance_ohm_m2 : float or (n,) array, optional

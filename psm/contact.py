@@ -22,7 +22,7 @@ z_c = 1e-3..1e-2 ohm m^2, about 6 % below at 0.1 ohm m^2 and within 1 % at
 
 Example
 -------
->>> from meshes.sensor import preset
+>>> from electrosense.meshes.sensor import preset
 >>> s = preset("angels-2")
 >>> A = electrode_areas_m2(s)
 >>> bool(np.allclose(A, 2 * np.pi * s.radius_m * (s.electrodes[0].x_max_m - s.electrodes[0].x_min_m)))
@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.sensor import SensorDescription
+from electrosense.meshes.sensor import SensorDescription
 
 __all__ = ["electrode_areas_m2", "series_resistance_ohm"]
 

@@ -27,14 +27,14 @@ Two sets are offered:
     outermost layer half weight (trapezoid) balances them, and what remains
     converges like ``1/N^2``. Two partial sums N/2 and N (N a multiple of 4,
     so that both have the same parity) are combined by Richardson
-    extrapolation, and :func:`psm.conductance` takes N = 4, 8, 12, ... until
+    extrapolation, and :func:`electrosense.psm.conductance` takes N = 4, 8, 12, ... until
     K stops changing to a stated tolerance.
 ``"none"``
     Unbounded water.
 
 Example
 -------
->>> from meshes.tank import Tank
+>>> from electrosense.meshes.tank import Tank
 >>> imgs = image_sources(Tank((1.0, 1.0, 1.0)), "paper8")
 >>> len(imgs), [0.9, 0.0, 0.0] in imgs.apply([0.1, 0.0, 0.0]).round(12).tolist()
 (8, True)
@@ -45,7 +45,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshes.tank import Tank
+from electrosense.meshes.tank import Tank
 
 __all__ = ["ImageSet", "IMAGE_KINDS", "image_sources", "paper8_images", "box_images"]
 

@@ -5,7 +5,7 @@ receiver, all receivers at one potential, emitter ``U_V`` above them).
 
 ``method="analytic"`` (default): ``dK = -K dM K`` with the derivative of the
 potential coefficients M written out for the images and the objects
-(:func:`psm.kernels.pose_derivative_kernel`). ``method="complex-step"``: the
+(:func:`electrosense.psm.kernels.pose_derivative_kernel`). ``method="complex-step"``: the
 whole PSM is analytic in the pose, so ``dI/dp = Im I(p + i h e_p) / h`` to
 machine precision with ``h = 1e-30`` and no subtractive cancellation (3
 complex evaluations of the batched kernel): an independent check, slower.
@@ -13,8 +13,8 @@ complex evaluations of the batched kernel): an independent check, slower.
 Example
 -------
 >>> import numpy as np
->>> from meshes.tank import Tank
->>> from psm.model import PolySphericalModel
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.psm.model import PolySphericalModel
 >>> m = PolySphericalModel.collinear([0.0071, 0.0071], [0.2])
 >>> J = receiver_current_jacobian(m, np.array([[0.2, 0.0, 0.0, 0.0]]), 0.0354, tank=Tank((1.0, 1.0, 1.0)))
 >>> J.shape, bool(J[0, 0, 0] < 0)  # closer to the wall: less current
@@ -24,12 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.pose import poses_array
-
-from .conductance import conductance_array, sphere_centres_m
-from .images import image_sources
-from .kernels import pose_derivative_kernel
-from .objects import object_terms
+from electrosense.meshes.pose import poses_array
+from electrosense.psm.conductance import conductance_array, sphere_centres_m
+from electrosense.psm.images import image_sources
+from electrosense.psm.kernels import pose_derivative_kernel
+from electrosense.psm.objects import object_terms
 
 __all__ = ["receiver_current_jacobian", "POSE_COLUMNS"]
 
@@ -44,7 +43,7 @@ def receiver_current_jacobian(model, poses, sigma_S_per_m, tank=None, images="co
                               image_shells=None, image_tolerance=1e-5, method: str = "analytic") -> np.ndarray:
     """d I / d (x, y, yaw): (P, n-1, 3) in A/m, A/m and A/rad, receivers in electrode order.
 
-    Same arguments as :func:`psm.conductance.conductance`; ``U_V`` is the
+    Same arguments as :func:`electrosense.psm.conductance.conductance`; ``U_V`` is the
     emitter voltage above the receivers; ``method`` "analytic" or "complex-step".
     """
     if method not in ("analytic", "complex-step"):

@@ -2,8 +2,8 @@
 
 One compiled function evaluates a whole trajectory. It is written for any
 float or complex dtype of the electrode positions, so that the Jacobian can
-reuse it with a complex step (:mod:`psm.jacobian`). The mathematics is in
-:mod:`psm.potential_coefficients`, :mod:`psm.images` and :mod:`psm.objects`;
+reuse it with a complex step (:mod:`electrosense.psm.jacobian`). The mathematics is in
+:mod:`electrosense.psm.potential_coefficients`, :mod:`electrosense.psm.images` and :mod:`electrosense.psm.objects`;
 this module only loops.
 """
 from __future__ import annotations

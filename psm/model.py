@@ -1,6 +1,6 @@
 """The poly-spherical model: n spherical electrodes in the sensor frame, saved as JSON.
 
-Sensor frame as in :mod:`meshes.sensor`: x along the axis, electrode 1 at the
+Sensor frame as in :mod:`electrosense.meshes.sensor`: x along the axis, electrode 1 at the
 head (+x), the emitter the last electrode by default.
 
 Example
@@ -42,7 +42,7 @@ class PolySphericalModel:
         The reference the model was fitted to (``ConductanceMatrix.to_json_dict()``).
     electrode_areas_m2 : (n,) array or None
         Areas of the matching real electrodes, for the contact impedance
-        (:mod:`psm.contact`).
+        (:mod:`electrosense.psm.contact`).
     info : dict
         Free-form provenance (sensor name, fit parameters and uncertainties...).
     """

@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from meshes.objects import Sphere
+from electrosense.meshes.objects import Sphere
 
 __all__ = ["contrast", "object_terms"]
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bem.conductance import ConductanceMatrix, K_from_S
+from electrosense.bem.conductance import ConductanceMatrix, K_from_S
 
 __all__ = [
     "S_BEM_N4_GAMMA_CM", "SIGMA_MEASURED_S_PER_M", "FIT_N4", "RADIUS_N2_M", "LENGTH_N2_M",

@@ -10,7 +10,7 @@ An isolated sensor has ``sum(I) = 0`` and a floating far field, so only the
 restriction of the potential-coefficient matrix ``M`` (ohm, ``V = M I``) to
 zero-sum currents matters. With the paper's ``P`` (n x (n-1): the identity
 on the receivers, -1 on the emitter's row) the nodal conductance matrix of
-:mod:`bem.conductance` is::
+:mod:`electrosense.bem.conductance` is::
 
     K = P (P^T M P)^-1 P^T,
 

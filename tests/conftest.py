@@ -4,6 +4,6 @@ import os
 os.environ.setdefault("PYVISTA_OFF_SCREEN", "true")
 os.environ.setdefault("TQDM_DISABLE", "1")
 
-from meshes.render import offscreen_backend  # noqa: E402  (after the environment above)
+from electrosense.meshes.render import offscreen_backend  # noqa: E402  (after the environment above)
 
 offscreen_backend()  # probed once here; worker processes inherit the choice

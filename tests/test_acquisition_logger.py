@@ -10,12 +10,19 @@ import time
 import numpy as np
 import pytest
 
-from bem.conductance import ConductanceMatrix
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.acquisition import Logger, rejected_path
-from validation.bench_sim import BenchDevice, FaultPlan, PtyTransport, SocketTransport, VirtualBench, wall_to_wall
-from validation.benchlog import read_bench_log
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.bench.log import read_bench_log
+from electrosense.validation.bench.logger import Logger, rejected_path
+from electrosense.validation.bench.virtual import (
+    BenchDevice,
+    FaultPlan,
+    PtyTransport,
+    SocketTransport,
+    VirtualBench,
+    wall_to_wall,
+)
 
 META = {"sensor": "angels-4", "emitter": 4, "tank_m": [1.0, 1.0, 1.0], "sigma_S_per_m": 0.0354}
 
@@ -234,7 +241,7 @@ def test_an_autostart_device_marks_what_it_wrote_before_the_host_spoke_as_unhear
     file says "unheard", never "sent". A raw client that keeps everything sees all of them."""
     import socket
 
-    from validation.acquisition.protocol import DataRecord, encode_command, parse_line
+    from electrosense.validation.bench.logger.protocol import DataRecord, encode_command, parse_line
 
     run = simulated_run(n=60, rate=200.0)
     transport = SocketTransport()

@@ -1,10 +1,21 @@
 """Serial protocol: CRC, framing, every way a line can be refused, sequence tracking, --meta text."""
 import pytest
 
-from validation.acquisition.meta_option import parse_meta_option
-from validation.acquisition.protocol import (
-    Ack, DataRecord, FrameError, Hello, SequenceTracker, crc16, encode_ack, encode_command, encode_hello,
-    encode_record, frame, parse_command, parse_line,
+from electrosense.validation.bench.logger.meta_option import parse_meta_option
+from electrosense.validation.bench.logger.protocol import (
+    Ack,
+    DataRecord,
+    FrameError,
+    Hello,
+    SequenceTracker,
+    crc16,
+    encode_ack,
+    encode_command,
+    encode_hello,
+    encode_record,
+    frame,
+    parse_command,
+    parse_line,
 )
 
 

@@ -6,9 +6,9 @@ import threading
 import numpy as np
 import pytest
 
-from validation.acquisition import Logger, rejected_path
-from validation.acquisition.protocol import FrameError, encode_hello, encode_record, frame, parse_line
-from validation.benchlog import read_bench_log
+from electrosense.validation.bench.log import read_bench_log
+from electrosense.validation.bench.logger import Logger, rejected_path
+from electrosense.validation.bench.logger.protocol import FrameError, encode_hello, encode_record, frame, parse_line
 
 META = {"sensor": "angels-2", "emitter": 2, "tank_m": [1.0, 1.0, 1.0], "sigma_S_per_m": 0.0354}
 FIELDS = ("t_s", "x_m", "y_m", "z_m", "yaw_rad", "U_V", "I1_A")

@@ -5,8 +5,8 @@ import pickle
 import numpy as np
 import pytest
 
-from bem import ConductanceMatrix, PoseSweep, conductance_matrix, solve_scene
-from meshes import Pose, Scene, Tank, preset
+from electrosense.bem import ConductanceMatrix, PoseSweep, conductance_matrix, solve_scene
+from electrosense.meshes import Pose, Scene, Tank, preset
 
 H = 0.008  # coarse sensor meshes keep these tests fast
 
@@ -113,7 +113,7 @@ def test_lone_sensor_is_independent_of_its_pose_in_unbounded_water():
 def test_conductance_command(tmp_path, free_solution):
     from click.testing import CliRunner
 
-    from validation.cli import main
+    from electrosense.validation.cli import main
 
     out = tmp_path / "g.json"
     result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--unbounded", "--sigma", "1", "--edge-length", str(H),
@@ -141,7 +141,7 @@ def test_conductance_command(tmp_path, free_solution):
 def test_conductance_command_refuses_a_sensor_out_of_the_tank():
     from click.testing import CliRunner
 
-    from validation.cli import main
+    from electrosense.validation.cli import main
 
     result = CliRunner().invoke(main, ["conductance", "--sensor", "angels-2", "--tank", "0.3,0.3,0.3",
                                        "--pose", "0.1,0,0,0"])
@@ -149,7 +149,7 @@ def test_conductance_command_refuses_a_sensor_out_of_the_tank():
 
 
 def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
-    from meshes import Sphere
+    from electrosense.meshes import Sphere
 
     tank = Tank((0.4, 0.3, 0.3))
     ball = (Sphere(centre_m=(0.0, 0.08, 0.0), radius_m=0.02, conductivity_S_per_m=float("inf")),)
@@ -163,7 +163,7 @@ def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
 
 
 def test_axisymmetric_reduction_matches_the_full_collocation(free_solution):
-    from bem.axisymmetric import solve_axisymmetric
+    from electrosense.bem.axisymmetric import solve_axisymmetric
 
     assert free_solution.info.get("method") == "axisymmetric reduction"   # the default for a lone sensor
     full = solve_scene(Scene(preset("angels-2")), 1.0, edge_length_m=H, axisymmetric=False)

@@ -8,10 +8,15 @@ its default, which is a different discretisation of the same problem.
 import numpy as np
 import pytest
 
-from bem.meridian import (converged_conductance, mesh_meridian, meridian_conductance, ring_double_layer,
-                          ring_single_layer)
-from meshes import preset
-from meshes.sensor import Electrode, SensorDescription
+from electrosense.bem.meridian import (
+    converged_conductance,
+    meridian_conductance,
+    mesh_meridian,
+    ring_double_layer,
+    ring_single_layer,
+)
+from electrosense.meshes import preset
+from electrosense.meshes.sensor import Electrode, SensorDescription
 
 
 def _sphere(a=0.01):
@@ -64,9 +69,9 @@ def test_observed_order_two_and_a_converged_limit():
 def test_agrees_with_the_refined_surface_bem():
     """The surface BEM on a mesh 4x finer than the default (axisymmetric reduction), angels-2:
     0.07 % below its own Richardson limit, which the ring elements match to 0.01 %."""
-    from bem.axisymmetric import solve_axisymmetric
-    from bem.boundary_conditions import WaterBoundary
-    from meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+    from electrosense.bem.axisymmetric import solve_axisymmetric
+    from electrosense.bem.boundary_conditions import WaterBoundary
+    from electrosense.meshes.sensor_mesh import default_edge_length_m, mesh_sensor
 
     s = preset("angels-2")
     h0 = default_edge_length_m(s)
@@ -86,8 +91,8 @@ def test_refuses_bad_meshes():
 
 # ---------------------------------------------------------------- edge correction
 def test_edge_correction_brings_the_default_mesh_to_the_converged_matrix():
-    from bem.solve import conductance_matrix
-    from meshes import Scene
+    from electrosense.bem.solve import conductance_matrix
+    from electrosense.meshes import Scene
 
     s = preset("angels-4")
     reference = converged_conductance(s, 1.0, refinements=(0.5, 1, 2)).S_S
@@ -104,9 +109,9 @@ def test_edge_correction_brings_the_default_mesh_to_the_converged_matrix():
 
 
 def test_edge_correction_is_the_same_in_a_sweep_and_in_a_scene():
-    from bem.solve import conductance_matrix
-    from bem.sweep import PoseSweep
-    from meshes import Pose, Scene, Tank
+    from electrosense.bem.solve import conductance_matrix
+    from electrosense.bem.sweep import PoseSweep
+    from electrosense.meshes import Pose, Scene, Tank
 
     s, tank = preset("angels-2"), Tank((0.6, 0.5, 0.4))
     pose = Pose(0.05, 0.02, 0.0, 0.3)
@@ -121,8 +126,8 @@ def test_edge_correction_is_the_same_in_a_sweep_and_in_a_scene():
 def test_contact_impedance_removes_most_of_the_edge_error():
     """Behind a contact impedance the current density is no longer singular at the electrode edges (it is
     smoothed over the length z_c sigma), so the surface mesh's own error (and with it the correction) shrinks."""
-    from bem.edge_correction import free_space_correction
-    from meshes.sensor_mesh import mesh_sensor
+    from electrosense.bem.edge_correction import free_space_correction
+    from electrosense.meshes.sensor_mesh import mesh_sensor
 
     s = preset("angels-2")
     mesh = mesh_sensor(s)
@@ -137,9 +142,9 @@ def test_edge_correction_carries_over_to_a_sensor_near_a_wall():
     """A five-electrode sensor that is not a preset, tip 1 cm from a wall and turned: refining the sensor
     mesh by sqrt 2 moves the corrected S by ~0.015 %, the surface solution's own S by ~0.16 %
     (and in free space the correction takes the default mesh from ~0.46 % to ~0.01 % of converged)."""
-    from bem.solve import conductance_matrix
-    from meshes import Pose, Scene, Tank
-    from meshes.sensor_mesh import default_edge_length_m
+    from electrosense.bem.solve import conductance_matrix
+    from electrosense.meshes import Pose, Scene, Tank
+    from electrosense.meshes.sensor_mesh import default_edge_length_m
 
     s = SensorDescription(name="five", radius_m=0.008, length_m=0.15, electrodes=(
         Electrode("cap", 0.068, 0.075), Electrode("ring", 0.03, 0.04), Electrode("ring", -0.005, 0.005),

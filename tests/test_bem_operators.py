@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from bem.operators import double_layer, layer_matrices, single_layer
-from bem.quadrature import DUNAVANT_5, rule_points
-from bem.triangle_integrals import inverse_distance_integrals, solid_angles
+from electrosense.bem.operators import double_layer, layer_matrices, single_layer
+from electrosense.bem.quadrature import DUNAVANT_5, rule_points
+from electrosense.bem.triangle_integrals import inverse_distance_integrals, solid_angles
 
 TRI = np.array([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.3, 0.8, 0.0]]])
 

@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 import trimesh
 
-import bem.memory
-from bem.boundary_conditions import BoundaryError, WaterBoundary
-from bem.solve import SingularSystemError, conductance_matrix, solve
-from meshes import Pose, Scene, Sphere, Tank, preset
-from meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense import bem
+from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
+from electrosense.bem.solve import SingularSystemError, conductance_matrix, solve
+from electrosense.meshes import Pose, Scene, Sphere, Tank, preset
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
 
 
 def _sphere(centre=(0, 0, 0), electrode=1, radius=0.01, sub=1):

@@ -5,12 +5,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from bem.boundary_conditions import BoundaryError, WaterBoundary
-from bem.closed_forms import two_sphere_resistance_ohm
-from bem.conductance import isolate
-from bem.solve import solve
-from meshes.labelled_mesh import LabelledMesh, concatenate
-from meshes.pose import Pose
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.closed_forms import two_sphere_resistance_ohm
+from electrosense.bem.conductance import isolate
+from electrosense.bem.solve import solve
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.pose import Pose
 
 
 def sphere_mesh(radius_m, centre_m=(0, 0, 0), electrode=1, subdivisions=3, region="sensor"):
@@ -90,8 +90,8 @@ def test_per_electrode_contact_impedance_and_sigma_scaling():
 def test_sphere_pair_near_an_insulating_plane_equals_mirrored_pair():
     # an insulating plane is a mirror: the pair at 2 cm from the wall of a 1 m tank behaves like
     # the pair and its mirror image (same potentials) in unbounded water (far walls add < 0.1 %)
-    from meshes.tank import Tank
-    from meshes.tank_mesh import mesh_tank
+    from electrosense.meshes.tank import Tank
+    from electrosense.meshes.tank_mesh import mesh_tank
 
     tank = Tank((1.0, 1.0, 1.0))
     gap = 0.02 + 0.01
@@ -109,8 +109,8 @@ def test_sphere_pair_near_an_insulating_plane_equals_mirrored_pair():
 
 
 def test_closed_tank_conserves_current():
-    from meshes.tank import Tank
-    from meshes.tank_mesh import mesh_tank
+    from electrosense.meshes.tank import Tank
+    from electrosense.meshes.tank_mesh import mesh_tank
 
     pair = concatenate([sphere_mesh(0.01, (-0.03, 0, 0), 1, 1), sphere_mesh(0.01, (0.03, 0, 0), 2, 1)])
     sol = solve(WaterBoundary.from_meshes(pair, mesh_tank(Tank((0.3, 0.3, 0.3)), 0.05)), 1.0)

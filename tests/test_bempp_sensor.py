@@ -6,13 +6,16 @@ import trimesh
 
 pytest.importorskip("bempp_cl")
 
-from bem.boundary_conditions import WaterBoundary  # noqa: E402
-from bem.closed_forms import two_sphere_resistance_ohm  # noqa: E402
-from bem.conductance import isolate  # noqa: E402
-from bem.solve import solve  # noqa: E402
-from meshes.labelled_mesh import LabelledMesh, concatenate  # noqa: E402
-from validation.studies.bempp_sensor import (bempp_conductance, bempp_grounded_conductance,  # noqa: E402
-                                             double_layer_of_one)
+from electrosense.bem.boundary_conditions import WaterBoundary  # noqa: E402
+from electrosense.bem.closed_forms import two_sphere_resistance_ohm  # noqa: E402
+from electrosense.bem.conductance import isolate  # noqa: E402
+from electrosense.bem.solve import solve  # noqa: E402
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate  # noqa: E402
+from electrosense.validation.studies.bempp_sensor import (  # noqa: E402
+    bempp_conductance,
+    bempp_grounded_conductance,
+    double_layer_of_one,
+)
 
 
 def sphere(radius_m, centre_x_m=0.0, electrode=1, subdivisions=2):
@@ -42,8 +45,8 @@ def test_two_spheres_against_the_exact_series():
 
 
 def test_sensor_agrees_with_our_bem():
-    from meshes import preset
-    from meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+    from electrosense.meshes import preset
+    from electrosense.meshes.sensor_mesh import default_edge_length_m, mesh_sensor
 
     s = preset("angels-4")
     mesh = mesh_sensor(s, edge_length_m=default_edge_length_m(s) / 0.5, grading=1.3)

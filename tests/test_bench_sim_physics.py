@@ -1,22 +1,21 @@
 """The virtual bench: trajectories, the bench's noise, and each physical effect built into the physics."""
-import json
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from bem.conductance import ConductanceMatrix
-from meshes.objects import Sphere
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.bench_sim import BenchNoise, Effects, FaultPlan, VirtualBench, parse_path, repeat_passes
-from validation.bench_sim.trajectory import grid, wall_to_wall
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.bench.virtual import BenchNoise, Effects, VirtualBench, parse_path, repeat_passes
+from electrosense.validation.bench.virtual.trajectory import grid, wall_to_wall
 
 NO_NOISE = BenchNoise(current_rel=0.0, position_m=0.0)
 
 
 class RecordingModel:
-    """Stand-in for validation.models.simulate that remembers how it was called; K does not depend on the pose."""
+    """Stand-in for validation.simulation.models.simulate that remembers how it was called; K does not depend on the pose."""
 
     def __init__(self):
         self.calls = []
@@ -142,7 +141,7 @@ def test_out_of_the_water_is_refused():
 
 
 def test_with_the_real_psm_the_conductivity_offset_is_exact():
-    from psm import PolySphericalModel, conductance
+    from electrosense.psm import PolySphericalModel, conductance
 
     psm_model = PolySphericalModel.collinear([0.0071, 0.0071], [0.2])
     tank = Tank((1.0, 1.0, 1.0))
@@ -156,11 +155,11 @@ def test_with_the_real_psm_the_conductivity_offset_is_exact():
 
 
 def test_cli_writes_a_simulated_log(tmp_path):
-    from psm import PolySphericalModel
-    from validation.benchlog import read_bench_log
-    from validation.cli import main
+    from electrosense.psm import PolySphericalModel
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.cli import main
 
-    model_file = tmp_path / "psm.json"
+    model_file = tmp_path / "electrosense.psm.json"
     PolySphericalModel.collinear([0.0071, 0.0071], [0.2]).save(model_file)
     out = tmp_path / "sim.csv"
     args = ["bench-sim", "-o", str(out), "--sensor", "angels-2", "--model", "psm", "--psm-model", str(model_file), "--passes", "2",

@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from validation.bench_sim import parse_path
-from validation.benchlog import read_bench_log
-from validation.studies.make_example_data import DATA_DIR, EXAMPLES
+from electrosense.validation.bench.log import read_bench_log
+from electrosense.validation.bench.virtual import parse_path
+from electrosense.validation.studies.make_example_data import DATA_DIR, EXAMPLES
 
 
 @pytest.mark.parametrize("name", sorted(EXAMPLES))

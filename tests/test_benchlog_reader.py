@@ -3,8 +3,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from validation.benchlog import (
-    BenchLogError, BenchLogWriter, read_bench_log, read_bench_logs, write_bench_log,
+from electrosense.validation.bench.log import (
+    BenchLogError,
+    BenchLogWriter,
+    read_bench_log,
+    read_bench_logs,
+    write_bench_log,
 )
 
 META = '# meta: {"sensor": "angels-4", "emitter": 4, "tank_m": [1.0, 1.0, 1.0], "sigma_S_per_m": 0.0354}'
@@ -49,7 +53,7 @@ def test_extra_columns_kept_and_unknown_meta_kept(tmp_path):
 
 
 def test_unbounded_water_and_sensor_file_relative_to_log(tmp_path):
-    from meshes.sensor import preset, save_sensor
+    from electrosense.meshes.sensor import preset, save_sensor
 
     (tmp_path / "sensors").mkdir()
     save_sensor(preset("angels-2"), tmp_path / "sensors" / "my.json")
@@ -249,7 +253,7 @@ def test_a_byte_order_mark_is_named(tmp_path):
     with pytest.raises(BenchLogError, match="byte-order mark") as info:
         read_bench_log(p)
     assert info.value.line == 1
-    from validation.benchlog import read_header
+    from electrosense.validation.bench.log import read_header
     with pytest.raises(BenchLogError, match="byte-order mark"):
         read_header(p)
 
@@ -259,7 +263,7 @@ def test_cr_only_line_ends_are_named(tmp_path):
     p.write_bytes(("\r".join(_good()) + "\r").encode())
     with pytest.raises(BenchLogError, match="CR-only"):
         read_bench_log(p)
-    from validation.benchlog import read_header
+    from electrosense.validation.bench.log import read_header
     with pytest.raises(BenchLogError, match="CR-only"):
         read_header(p)
 

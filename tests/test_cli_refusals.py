@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from validation.cli import main
+from electrosense.validation.cli import main
 
 
 def _run(*args):
@@ -42,8 +42,8 @@ def test_pose_without_a_tank_is_explained():
 
 
 def test_conductance_default_sigma_is_the_nominal_one():
-    from validation.cli.conductance_cmd import conductance
-    from validation.defaults import NOMINAL_SIGMA_S_PER_M
+    from electrosense.validation.cli.conductance_cmd import conductance
+    from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
     sigma = next(p for p in conductance.params if p.name == "sigma")
     assert str(NOMINAL_SIGMA_S_PER_M) in sigma.help
@@ -52,8 +52,8 @@ def test_conductance_default_sigma_is_the_nominal_one():
 def test_a_mesh_whose_shells_intersect_is_refused(tmp_path):
     import trimesh
 
-    from meshes.io import write_mesh
-    from meshes.labelled_mesh import LabelledMesh
+    from electrosense.meshes.io import write_mesh
+    from electrosense.meshes.labelled_mesh import LabelledMesh
 
     rng = np.random.default_rng(3)
     r = rng.uniform(0.005, 0.02)

@@ -2,11 +2,17 @@
 import numpy as np
 import pytest
 
-from bem.conductance import ConductanceMatrix
-from meshes.objects import Sphere
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.compare import compare_currents, error_summary, fit_conductivity_scale, path_regions, relative_error
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.comparison import (
+    compare_currents,
+    error_summary,
+    fit_conductivity_scale,
+    path_regions,
+    relative_error,
+)
 
 
 def _smooth_currents(P=41, m=3, seed=0):

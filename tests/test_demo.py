@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from meshes.tank import Tank
-from psm import PolySphericalModel, conductance
-from validation.benchlog import write_bench_log
-from validation.cli.demo_cmd import bundled_logs, demo
-from validation.report.figures import png_is_blank
+from electrosense.meshes.tank import Tank
+from electrosense.psm import PolySphericalModel, conductance
+from electrosense.validation.bench.log import write_bench_log
+from electrosense.validation.cli.demo_cmd import bundled_logs, demo
+from electrosense.validation.report.figures import png_is_blank
 
 
 def _angels2_log(path, n=21, scale=0.98):

@@ -4,11 +4,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from meshes.tank import Tank
-from validation.diagnosis.anchored import AnchorStore, RBFInterpolant, pose_features, psm_usable
-from validation.diagnosis.report import readable_estimate, readable_shrink
-from validation.diagnosis.select import SelectionRules, _fewest_reaching_floor, forward_selection
-from validation.diagnosis.unseen import random_passes, random_sensor, random_setup
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.anchored import AnchorStore, RBFInterpolant, pose_features, psm_usable
+from electrosense.validation.diagnosis.report import readable_estimate, readable_shrink
+from electrosense.validation.diagnosis.select import SelectionRules, _fewest_reaching_floor, forward_selection
+from electrosense.validation.diagnosis.unseen import random_passes, random_sensor, random_setup
 
 
 def test_closed_form_leave_one_out_equals_refitting():
@@ -101,10 +101,10 @@ def test_numbers_a_person_can_read():
 def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypatch):
     """Passes that repeat a path log the same poses: the BEM runs once per distinct pose (a stand-in sweep counts
     them and answers the PSM's K, slightly changed, so that the bookkeeping is checked without the BEM's cost)."""
-    import bem
-    from validation.diagnosis.anchored import anchored_baseline, AnchorStore
-    from validation.diagnosis.blind import assemble
-    from validation.models import pose_evaluator
+    from electrosense import bem
+    from electrosense.validation.diagnosis.anchored import AnchorStore, anchored_baseline
+    from electrosense.validation.diagnosis.blind import assemble
+    from electrosense.validation.simulation.models import pose_evaluator
 
     rng = np.random.default_rng(11)
     setup = random_setup(rng, 4)
@@ -141,7 +141,7 @@ def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypa
 
 
 def test_estimated_error_bounds_the_true_one_and_vanishes_at_the_nodes():
-    from validation.diagnosis.anchored import estimated_error
+    from electrosense.validation.diagnosis.anchored import estimated_error
 
     rng = np.random.default_rng(8)
     f = lambda X: np.column_stack([np.sin(3 * X[:, 0]) * np.cos(2 * X[:, 1]), np.exp(X[:, 0] * X[:, 1])])  # noqa: E731

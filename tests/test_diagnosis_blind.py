@@ -1,7 +1,7 @@
 """Blind suite: data made by the BEM with the effect built into its scene; diagnosed with PSM effect models.
 
 The BEM runs (tests/data/diagnosis/bem_worlds.npz, made by
-``python -m validation.studies.diagnosis_blind_data``) hold the noiseless
+``python -m electrosense.validation.studies.diagnosis_blind_data``) hold the noiseless
 currents of the nominal scene and of each geometric effect built into the
 BEM: the contact impedance as its boundary condition, the sphere as a mesh,
 the other water depth and tank size as the tank mesh, the robot's offset as
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from validation.diagnosis.blind import BlindSetup, assemble
-from validation.diagnosis.forward import geometric_psm
-from validation.diagnosis.pipeline import default_effect_model_from, diagnose
+from electrosense.validation.diagnosis.blind import BlindSetup, assemble
+from electrosense.validation.diagnosis.forward import geometric_psm
+from electrosense.validation.diagnosis.pipeline import default_effect_model_from, diagnose
 
 DATA = Path(__file__).parent / "data" / "diagnosis" / "bem_worlds.npz"
 

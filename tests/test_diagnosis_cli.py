@@ -5,14 +5,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from validation.cli import main
-from validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents, write_log
-from validation.diagnosis.forward import PSMEffectModel
+from electrosense.validation.cli import main
+from electrosense.validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents, write_log
+from electrosense.validation.diagnosis.forward import PSMEffectModel
 
 
 @pytest.fixture(scope="module")
 def psm_world():
-    from validation.models import calibrated_psm
+    from electrosense.validation.simulation.models import calibrated_psm
 
     setup = BlindSetup()  # the world: the same calibrated PSM as the command's baseline (--model psm)
     return setup, PSMEffectModel(setup.sensor, setup.sigma_S_per_m, calibrated_psm(setup.sensor))

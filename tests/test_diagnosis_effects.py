@@ -2,14 +2,25 @@
 import numpy as np
 import pytest
 
-from meshes.sensor import preset
-from validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
-from validation.diagnosis.effects import EFFECT_NAMES, Problem, library, object_sphere
-from validation.diagnosis.fitting import (cross_validate, fit, make_folds, noise_level, predict,
-                                          subspace_angle_deg)
-from validation.diagnosis.forward import (PointElectrodeSimulator, electrode_areas_m2, receiver_currents,
-                                          series_contact, sphere_dipole_m3)
-from validation.diagnosis.observations import DiagnosisInputError, Observations
+from electrosense.meshes.sensor import preset
+from electrosense.validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
+from electrosense.validation.diagnosis.effects import EFFECT_NAMES, Problem, library, object_sphere
+from electrosense.validation.diagnosis.fitting import (
+    cross_validate,
+    fit,
+    make_folds,
+    noise_level,
+    predict,
+    subspace_angle_deg,
+)
+from electrosense.validation.diagnosis.forward import (
+    PointElectrodeSimulator,
+    electrode_areas_m2,
+    receiver_currents,
+    series_contact,
+    sphere_dipole_m3,
+)
+from electrosense.validation.diagnosis.observations import DiagnosisInputError, Observations
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +69,7 @@ def test_electrode_areas_match_the_geometry():
     for a, e in zip(A, s.electrodes):
         assert a == pytest.approx(2 * np.pi * r * (e.x_max_m - e.x_min_m))
     # and the meshed electrodes agree (independent geometry)
-    from meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.sensor_mesh import mesh_sensor
 
     assert A == pytest.approx(mesh_sensor(s).electrode_areas_m2(), rel=0.02)
 

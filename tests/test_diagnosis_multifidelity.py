@@ -2,11 +2,11 @@
 import numpy as np
 import pytest
 
-from validation.diagnosis.blind import BlindSetup
-from validation.diagnosis.forward import PointElectrodeSimulator, receiver_currents
-from validation.diagnosis.multifidelity import bem_correction, choose_bem_poses
-from validation.diagnosis.observations import Observations
-from validation.diagnosis.select import nested_angle_deg
+from electrosense.validation.diagnosis.blind import BlindSetup
+from electrosense.validation.diagnosis.forward import PointElectrodeSimulator, receiver_currents
+from electrosense.validation.diagnosis.multifidelity import bem_correction, choose_bem_poses
+from electrosense.validation.diagnosis.observations import Observations
+from electrosense.validation.diagnosis.select import nested_angle_deg
 
 
 def _obs(n=30):

@@ -7,9 +7,9 @@ with BEM-made data is tests/test_diagnosis_blind.py).
 import numpy as np
 import pytest
 
-from validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
-from validation.diagnosis.forward import PointElectrodeSimulator
-from validation.diagnosis.pipeline import diagnose
+from electrosense.validation.diagnosis.blind import BlindSetup, assemble, blind_poses, world_currents
+from electrosense.validation.diagnosis.forward import PointElectrodeSimulator
+from electrosense.validation.diagnosis.pipeline import diagnose
 
 
 @pytest.fixture(scope="module")

@@ -5,19 +5,19 @@ anchors, with the effect in the BEM's physics (the contact impedance as its
 boundary condition); the diagnosis runs its default chain (BEM-anchored
 baseline, model-error budget) and is told nothing else. The fast version
 uses a small tank and coarse tank meshes; ``-m slow`` runs more set-ups and
-effects (the study ``validation.studies.diagnosis_blind_unseen`` runs the
+effects (the study ``electrosense.validation.studies.diagnosis_blind_unseen`` runs the
 full-size ones through the command line).
 """
 import numpy as np
 import pytest
 
-from meshes.sensor_mesh import default_edge_length_m
-from meshes.scene_mesh import default_tank_edge_length_m, trajectory_focus_m
-from meshes.tank import Tank
-from validation.diagnosis.blind import BlindSetup, assemble
-from validation.diagnosis.forward import receiver_currents
-from validation.diagnosis.pipeline import diagnose
-from validation.diagnosis.unseen import random_passes, random_sensor
+from electrosense.meshes.scene_mesh import default_tank_edge_length_m, trajectory_focus_m
+from electrosense.meshes.sensor_mesh import default_edge_length_m
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.blind import BlindSetup, assemble
+from electrosense.validation.diagnosis.forward import receiver_currents
+from electrosense.validation.diagnosis.pipeline import diagnose
+from electrosense.validation.diagnosis.unseen import random_passes, random_sensor
 
 TANK_EDGE_FACTOR = 2.0  # coarse tank meshes: a fast test
 
@@ -34,7 +34,7 @@ def _setup(seed, n_electrodes):
 
 
 def _world(setup, poses, **scene):
-    from bem import PoseSweep
+    from electrosense.bem import PoseSweep
 
     sweep = PoseSweep(setup.sensor, scene.get("tank", setup.tank), scene.get("objects", ()),
                       sigma_S_per_m=setup.sigma_S_per_m, contact_impedance_ohm_m2=scene.get("z_c"),
@@ -65,7 +65,7 @@ def test_noise_only_is_none_and_the_budget_is_reported(small):
     assert d.chosen == ["none"], (d.chosen, d.selection.verdict, d.gap_before, d.noise_floor)
     b = d.model_error
     assert b["baseline_rms"] is not None and b["noise_floor"] >= d.noise
-    from meshes.tank import TANK_REGIONS
+    from electrosense.meshes.tank import TANK_REGIONS
 
     assert b["bem_poses"] >= 1 and set(b["baseline_by_place"]) <= {"mid_tank", *TANK_REGIONS}
 
@@ -96,7 +96,7 @@ def test_contact_impedance_as_the_bem_boundary_condition_is_named(seed, n_electr
 
 @pytest.mark.slow
 def test_an_elongated_object_is_never_a_confident_wrong_name():
-    from meshes.objects import Box
+    from electrosense.meshes.objects import Box
 
     setup, poses, t, passes = _setup(31, 4)
     x0, z0 = float(poses[4, 0]), float(poses[0, 2])

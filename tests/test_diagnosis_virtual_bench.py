@@ -1,18 +1,17 @@
-"""Data made by other code: the project's virtual bench (validation.bench_sim) with its own effects, PSM world.
+"""Data made by other code: the project's virtual bench (validation.bench.virtual) with its own effects, PSM world.
 
 The diagnosis runs with ``model="psm"`` and is told nothing but the observations.
 """
-import numpy as np
 import pytest
 
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.diagnosis.blind import blind_poses
-from validation.diagnosis.observations import Observations
-from validation.diagnosis.pipeline import diagnose
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.blind import blind_poses
+from electrosense.validation.diagnosis.observations import Observations
+from electrosense.validation.diagnosis.pipeline import diagnose
 
-bench_sim = pytest.importorskip("validation.bench_sim.bench")
-from validation.bench_sim.effects import Effects  # noqa: E402
+bench_sim = pytest.importorskip("electrosense.validation.bench.virtual.bench")
+from electrosense.validation.bench.virtual.effects import Effects  # noqa: E402
 
 CASES = [
     ([], ["none"]),

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.diagnosis.observations import Observations
-from validation.diagnosis.where import breakdown, place_labels, region_mask
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.observations import Observations
+from electrosense.validation.diagnosis.where import breakdown, place_labels, region_mask
 
 
 def _line(n=80, t_step=10.0):

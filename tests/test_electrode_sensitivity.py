@@ -1,14 +1,13 @@
 """Sensitivities of transfer impedances to electrode positions from one solve (reciprocity) against finite differences."""
-from dataclasses import replace
 
 import numpy as np
 
-from bem.protocol import adjacent_protocol, involves_drive, transfer_impedances_ohm
-from bem.sensitivity import combine_shift_sensitivities, shift_sensitivities_ohm_per_m
-from bem.solve import solve_scene
-from meshes import Scene
-from meshes.cylinder_tank import CylinderTank
-from meshes.surface_electrodes import DiscElectrode
+from electrosense.bem.protocol import adjacent_protocol, involves_drive, transfer_impedances_ohm
+from electrosense.bem.sensitivity import combine_shift_sensitivities, shift_sensitivities_ohm_per_m
+from electrosense.bem.solve import solve_scene
+from electrosense.meshes import Scene
+from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.surface_electrodes import DiscElectrode
 
 
 def _scene(R, H, phis, z, a, shift=None):

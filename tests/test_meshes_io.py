@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from meshes.io import MeshFileError, read_mesh, to_polydata, write_mesh
-from meshes.labelled_mesh import LabelledMesh, concatenate
-from meshes.object_mesh import mesh_object
-from meshes.objects import Box, Sphere
+from electrosense.meshes.io import MeshFileError, read_mesh, to_polydata, write_mesh
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.object_mesh import mesh_object
+from electrosense.meshes.objects import Box, Sphere
 
 
 @pytest.fixture(scope="module")

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from meshes.labelled_mesh import LabelledMesh, concatenate
-from meshes.pose import Pose
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.pose import Pose
 
 
 def unit_cube(electrode_on_top=1):

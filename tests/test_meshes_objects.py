@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from meshes.object_mesh import mesh_object
-from meshes.objects import Box, Cylinder, Sphere
-from meshes.quality import check_mesh
+from electrosense.meshes.object_mesh import mesh_object
+from electrosense.meshes.objects import Box, Cylinder, Sphere
+from electrosense.meshes.quality import check_mesh
 
 
 def test_sphere_area_volume_and_vertices_on_the_sphere():

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from meshes.labelled_mesh import LabelledMesh, concatenate
-from meshes.quality import MeshError, aspect_ratios, check_mesh, mesh_quality, triangle_angles_deg
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.quality import MeshError, aspect_ratios, check_mesh, mesh_quality, triangle_angles_deg
 
 
 def sphere(centre=(0, 0, 0), name="sensor"):

@@ -3,14 +3,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from meshes.labelled_mesh import concatenate
-from meshes.object_mesh import mesh_object
-from meshes.objects import Box, Sphere
-from meshes import render
-from meshes.render import EMITTER_COLOUR, RenderUnavailable, can_render_3d, electrode_colour, render_mesh
-from meshes.tank import Tank
-from meshes.tank_mesh import mesh_tank
-
+from electrosense.meshes import render
+from electrosense.meshes.labelled_mesh import concatenate
+from electrosense.meshes.object_mesh import mesh_object
+from electrosense.meshes.objects import Box, Sphere
+from electrosense.meshes.render import EMITTER_COLOUR, RenderUnavailable, can_render_3d, electrode_colour, render_mesh
+from electrosense.meshes.tank import Tank
+from electrosense.meshes.tank_mesh import mesh_tank
 
 needs_3d = pytest.mark.skipif(not can_render_3d(), reason="no offscreen OpenGL (EGL or OSMesa) for VTK here")
 
@@ -69,8 +68,8 @@ def test_offscreen_backend_is_chosen_once_for_children_too():
 
 
 def test_without_offscreen_opengl_pictures_are_refused_clearly(tmp_path, monkeypatch):
-    from meshes.io import write_mesh
-    from validation.cli import main
+    from electrosense.meshes.io import write_mesh
+    from electrosense.validation.cli import main
 
     monkeypatch.setattr(render, "_chosen", [None])
     body, _ = toy_sensor_scene()
@@ -93,15 +92,15 @@ def test_scene_picture_has_two_panels(tmp_path):
 
 @needs_3d
 def test_mesh_sensor_and_view_commands(tmp_path):
-    pytest.importorskip("meshes.sensor_mesh")
-    from validation.cli import main
+    pytest.importorskip("electrosense.meshes.sensor_mesh")
+    from electrosense.validation.cli import main
 
     runner = CliRunner()
     out = runner.invoke(main, ["mesh", "sensor", "angels-2", "-o", str(tmp_path / "s.vtp"),
                                "--png", str(tmp_path / "s.png"), "--edge-length", "0.006"])
     assert out.exit_code == 0, out.output
     assert "watertight    yes" in out.output and (tmp_path / "s.png").stat().st_size > 10_000
-    from meshes.io import read_mesh
+    from electrosense.meshes.io import read_mesh
 
     m = read_mesh(tmp_path / "s.vtp")
     assert m.electrodes == (1, 2) and m.region_names == ("sensor",)
@@ -112,17 +111,17 @@ def test_mesh_sensor_and_view_commands(tmp_path):
 
 
 def test_mesh_scene_command_with_scene_file_and_overrides(tmp_path):
-    pytest.importorskip("meshes.sensor_mesh")
+    pytest.importorskip("electrosense.meshes.sensor_mesh")
     from pathlib import Path
 
-    from validation.cli import main
+    from electrosense.validation.cli import main
 
     example = Path(__file__).resolve().parents[1] / "validation" / "data" / "example_scene.toml"
     runner = CliRunner()
     out = runner.invoke(main, ["mesh", "scene", "--scene", str(example), "--pose", "0.1,-0.1,-0.1,0.5",
                                "-o", str(tmp_path / "scene.ply")])
     assert out.exit_code == 0, out.output
-    from meshes.io import read_mesh
+    from electrosense.meshes.io import read_mesh
 
     m = read_mesh(tmp_path / "scene.ply")
     assert m.region_names[:2] == ("sensor", "wall_x-") and "object_2" in m.region_names
@@ -138,11 +137,10 @@ def test_mesh_scene_command_with_scene_file_and_overrides(tmp_path):
 
 @needs_3d
 def test_view_refuses_clearly(tmp_path, monkeypatch):
-    from validation.cli import main
-    from validation.cli import view_cmd
+    from electrosense.validation.cli import main, view_cmd
 
     body, _ = toy_sensor_scene()
-    from meshes.io import write_mesh
+    from electrosense.meshes.io import write_mesh
 
     write_mesh(body, tmp_path / "b.vtp")
     monkeypatch.setattr(view_cmd, "has_display", lambda: False)

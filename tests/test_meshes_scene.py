@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from meshes import TANK_REGIONS, Box, Cylinder, Pose, Scene, Sphere, Tank, preset
-from meshes.quality import check_mesh
-from meshes.scene_mesh import SceneError, check_scene, scene_problems
+from electrosense.meshes import TANK_REGIONS, Box, Cylinder, Pose, Scene, Sphere, Tank, preset
+from electrosense.meshes.quality import check_mesh
+from electrosense.meshes.scene_mesh import SceneError, check_scene, scene_problems
 
 SENSOR = preset("angels-4")  # 20 cm long, radius about 1.2 cm
 TANK = Tank((1.0, 0.6, 0.5), water_depth_m=0.4)  # water: x +-0.5, y +-0.3, z -0.25..0.15
@@ -99,8 +99,8 @@ def test_objects_intersecting_each_other():
 
 
 def test_mesh_scene_frames_regions_and_grading():
-    pytest.importorskip("meshes.sensor_mesh")
-    from meshes.scene_mesh import mesh_scene
+    pytest.importorskip("electrosense.meshes.sensor_mesh")
+    from electrosense.meshes.scene_mesh import mesh_scene
 
     pose = Pose(0.2, -0.25, -0.05, 0.3)  # 2 cm from the wall y-
     s = scene(tuple(pose.as_array()), [Sphere((-0.1, 0.1, 0.0), radius_m=0.03)])
@@ -123,8 +123,8 @@ def test_mesh_scene_frames_regions_and_grading():
 
 
 def test_mesh_scene_refuses_before_meshing_and_allows_unbounded_water():
-    pytest.importorskip("meshes.sensor_mesh")
-    from meshes.scene_mesh import mesh_scene
+    pytest.importorskip("electrosense.meshes.sensor_mesh")
+    from electrosense.meshes.scene_mesh import mesh_scene
 
     with pytest.raises(ValueError, match="free_surface"):
         mesh_scene(scene((0, 0, 0.15, 0)))
@@ -133,7 +133,7 @@ def test_mesh_scene_refuses_before_meshing_and_allows_unbounded_water():
 
 
 def test_trajectory_focus_follows_each_pose_heading():
-    from meshes.scene_mesh import trajectory_focus_m
+    from electrosense.meshes.scene_mesh import trajectory_focus_m
 
     poses = np.array([[0.0, 0.0, -0.1, 0.0], [0.2, 0.1, -0.1, np.pi / 2]])
     pts = trajectory_focus_m(SENSOR, poses, n_per_pose=3).reshape(2, 3, 3)

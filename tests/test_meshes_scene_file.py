@@ -3,10 +3,10 @@ from pathlib import Path
 
 import pytest
 
-from meshes import Pose, Tank, preset, save_sensor
-from meshes.objects import Cylinder, Sphere
-from meshes.scene_file import apply_overrides, load_scene, load_scene_settings, save_scene
-from meshes.scene_mesh import check_scene
+from electrosense.meshes import Pose, Tank, preset, save_sensor
+from electrosense.meshes.objects import Cylinder, Sphere
+from electrosense.meshes.scene_file import apply_overrides, load_scene, load_scene_settings, save_scene
+from electrosense.meshes.scene_mesh import check_scene
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "validation" / "data" / "example_scene.toml"
 

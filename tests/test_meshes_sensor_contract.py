@@ -1,4 +1,4 @@
-"""The contract of ``meshes.sensor_mesh.mesh_sensor`` (issue 2), checked on any implementation.
+"""The contract of ``electrosense.meshes.sensor_mesh.mesh_sensor`` (issue 2), checked on any implementation.
 
 Closed, consistently oriented, normals out of the body; labels 0..n; electrode
 areas against closed forms (a faceted surface: within 2 %); no triangle
@@ -9,13 +9,13 @@ import importlib.util
 import numpy as np
 import pytest
 
-from meshes.quality import check_mesh
-from meshes.sensor import Electrode, SensorDescription, preset
+from electrosense.meshes.quality import check_mesh
+from electrosense.meshes.sensor import Electrode, SensorDescription, preset
 
-if importlib.util.find_spec("meshes.sensor_mesh") is None:  # written by the BEM side; skip only while absent
-    pytest.skip("meshes.sensor_mesh is not written yet", allow_module_level=True)
+if importlib.util.find_spec("electrosense.meshes.sensor_mesh") is None:  # written by the BEM side; skip only while absent
+    pytest.skip("electrosense.meshes.sensor_mesh is not written yet", allow_module_level=True)
 
-from meshes.sensor_mesh import mesh_sensor  # noqa: E402
+from electrosense.meshes.sensor_mesh import mesh_sensor  # noqa: E402
 
 CUSTOM = SensorDescription(
     name="custom",

@@ -4,7 +4,7 @@ import os
 import numpy as np
 import pytest
 
-from meshes.sensor import Electrode, SensorDescription, load_sensor, save_sensor
+from electrosense.meshes.sensor import Electrode, SensorDescription, load_sensor, save_sensor
 
 
 def _random_sensor(rng) -> SensorDescription:
@@ -72,8 +72,8 @@ def test_malformed_toml_is_refused(tmp_path):
 
 
 def test_a_log_naming_a_directory_is_refused_with_line(tmp_path):
-    from validation.benchlog.errors import BenchLogError
-    from validation.benchlog.header import interpret_meta
+    from electrosense.validation.bench.log.errors import BenchLogError
+    from electrosense.validation.bench.log.header import interpret_meta
 
     (tmp_path / "sub").mkdir()
     meta = {"sensor": "sub", "emitter": 2, "tank_m": [1, 1, 1], "sigma_S_per_m": 0.0354}

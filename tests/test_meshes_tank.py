@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from meshes.quality import check_mesh, mesh_quality
-from meshes.tank import TANK_REGIONS, Tank
-from meshes.tank_mesh import equidistributed_nodes, graded_size_function, mesh_tank
+from electrosense.meshes.quality import check_mesh, mesh_quality
+from electrosense.meshes.tank import TANK_REGIONS, Tank
+from electrosense.meshes.tank_mesh import equidistributed_nodes, graded_size_function, mesh_tank
 
 TANK = Tank((1.0, 0.6, 0.5), water_depth_m=0.4)
 

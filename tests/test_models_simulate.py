@@ -1,17 +1,15 @@
-"""validation.models: one door from a model name to conductance matrices for many poses."""
+"""electrosense.validation.simulation.models: one door from a model name to conductance matrices for many poses."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-import bem
-import psm
-from bem.conductance import ConductanceMatrix
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation import models
-from validation.models import ModelError, calibrated_psm, pose_evaluator, simulate
-from validation.sweep import line_poses, parse_grid, run_sweep
+from electrosense import bem, psm
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.simulation import models
+from electrosense.validation.simulation.models import ModelError, calibrated_psm, pose_evaluator, simulate
+from electrosense.validation.simulation.sweep import line_poses, parse_grid, run_sweep
 
 TANK = Tank((1.0, 1.0, 1.0))
 SIGMA = 0.0354
@@ -107,10 +105,10 @@ def test_calibration_layouts_follow_the_data():
     assert models.calibration_layout(preset("angels-2")) == {"symmetric": True, "fix_length_m": 0.2}
 
 
-@pytest.mark.skipif(not hasattr(bem, "PoseSweep"), reason="bem.PoseSweep not there yet")
+@pytest.mark.skipif(not hasattr(bem, "PoseSweep"), reason="electrosense.bem.PoseSweep not there yet")
 def test_simulate_bem_matches_the_single_scene_solver():
-    from meshes.pose import Pose
-    from meshes.scene import Scene
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
 
     sensor = preset("angels-2")
     poses = np.array([[0.0, 0.0, 0.0, 0.0], [0.05, 0.02, 0.0, 1.0]])
@@ -127,5 +125,5 @@ def test_psm_calibrated_on_the_bem_reproduces_the_free_space_bem(tmp_path, monke
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     sensor = preset("angels-4")
     C = simulate("psm", sensor, np.zeros((1, 4)), None, SIGMA)
-    ref = bem.conductance_matrix(__import__("meshes.scene", fromlist=["Scene"]).Scene(sensor), SIGMA)
+    ref = bem.conductance_matrix(__import__("electrosense.meshes.scene", fromlist=["Scene"]).Scene(sensor), SIGMA)
     assert np.abs(C.S_S[0] - ref.S_S).max() / np.abs(ref.S_S).max() < 0.01

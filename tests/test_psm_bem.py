@@ -2,17 +2,17 @@
 import numpy as np
 import pytest
 
-from meshes.objects import Sphere
-from meshes.pose import Pose
-from meshes.scene import Scene
-from meshes.sensor import preset
-from meshes.tank import Tank
-from psm import calibrate, conductance
-from psm.paper import LENGTH_N2_M, RADIUS_N2_M
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.pose import Pose
+from electrosense.meshes.scene import Scene
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.psm import calibrate, conductance
+from electrosense.psm.paper import LENGTH_N2_M, RADIUS_N2_M
 
 bem = pytest.importorskip("bem")
 if not hasattr(bem, "conductance_matrix"):
-    pytest.skip("bem.conductance_matrix is not available yet", allow_module_level=True)
+    pytest.skip("electrosense.bem.conductance_matrix is not available yet", allow_module_level=True)
 
 pytestmark = pytest.mark.slow
 SIGMA = 0.0354

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from bem.conductance import ConductanceMatrix, K_from_S
-from psm import CalibrationError, PolySphericalModel, calibrate, conductance
-from psm.paper import FIT_N4, RADIUS_N2_M, paper_reference
+from electrosense.bem.conductance import ConductanceMatrix, K_from_S
+from electrosense.psm import CalibrationError, PolySphericalModel, calibrate, conductance
+from electrosense.psm.paper import FIT_N4, RADIUS_N2_M, paper_reference
 
 SIGMA = 0.0354
 
@@ -60,8 +60,8 @@ def test_refuses_non_symmetric_non_definite_and_underdetermined_references():
 
 def test_calibrated_model_json_round_trip(tmp_path):
     cal = calibrate(paper_reference(), symmetric=True)
-    cal.model.save(tmp_path / "psm.json")
-    back = PolySphericalModel.load(tmp_path / "psm.json")
+    cal.model.save(tmp_path / "electrosense.psm.json")
+    back = PolySphericalModel.load(tmp_path / "electrosense.psm.json")
     np.testing.assert_array_equal(back.radii_m, cal.model.radii_m)
     assert back.gamma_criterion == cal.gamma_criterion
     again = ConductanceMatrix.from_json_dict(back.reference)
@@ -70,9 +70,9 @@ def test_calibrated_model_json_round_trip(tmp_path):
 
 
 def test_cli_calibrate_paper_table_and_reference_file(tmp_path):
-    from validation.cli.calibrate_cmd import calibrate as cmd
+    from electrosense.validation.cli.calibrate_cmd import calibrate as cmd
 
-    out = tmp_path / "psm.json"
+    out = tmp_path / "electrosense.psm.json"
     res = CliRunner().invoke(cmd, ["--paper-table", "--symmetric", "-o", str(out)])
     assert res.exit_code == 0, res.output
     d = json.loads(out.read_text())
@@ -93,7 +93,7 @@ def test_cli_calibrate_paper_table_and_reference_file(tmp_path):
 
 
 def test_tank_reference_places_the_spheres_from_the_wall_effect():
-    from meshes.tank import Tank
+    from electrosense.meshes.tank import Tank
 
     truth = PolySphericalModel.collinear([0.0072, 0.0072], [0.19])
     tank = Tank((1.0, 1.0, 1.0))

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from bem.conductance import ConductanceMatrix
-from psm import ModelError, PolySphericalModel, conductance, isolated_conductance, potential_coefficients
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.psm import ModelError, PolySphericalModel, conductance, isolated_conductance, potential_coefficients
 
 SIGMA = 0.0354
 
@@ -67,7 +67,7 @@ def test_model_json_round_trip(tmp_path):
     m = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785],
                                      gamma_criterion=1e-4, reference={"S_S": [[1.0]]},
                                      electrode_areas_m2=[1e-4, 2e-4, 2e-4, 1e-4])
-    path = tmp_path / "psm.json"
+    path = tmp_path / "electrosense.psm.json"
     m.save(path)
     back = PolySphericalModel.load(path)
     np.testing.assert_array_equal(back.radii_m, m.radii_m)
@@ -80,15 +80,15 @@ def test_model_json_round_trip(tmp_path):
 
 def test_an_empty_trajectory_gives_an_empty_batch():
     m = PolySphericalModel.collinear([0.007, 0.007], [0.2])
-    from meshes.tank import Tank
+    from electrosense.meshes.tank import Tank
 
     C = conductance(m, np.zeros((0, 4)), SIGMA, Tank((1.0, 1.0, 1.0)))
     assert C.K_S.shape == (0, 2, 2)
 
 
 def test_sphere_centres_follow_the_pose_convention_of_meshes():
-    from meshes.pose import sensor_to_tank
-    from psm.conductance import sphere_centres_m
+    from electrosense.meshes.pose import sensor_to_tank
+    from electrosense.psm.conductance import sphere_centres_m
 
     m = PolySphericalModel(np.array([0.005, 0.006, 0.005]), np.array([[0.1, 0.01, 0.0], [0.0, 0.0, 0.02], [-0.1, 0.0, 0.0]]))
     poses = np.array([[0.1, -0.2, 0.05, 0.0], [0.0, 0.3, -0.1, 1.2], [0.2, 0.1, 0.0, np.pi / 2]])

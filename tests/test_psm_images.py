@@ -2,9 +2,16 @@
 import numpy as np
 import pytest
 
-from meshes.tank import Tank
-from psm import PlacementError, PolySphericalModel, conductance, image_sources, isolated_conductance, potential_coefficients
-from psm.images import box_images
+from electrosense.meshes.tank import Tank
+from electrosense.psm import (
+    PlacementError,
+    PolySphericalModel,
+    conductance,
+    image_sources,
+    isolated_conductance,
+    potential_coefficients,
+)
+from electrosense.psm.images import box_images
 
 SIGMA = 0.0354
 MODEL4 = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785])

@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from meshes.objects import Sphere
-from meshes.sensor import preset
-from meshes.tank import Tank
-from psm import PolySphericalModel, conductance, receiver_current_jacobian
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.psm import PolySphericalModel, conductance, receiver_current_jacobian
 
 SIGMA = 0.0354
 MODEL4 = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785])

@@ -2,12 +2,18 @@
 import numpy as np
 import pytest
 
-from meshes.objects import Box, Sphere
-from meshes.sensor import preset
-from meshes.tank import Tank
-from psm import PlacementError, PolySphericalModel, conductance, isolated_conductance, potential_coefficients
-from psm.contact import electrode_areas_m2
-from psm.objects import contrast
+from electrosense.meshes.objects import Box, Sphere
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.psm import (
+    PlacementError,
+    PolySphericalModel,
+    conductance,
+    isolated_conductance,
+    potential_coefficients,
+)
+from electrosense.psm.contact import electrode_areas_m2
+from electrosense.psm.objects import contrast
 
 SIGMA = 0.0354
 MODEL4 = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785])
@@ -64,7 +70,7 @@ def test_bad_objects_are_refused():
 
 
 def test_electrode_areas_hemisphere_collar_partial_cap_and_ring():
-    from meshes.sensor import Electrode, SensorDescription
+    from electrosense.meshes.sensor import Electrode, SensorDescription
 
     r = 0.01
     s = SensorDescription("t", r, 0.2, (Electrode("cap", 0.085, 0.1), Electrode("ring", 0.0, 0.02),

@@ -3,18 +3,18 @@ import numpy as np
 import pytest
 import scipy.io
 
-from bem.boundary_conditions import WaterBoundary
-from bem.closed_forms import newman_disc_resistance_ohm
-from bem.protocol import adjacent_protocol, drive_impedances_ohm, involves_drive, transfer_impedances_ohm
-from bem.solve import solve, solve_scene
-from meshes import Scene
-from meshes.cylinder_tank import CylinderTank
-from meshes.cylinder_tank_mesh import mesh_cylinder_tank
-from meshes.quality import check_mesh
-from meshes.surface_electrodes import DiscElectrode, PlateElectrode
-from validation.benchlog.errors import BenchLogError
-from validation.transfer import read_transfer_log, write_transfer_log
-from validation.transfer.eit_mat import read_eit_mat
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.closed_forms import newman_disc_resistance_ohm
+from electrosense.bem.protocol import adjacent_protocol, drive_impedances_ohm, involves_drive, transfer_impedances_ohm
+from electrosense.bem.solve import solve, solve_scene
+from electrosense.meshes import Scene
+from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
+from electrosense.meshes.quality import check_mesh
+from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode
+from electrosense.validation.bench.log.errors import BenchLogError
+from electrosense.validation.bench.transfer import read_transfer_log, write_transfer_log
+from electrosense.validation.bench.transfer.eit_mat import read_eit_mat
 
 
 def _ring(rng, n, R, z, a):
@@ -42,7 +42,7 @@ def test_electrode_off_the_boundary_is_refused():
 
 
 def test_disc_in_plane_against_newman():
-    from validation.studies.disc_electrode import hemisphere_cell
+    from electrosense.validation.studies.disc_electrode import hemisphere_cell
 
     a, b = 0.01, 0.2
     cell = hemisphere_cell(a, b, edge_fraction=0.35, grading=0.5, h_far_m=0.05)
@@ -132,7 +132,7 @@ def _synthetic_phantom(tmp_path, rng):
     the phantom's layout made by the BEM with 0.1 % noise: an empty set-up and one with a ball."""
     from dataclasses import replace
 
-    from meshes.objects import Sphere
+    from electrosense.meshes.objects import Sphere
 
     n, R, H = 8, rng.uniform(0.08, 0.12), rng.uniform(0.1, 0.14)
     z_ring, a, phi0 = -0.5 * H + 0.4 * H, 0.006, rng.uniform(0, 2 * np.pi)
@@ -164,7 +164,7 @@ ball_radius_m = 0.015
 ball_z_m = {z_ring}
 Avg1 = [[{ball[0]}, {ball[1]}]]
 """)
-    from meshes.scene_file import load_scene, load_scene_settings
+    from electrosense.meshes.scene_file import load_scene, load_scene_settings
 
     scene = load_scene(tmp_path / "tank.toml")
     opts = load_scene_settings(tmp_path / "tank.toml")["bem"]
@@ -190,10 +190,10 @@ def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monk
 
     from click.testing import CliRunner
 
-    from validation.cli import main
-    from validation.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.cli import main
 
-    for name in ("validation.studies", "validation.studies.real_tank"):
+    for name in ("electrosense.validation.studies", "electrosense.validation.studies.real_tank"):
         monkeypatch.setitem(sys.modules, name, None)        # any import of a study now fails
     mat = _synthetic_phantom(tmp_path, np.random.default_rng(11))
     log = eit_mat_to_transfer_log(mat, tmp_path / "phantom_log.csv", scene="tank.toml")
@@ -212,7 +212,7 @@ def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monk
 
 def test_random_tapered_tank_mesh_and_two_rings_from_a_scene_file(tmp_path):
     """A frustum wall (narrower at the floor): closed mesh, nodes on the frustum, discs with their true area."""
-    from meshes.scene_file import load_scene
+    from electrosense.meshes.scene_file import load_scene
 
     rng = np.random.default_rng(7)
     R, H = rng.uniform(0.08, 0.2), rng.uniform(0.15, 0.3)
@@ -248,8 +248,8 @@ first_angle_rad = 0.3
     assert np.all(tank.distance_to_boundary_m(np.array([e.centre_m for e in scene.electrodes]))[:, 0] < 1e-12)
 
 
-@pytest.mark.parametrize("module", ["validation.compare.transfer", "validation.compare.transfer_report",
-                                    "validation.diagnosis.transfer"])
+@pytest.mark.parametrize("module", ["electrosense.validation.comparison.transfer", "electrosense.validation.comparison.transfer_report",
+                                    "electrosense.validation.diagnosis.transfer"])
 def test_transfer_modules_examples_run(module):
     import doctest
     import importlib

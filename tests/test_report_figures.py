@@ -2,14 +2,21 @@
 import numpy as np
 import pytest
 
-from meshes.pose import Pose
-from meshes.render import can_render_3d
-from meshes.sensor import preset
-from meshes.tank import Tank
-from validation.report import Figure, Section, Table, write_html
-from validation.report.figures import (
-    Panel, Series, bar_figure, curves_figure, path_coordinate, png_is_blank, relative_error_figure,
-    resistance_figure, scene_figure,
+from electrosense.meshes.pose import Pose
+from electrosense.meshes.render import can_render_3d
+from electrosense.meshes.sensor import preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.report import Figure, Section, Table, write_html
+from electrosense.validation.report.figures import (
+    Panel,
+    Series,
+    bar_figure,
+    curves_figure,
+    path_coordinate,
+    png_is_blank,
+    relative_error_figure,
+    resistance_figure,
+    scene_figure,
 )
 
 
@@ -34,7 +41,7 @@ def test_resistance_and_error_figures(tmp_path):
 
 
 def test_blank_detector(tmp_path):
-    from validation.report.style import new_figure, save
+    from electrosense.validation.report.style import new_figure, save
 
     fig, axes = new_figure(1, 1)
     axes[0, 0].set_axis_off()
@@ -65,7 +72,7 @@ def test_path_coordinate():
 
 @pytest.mark.skipif(not can_render_3d(), reason="no offscreen OpenGL (EGL or OSMesa) for VTK here")
 def test_scene_figure(tmp_path):
-    from meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.sensor_mesh import mesh_sensor
 
     mesh = mesh_sensor(preset("angels-4"))
     x = np.linspace(-0.3, 0.3, 10)
@@ -98,7 +105,7 @@ def test_html_page(tmp_path):
 
 
 def test_current_lines_follow_the_field():
-    from validation.report.figures import current_lines
+    from electrosense.validation.report.figures import current_lines
 
     x = np.linspace(-1, 1, 41)
     y = np.linspace(-1, 1, 41)
@@ -112,7 +119,7 @@ def test_current_lines_follow_the_field():
 
 
 def test_potential_figure_of_a_dipole(tmp_path):
-    from validation.report.figures import potential_figure
+    from electrosense.validation.report.figures import potential_figure
 
     x = np.linspace(-0.15, 0.15, 61)
     y = np.linspace(-0.1, 0.1, 41)
@@ -130,7 +137,12 @@ def test_potential_figure_of_a_dipole(tmp_path):
 
 
 def test_field_helpers_geometry():
-    from validation.report.field import electrode_seeds_xy, inside_sensor, sensor_outline_xy, tank_walls_xy
+    from electrosense.validation.simulation.field import (
+        electrode_seeds_xy,
+        inside_sensor,
+        sensor_outline_xy,
+        tank_walls_xy,
+    )
 
     sensor = preset("angels-4")
     pose = Pose(-0.38, 0.0, 0.0, 0.0)
@@ -147,14 +159,14 @@ def test_field_helpers_geometry():
 
 def test_figures_come_with_a_vector_copy_and_the_legend_off_the_data(tmp_path):
     """A PDF beside each PNG; the shared legend sits above every panel, never over the curves."""
-    from validation.report.figures import Panel, Series
-    from validation.report.style import new_figure
+    from electrosense.validation.report.figures import Panel, Series
+    from electrosense.validation.report.style import new_figure
 
     x, R = _curves()
     p = resistance_figure(x, 1.02 * R, {"bem": R, "psm": 1.01 * R}, (1, 2), tmp_path / "r.png")
     assert p.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"
     # the same drawing, kept in memory: the legend's box lies above the axes' boxes
-    from validation.report import figures
+    from electrosense.validation.report import figures
 
     fig, axes = new_figure(1, 2)
     panels = [Panel(f"receiver {k}", "x (m)", "U/I (ohm)", [Series(x, R[:, j], "BEM", colour="b"),
@@ -200,7 +212,7 @@ def test_bar_figure_counts_log_scale_and_horizontal_labels(tmp_path):
 
 
 def test_symmetric_colour_range_has_a_noise_floor():
-    from validation.report.style import symmetric_limit
+    from electrosense.validation.report.style import symmetric_limit
 
     rng = np.random.default_rng(3)
     noise = 1e-6 * rng.standard_normal(500)
@@ -211,10 +223,10 @@ def test_symmetric_colour_range_has_a_noise_floor():
 
 def test_potential_figure_masks_the_sensor_by_its_outline(tmp_path):
     """The cells left NaN inside the body are covered by the exact outline, not drawn as blocks."""
-    from validation.report.figures import _fill_outside, potential_figure
+    from electrosense.validation.report.figures import _fill_outside, potential_figure
 
     sensor = preset("angels-2")
-    from validation.report.field import electrode_segments_xy, inside_sensor, sensor_outline_xy
+    from electrosense.validation.simulation.field import electrode_segments_xy, inside_sensor, sensor_outline_xy
 
     pose = Pose(0.0, 0.0, 0.0, 0.0)
     x = np.linspace(-0.15, 0.15, 31)

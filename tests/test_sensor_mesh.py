@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from meshes.sensor import Electrode, SensorDescription, preset
-from meshes.sensor_mesh import SensorProfile, mesh_sensor
+from electrosense.meshes.sensor import Electrode, SensorDescription, preset
+from electrosense.meshes.sensor_mesh import SensorProfile, mesh_sensor
 
 
 def _custom():

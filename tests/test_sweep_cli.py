@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from validation.cli import main
+from electrosense.validation.cli import main
 
 psm = pytest.importorskip("psm")
 
@@ -21,7 +21,7 @@ def psm_file(tmp_path_factory):
                             [-0.0769 / 2 - 0.0785, 0, 0]]),
         emitter=4,
     )
-    path = tmp_path_factory.mktemp("psm") / "psm.json"
+    path = tmp_path_factory.mktemp("psm") / "electrosense.psm.json"
     model.save(path)
     return path
 
@@ -35,7 +35,7 @@ LINE = ("--from", "-0.3,0", "--to", "0.3,0.05", "--steps", 25, "--yaw", 0.3)
 
 
 def test_csv_is_a_bench_log_with_resistances(tmp_path, psm_file):
-    from validation.benchlog import read_bench_log
+    from electrosense.validation.bench.log import read_bench_log
 
     out = tmp_path / "sweep.csv"
     r = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--tank", "1,0.8,0.6", "--sigma", 0.05,
@@ -113,8 +113,8 @@ def test_a_sensor_file_travels_with_the_log(tmp_path, psm_file):
     """A sensor that is not a preset is written beside the log, so that the log reads back on its own."""
     from dataclasses import replace
 
-    from meshes.sensor import preset, save_sensor
-    from validation.benchlog import read_bench_log
+    from electrosense.meshes.sensor import preset, save_sensor
+    from electrosense.validation.bench.log import read_bench_log
 
     sensor = replace(preset("angels-4"), name="my-four", notes="moved rings")
     save_sensor(sensor, tmp_path / "mine.json")
@@ -129,13 +129,13 @@ def test_a_sensor_file_travels_with_the_log(tmp_path, psm_file):
 
 def test_bem_sweep_with_an_object_reads_back_and_rises_towards_the_walls(tmp_path):
     """A coarse BEM line in a small tank, from a scene file with a conducting ball far off the path."""
-    from validation.benchlog import read_bench_log
+    from electrosense.validation.bench.log import read_bench_log
 
     scene = tmp_path / "bench.toml"
     scene.write_text('[tank]\nsize_m = [0.5, 0.4, 0.3]\n[sensor]\npreset = "angels-2"\npose = [0, 0, 0, 0]\n'
                      '[[objects]]\nshape = "sphere"\ncentre_m = [0.0, 0.15, 0.0]\nradius_m = 0.02\n'
                      'material = "conducting"\n[water]\nsigma_S_per_m = 0.05\n')
-    out = tmp_path / "bem.csv"
+    out = tmp_path / "electrosense.bem.csv"
     r = _run("--model", "bem", "--scene", scene, "--from", "-0.1,0", "--to", "0.1,0", "--steps", 3,
              "--edge-length", 0.02, "--tank-edge-length", 0.1, "--workers", 1, "--quiet", "-o", out)
     assert r.exit_code == 0, r.output

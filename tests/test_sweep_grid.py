@@ -5,11 +5,19 @@ import json
 
 import numpy as np
 import pytest
-
-from validation.sweep import GridError, SweepStore, as_map, export_netcdf, line_poses, open_sweep, parse_grid, run_sweep
-from validation.sweep.store import StoreError
-
 from test_sweep_runner import WallImageEvaluator
+
+from electrosense.validation.simulation.sweep import (
+    GridError,
+    SweepStore,
+    as_map,
+    export_netcdf,
+    line_poses,
+    open_sweep,
+    parse_grid,
+    run_sweep,
+)
+from electrosense.validation.simulation.sweep.store import StoreError
 
 
 def test_grid_order_is_yaw_then_y_then_x():
@@ -78,7 +86,7 @@ def test_store_reads_back_with_xarray_as_a_tank_map_and_as_netcdf(tmp_path):
 
 
 def test_tank_map_png(tmp_path):
-    from validation.sweep.plot import plot_tank_map, tank_map_values
+    from electrosense.validation.simulation.sweep.plot import plot_tank_map, tank_map_values
 
     g = parse_grid("-0.3:0.3:13,-0.3:0.3:13")
     store = SweepStore.open_or_create(tmp_path / "m.zarr", g.poses, 4, 4, {"model": "stand-in"}, 64,
@@ -100,7 +108,7 @@ def test_tank_map_png(tmp_path):
 def test_a_grid_too_large_for_memory_is_refused_before_allocating():
     import time
 
-    from validation.sweep.grid import GridError, parse_grid
+    from electrosense.validation.simulation.sweep.grid import GridError, parse_grid
 
     t0 = time.perf_counter()
     with pytest.raises(GridError, match=r"--grid gives 900,000,000 poses"):

@@ -5,7 +5,7 @@ spherical electrodes (radius a_i) on the sensor axis next to one insulating
 wall (the plane x = WALL_X), whose effect is the same-sign image of every
 electrode. Potential coefficients P_ij = (1/|r_i - r_j| + 1/|r_i - r_j'|) /
 (4 pi sigma) (1/a_i on the diagonal), grounded conductance C = P^-1, and the
-isolated K by :func:`bem.conductance.isolate`.
+isolated K by :func:`electrosense.bem.conductance.isolate`.
 """
 from __future__ import annotations
 
@@ -16,9 +16,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from bem.conductance import ConductanceMatrix, isolate
-from meshes.pose import sensor_to_tank
-from validation.sweep import SchedulerError, SweepStore, dask_client, line_poses, map_tasks, parse_grid, run_sweep
+from electrosense.bem.conductance import ConductanceMatrix, isolate
+from electrosense.meshes.pose import sensor_to_tank
+from electrosense.validation.simulation.sweep import (
+    SchedulerError,
+    SweepStore,
+    dask_client,
+    line_poses,
+    map_tasks,
+    parse_grid,
+    run_sweep,
+)
 
 WALL_X = 0.5
 
@@ -162,15 +170,15 @@ def test_one_local_worker_starts_nothing():
     assert set(threading.enumerate()) <= before  # threads of earlier tests may end meanwhile; none may start
 
 
-@pytest.mark.skipif(not hasattr(__import__("bem"), "PoseSweep"), reason="bem.PoseSweep not there yet")
+@pytest.mark.skipif(not hasattr(__import__("bem"), "PoseSweep"), reason="electrosense.bem.PoseSweep not there yet")
 def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path):
     """The real BEM: one tank mesh for the whole grid, blocks built once and scattered; chunks on two
     worker processes give the serial sweep's numbers (to round-off)."""
     from dask.distributed import Client, LocalCluster
 
-    from meshes.sensor import preset
-    from meshes.tank import Tank
-    from validation.models import pose_evaluator
+    from electrosense.meshes.sensor import preset
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.simulation.models import pose_evaluator
 
     poses = parse_grid("-0.1:0.1:3,-0.06:0.06:2").poses
     ev = pose_evaluator("bem", preset("angels-2"), Tank((0.5, 0.4, 0.3)), 0.0354, poses=poses,
@@ -178,7 +186,7 @@ def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path)
     serial = ev.conductance(poses)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
-        store = SweepStore.open_or_create(tmp_path / "bem.zarr", poses, 2, 2, {"model": "bem"}, 2)
+        store = SweepStore.open_or_create(tmp_path / "electrosense.bem.zarr", poses, 2, 2, {"model": "bem"}, 2)
         result = run_sweep(ev, poses, store, client=client, progress=False)
     # equal to round-off: the workers' BLAS runs single-threaded, this process's may not (other sums' order);
     # the coupling's truncated SVD (tol 1e-6, randomised range finding) turns that into ~1e-10
@@ -189,10 +197,10 @@ def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path)
 
 
 def test_a_worker_with_other_model_code_refuses():
-    from validation.sweep.runner import _evaluate_block
+    from electrosense.validation.simulation.sweep.runner import _evaluate_block
 
     with pytest.raises(RuntimeError, match="install the same electrosense on every worker"):
         _evaluate_block(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 2), "electrosense 0.0 src 000000000000")
     K, seconds, meta = _evaluate_block(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 2),
-                                       __import__("validation.models", fromlist=["x"]).code_version())
+                                       __import__("electrosense.validation.simulation.models", fromlist=["x"]).code_version())
     assert K.shape == (2, 4, 4) and meta["emitter"] == 4 and meta["info"]["triangles"] == 0

@@ -5,12 +5,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from meshes.sensor import preset
-from meshes.tank import Tank
-from psm import PolySphericalModel, conductance
-from validation.benchlog import write_bench_log
-from validation.cli.validate_cmd import validate
-from validation.report.figures import png_is_blank
+from electrosense.meshes.tank import Tank
+from electrosense.psm import PolySphericalModel, conductance
+from electrosense.validation.bench.log import write_bench_log
+from electrosense.validation.cli.validate_cmd import validate
+from electrosense.validation.report.figures import png_is_blank
 
 SIGMA = 0.0354
 
@@ -19,7 +18,7 @@ SIGMA = 0.0354
 def psm_file(tmp_path_factory):
     """A 4-sphere PSM of the paper's fitted size (a_e = 0.72 cm, a_i = 0.74 cm, L = 7.85 / 7.69 cm)."""
     model = PolySphericalModel.collinear([0.0072, 0.0074, 0.0074, 0.0072], [0.0785, 0.0769, 0.0785])
-    path = tmp_path_factory.mktemp("psm") / "psm.json"
+    path = tmp_path_factory.mktemp("psm") / "electrosense.psm.json"
     model.save(path)
     return path, model
 

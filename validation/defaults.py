@@ -2,7 +2,7 @@
 
 Example
 -------
->>> from validation.defaults import NOMINAL_SIGMA_S_PER_M, BENCH_CURRENT_NOISE_REL
+>>> from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M, BENCH_CURRENT_NOISE_REL
 >>> NOMINAL_SIGMA_S_PER_M, BENCH_CURRENT_NOISE_REL
 (0.0354, 0.0005)
 """

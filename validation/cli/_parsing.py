@@ -38,8 +38,8 @@ def finite_float(positive: bool = False) -> click.ParamType:
 
 
 def parse_tank(text: str, param_hint: str = "--tank"):
-    """``"LX,LY,LZ"`` (m) as a :class:`meshes.tank.Tank`, or a click error naming the option."""
-    from meshes.tank import Tank
+    """``"LX,LY,LZ"`` (m) as a :class:`electrosense.meshes.tank.Tank`, or a click error naming the option."""
+    from electrosense.meshes.tank import Tank
 
     try:
         size = [float(v) for v in text.split(",")]
@@ -56,11 +56,11 @@ def parse_tank(text: str, param_hint: str = "--tank"):
 def check_edge_length(sensor, edge_length_m: float | None, param_hint: str = "--edge-length") -> None:
     """Refuse, before meshing, an edge length that is not positive or would make too many triangles.
 
-    The count is estimated from the sensor's geometry (:func:`meshes.sensor_mesh.estimate_triangles`).
+    The count is estimated from the sensor's geometry (:func:`electrosense.meshes.sensor_mesh.estimate_triangles`).
     """
     if edge_length_m is None:
         return
-    from meshes.sensor_mesh import MAX_SENSOR_TRIANGLES, estimate_triangles
+    from electrosense.meshes.sensor_mesh import MAX_SENSOR_TRIANGLES, estimate_triangles
 
     if not (math.isfinite(edge_length_m) and edge_length_m > 0):
         raise click.BadParameter(f"must be a positive length in metres, got {edge_length_m}", param_hint=param_hint)
@@ -90,7 +90,7 @@ def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = 
     ``edge_length``, ``sigma`` False leave those out). Read them with
     :func:`scene_from_options`.
     """
-    from validation.defaults import NOMINAL_SIGMA_S_PER_M
+    from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
     def decorate(command):
         opts = [
@@ -126,7 +126,7 @@ def scene_options(*, pose: bool = True, depth: bool = True, edge_length: bool = 
 
 def sensor_option(spec: str, option: str = "--sensor"):
     """The sensor a ``--sensor`` value names (a preset or a sensor file), refused naming the option."""
-    from meshes.sensor import load_sensor
+    from electrosense.meshes.sensor import load_sensor
 
     try:
         return load_sensor(spec)
@@ -143,10 +143,10 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
     """
     from dataclasses import replace
 
-    from meshes.pose import Pose
-    from meshes.scene_file import SceneFileError, apply_overrides, load_scene, load_scene_settings
-    from meshes.tank import Tank
-    from validation.defaults import NOMINAL_SIGMA_S_PER_M
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene_file import SceneFileError, apply_overrides, load_scene, load_scene_settings
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
     if unbounded and tank_text:
         raise click.UsageError("--unbounded and --tank contradict each other: give one")

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import finite_float
+from electrosense.validation.cli._parsing import finite_float
 
 
 @click.command("acquire")
@@ -43,7 +43,7 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
     """
     import signal
 
-    from validation.acquisition import Logger, parse_meta_option
+    from electrosense.validation.bench.logger import Logger, parse_meta_option
 
     meta = {}
     try:

@@ -3,9 +3,8 @@ from __future__ import annotations
 
 import click
 
-from validation.defaults import NOMINAL_SIGMA_S_PER_M
-
-from ._parsing import finite_float, parse_tank
+from electrosense.validation.cli._parsing import finite_float, parse_tank
+from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
 
 @click.command("bench-sim")
@@ -65,14 +64,21 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
     import sys
     import threading
 
-    from meshes.sensor import load_sensor
-    from meshes.tank import Tank
-    from validation.acquisition.meta_option import parse_meta_option
-    from validation.bench_sim import (
-        SIMULATOR_LABEL, BenchDevice, Effects, FaultPlan, PtyTransport, SocketTransport, VirtualBench, parse_path,
+    from electrosense.meshes.sensor import load_sensor
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.bench.log import write_bench_log
+    from electrosense.validation.bench.logger.meta_option import parse_meta_option
+    from electrosense.validation.bench.virtual import (
+        SIMULATOR_LABEL,
+        BenchDevice,
+        Effects,
+        FaultPlan,
+        PtyTransport,
+        SocketTransport,
+        VirtualBench,
+        parse_path,
         repeat_passes,
     )
-    from validation.benchlog import write_bench_log
 
     def say(text):
         click.echo(text, err=True)

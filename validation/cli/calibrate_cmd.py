@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import finite_float, sensor_option
+from electrosense.validation.cli._parsing import finite_float, sensor_option
 
 
 @click.command("calibrate")
@@ -29,11 +29,11 @@ def calibrate(reference_path, paper_table, output, symmetric, fix_length_m, sens
     """
     import json
 
-    from bem.conductance import ConductanceMatrix
-    from meshes.sensor import SensorDescription, load_sensor
-    from psm.calibration import CalibrationError
-    from psm.calibration import calibrate as fit
-    from psm.paper import SIGMA_MEASURED_S_PER_M, paper_reference
+    from electrosense.bem.conductance import ConductanceMatrix
+    from electrosense.meshes.sensor import SensorDescription, load_sensor
+    from electrosense.psm.calibration import CalibrationError
+    from electrosense.psm.calibration import calibrate as fit
+    from electrosense.psm.paper import SIGMA_MEASURED_S_PER_M, paper_reference
 
     if bool(reference_path) == bool(paper_table):
         raise click.UsageError("give exactly one of --reference S.json or --paper-table")

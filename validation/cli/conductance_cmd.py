@@ -16,9 +16,8 @@ from __future__ import annotations
 
 import click
 
-from validation.defaults import NOMINAL_SIGMA_S_PER_M
-
-from ._parsing import finite_float, scene_from_options, scene_options
+from electrosense.validation.cli._parsing import finite_float, scene_from_options, scene_options
+from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
 
 def _table(g) -> str:
@@ -54,7 +53,7 @@ def conductance(mesh_file, z_c, no_edge_correction, emitter, json_out, vtp_out, 
     import json
     from dataclasses import replace
 
-    from bem.solve import solve_scene
+    from electrosense.bem.solve import solve_scene
 
     edge_length = scene_opts["edge_length_m"]
     settings = {}
@@ -64,8 +63,8 @@ def conductance(mesh_file, z_c, no_edge_correction, emitter, json_out, vtp_out, 
                 raise click.UsageError("--mesh replaces --sensor and --scene; give one of them")
             if scene_opts["tank_text"] or scene_opts["pose_text"] or scene_opts["depth_m"] is not None:
                 raise click.UsageError("--mesh is solved in unbounded water; --tank, --depth and --pose do not apply")
-            from meshes.io import read_mesh
-            from meshes.quality import overlapping_shells
+            from electrosense.meshes.io import read_mesh
+            from electrosense.meshes.quality import overlapping_shells
 
             target = read_mesh(mesh_file)
             overlaps = overlapping_shells(target)

@@ -44,12 +44,12 @@ def _sensor_section(sensor, folder: Path, edge_length_m, bar, echo):
     """Mesh, free-space BEM and PSM calibration of one sensor: (Section, PSM model)."""
     import numpy as np
 
-    from meshes.quality import mesh_quality
-    from meshes.render import RenderUnavailable, render_mesh
-    from meshes.sensor_mesh import mesh_sensor
-    from psm import calibrate
-    from validation.models import free_space_bem
-    from validation.report.html import Figure, Section, Table
+    from electrosense.meshes.quality import mesh_quality
+    from electrosense.meshes.render import RenderUnavailable, render_mesh
+    from electrosense.meshes.sensor_mesh import mesh_sensor
+    from electrosense.psm import calibrate
+    from electrosense.validation.report.html import Figure, Section, Table
+    from electrosense.validation.simulation.models import free_space_bem
 
     name = sensor.name
     mesh = mesh_sensor(sensor, edge_length_m=edge_length_m)
@@ -151,10 +151,10 @@ def _diagnosis_section(logs, log_paths, folder: Path, echo, bar=None, bem_poses:
     """
     import contextlib
 
-    from validation.diagnosis.observations import from_bench_logs
-    from validation.diagnosis.pipeline import diagnose
-    from validation.diagnosis.report import diagnosis_dict, write_report
-    from validation.report.html import Figure, Section, Table
+    from electrosense.validation.diagnosis.observations import from_bench_logs
+    from electrosense.validation.diagnosis.pipeline import diagnose
+    from electrosense.validation.diagnosis.report import diagnosis_dict, write_report
+    from electrosense.validation.report.html import Figure, Section, Table
 
     sections = []
     for log, path in zip(logs, log_paths):
@@ -226,12 +226,10 @@ def demo(outdir, quick, bem_poses, data_dir, no_diagnosis, quiet):
     """Mesh the paper's sensors, compute BEM matrices, calibrate the PSM, validate both on the bundled logs, report."""
     from tqdm.auto import tqdm
 
-    from meshes.render import offscreen_backend
-
-    from validation.benchlog import read_bench_log
-    from validation.report.validation_report import write_validation_report
-
-    from .validate_cmd import print_summary, validate_logs
+    from electrosense.meshes.render import offscreen_backend
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.cli.validate_cmd import print_summary, validate_logs
+    from electrosense.validation.comparison.report import write_validation_report
 
     t_start = time.perf_counter()
     settings = dict(SETTINGS["quick" if quick else "full"])

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from validation.diagnosis.effects import EFFECT_NAMES
+from electrosense.validation.diagnosis.effects import EFFECT_NAMES
 
 
 @click.command("diagnose")
@@ -48,18 +48,21 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
 
     Example: esense diagnose run.csv -o diag/
     """
-    from validation.transfer.cli import all_transfer_logs, run_transfer_logs  # transfer logs: their own diagnosis
+    from electrosense.validation.cli.transfer_logs import (  # transfer logs: their own diagnosis
+        all_transfer_logs,
+        run_transfer_logs,
+    )
 
     if all_transfer_logs(logs):
         return run_transfer_logs(logs, outdir, positions=True)
-    from validation.diagnosis.observations import DiagnosisInputError, from_bench_logs
-    from validation.diagnosis.pipeline import diagnose as run_diagnosis
-    from validation.diagnosis.pipeline import parse_effects
-    from validation.diagnosis.report import write_report
-    from validation.diagnosis.select import SelectionRules
+    from electrosense.validation.diagnosis.observations import DiagnosisInputError, from_bench_logs
+    from electrosense.validation.diagnosis.pipeline import diagnose as run_diagnosis
+    from electrosense.validation.diagnosis.pipeline import parse_effects
+    from electrosense.validation.diagnosis.report import write_report
+    from electrosense.validation.diagnosis.select import SelectionRules
 
     try:
-        from validation.benchlog import read_bench_log
+        from electrosense.validation.bench.log import read_bench_log
     except ImportError as exc:  # pragma: no cover - the reader is part of the project
         raise click.ClickException(f"the bench-log reader is not available: {exc}") from None
     try:

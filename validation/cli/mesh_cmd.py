@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import click
 
-from ._parsing import check_edge_length, finite_float, scene_from_options, scene_options
+from electrosense.validation.cli._parsing import check_edge_length, finite_float, scene_from_options, scene_options
 
 _MESH_SUFFIXES = (".vtp", ".vtk", ".ply", ".stl")
 
@@ -32,8 +32,8 @@ def _check_output(path: str) -> str:
 
 def _finish(mesh, output, png, title, emitter):
     """Check, write and picture a mesh; print its quality."""
-    from meshes.io import write_mesh
-    from meshes.quality import check_mesh
+    from electrosense.meshes.io import write_mesh
+    from electrosense.meshes.quality import check_mesh
 
     try:
         quality = check_mesh(mesh)
@@ -44,7 +44,7 @@ def _finish(mesh, output, png, title, emitter):
         write_mesh(mesh, output)
         click.echo(f"wrote {output}")
     if png:
-        from meshes.render import render_mesh
+        from electrosense.meshes.render import render_mesh
 
         render_mesh(mesh, png, title=title, emitter=emitter)
         click.echo(f"wrote {png}")
@@ -68,8 +68,8 @@ def mesh():
 @click.option("--emitter", type=int, default=None, help="Emitting electrode (default: the sensor's, the last one).")
 def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
     """Mesh SENSOR (a preset such as angels-2, angels-4, or a sensor .json/.toml file) in the sensor frame."""
-    from meshes.sensor import load_sensor
-    from meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.sensor import load_sensor
+    from electrosense.meshes.sensor_mesh import mesh_sensor
 
     if output:
         _check_output(output)
@@ -96,7 +96,7 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
               help="Growth of the tank's edge length per metre of distance from the sensor.")
 def mesh_scene_cmd(output, png, tank_edge_length_m, tank_grading, **scene_opts):
     """Mesh a scene: the sensor at its pose, the tank (graded towards the sensor) and the objects."""
-    from meshes.scene_mesh import mesh_scene
+    from electrosense.meshes.scene_mesh import mesh_scene
 
     if output:
         _check_output(output)

@@ -8,7 +8,7 @@ import click
 
 
 def _names() -> list[str]:
-    import validation.studies as studies
+    import electrosense.validation.studies as studies
 
     return sorted(info.name for info in pkgutil.iter_modules(studies.__path__) if not info.name.startswith("_"))
 
@@ -17,7 +17,7 @@ def _summary(name: str) -> str:
     """First line of a study's docstring, read without importing it (a study may set up numba threads)."""
     import ast
 
-    import validation.studies as studies
+    import electrosense.validation.studies as studies
 
     path = f"{studies.__path__[0]}/{name}.py"
     with open(path, encoding="utf-8") as f:
@@ -44,4 +44,4 @@ def study(name, args, list_):
         if n not in available:
             raise click.BadParameter(f"unknown study {n!r}; known: {', '.join(available)}", param_hint="NAME")
         click.echo(f"== {n}")
-        importlib.import_module(f"validation.studies.{n}").main(list(args))
+        importlib.import_module(f"electrosense.validation.studies.{n}").main(list(args))

@@ -20,9 +20,8 @@ from pathlib import Path
 
 import click
 
-from validation.defaults import NOMINAL_TANK_M
-
-from ._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
+from electrosense.validation.cli._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
+from electrosense.validation.defaults import NOMINAL_TANK_M
 
 _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
@@ -30,7 +29,7 @@ PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a w
 
 def _sensor_spec_for_log(sensor, out: Path) -> str:
     """What the bench log's meta calls the sensor: a preset name, or a sensor file beside the log."""
-    from meshes.sensor import PRESETS, preset, save_sensor
+    from electrosense.meshes.sensor import PRESETS, preset, save_sensor
 
     if sensor.name in PRESETS and preset(sensor.name).with_emitter(sensor.emitter) == sensor:
         return sensor.name
@@ -53,7 +52,7 @@ def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: in
     (an earlier run with other arguments) is replaced, with a word. A ``.zarr`` output is the user's: a
     different sweep in it is replaced only with ``--overwrite``, else the message says how to go on.
     """
-    from validation.sweep.store import StoreError, SweepStore, remove_store
+    from electrosense.validation.simulation.sweep.store import StoreError, SweepStore, remove_store
 
     def open_():
         return SweepStore.open_or_create(store_path, poses, sensor.n_electrodes, sensor.emitter, identity,
@@ -76,7 +75,7 @@ def _bench_log_frame(C, poses):
     """The bench-log table of a sweep: t_s (pose index), pose, U_V = 1, I<k>_A, R<k>_ohm."""
     import pandas as pd
 
-    from validation.benchlog.writer import bench_log_table
+    from electrosense.validation.bench.log.writer import bench_log_table
 
     I = C.receiver_currents_A(1.0)
     table = bench_log_table(poses, 1.0, I, C.receivers)
@@ -128,7 +127,7 @@ def sweep(**options):
     import importlib.util
     from types import SimpleNamespace
 
-    from validation.sweep.grid import GridError
+    from electrosense.validation.simulation.sweep.grid import GridError
 
     missing = [m for m in ("dask", "distributed", "xarray", "zarr") if importlib.util.find_spec(m) is None]
     if missing:
@@ -150,11 +149,11 @@ def sweep(**options):
 
 
 def _sweep(o):
-    from meshes.tank import Tank
-    from validation.models import code_version, pose_evaluator
-    from validation.sweep.grid import line_poses, parse_grid, parse_xy
-    from validation.sweep.runner import default_chunk_poses, local_cores, run_sweep
-    from validation.sweep.store import export_netcdf, open_sweep, remove_store
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.simulation.models import code_version, pose_evaluator
+    from electrosense.validation.simulation.sweep.grid import line_poses, parse_grid, parse_xy
+    from electrosense.validation.simulation.sweep.runner import default_chunk_poses, local_cores, run_sweep
+    from electrosense.validation.simulation.sweep.store import export_netcdf, open_sweep, remove_store
 
     model, psm_file, workers, out = o.model, o.psm_file, o.workers, Path(o.output)
     images, edge_length_m, contact_impedance = o.images, o.edge_length_m, o.contact_impedance
@@ -197,7 +196,7 @@ def _sweep(o):
         model_options["contact_impedance_ohm_m2"] = contact_impedance
     psm_description = None
     if psm_file:
-        from psm import PolySphericalModel
+        from electrosense.psm import PolySphericalModel
 
         psm_description = PolySphericalModel.load(psm_file).to_json_dict()
     identity = {
@@ -243,7 +242,7 @@ def _sweep(o):
 
     # ------------------------------------------------------------ the output
     if out.suffix == ".csv":
-        from validation.benchlog import write_bench_log
+        from electrosense.validation.bench.log import write_bench_log
 
         source = f"esense sweep --model {model} ({'BEM' if model == 'bem' else 'PSM'}; {code_version()})"
         meta = {
@@ -268,7 +267,7 @@ def _sweep(o):
     elif out.suffix == ".nc":
         export_netcdf(store_path, out)
     if o.plot_png:
-        from validation.sweep.plot import plot_tank_map
+        from electrosense.validation.simulation.sweep.plot import plot_tank_map
 
         plot_tank_map(open_sweep(store_path), o.plot_png, quantity=o.plot_quantity)
         click.echo(f"wrote {o.plot_png}")

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import click
 
-from ._parsing import finite_float
+from electrosense.validation.cli._parsing import finite_float
 
 
 def _parse_models(text: str) -> tuple[str, ...]:
-    from validation.compare.validate import MODEL_ORDER
+    from electrosense.validation.comparison.validate import MODEL_ORDER
 
     models = tuple(dict.fromkeys(m.strip().lower() for m in text.split(",") if m.strip()))
     bad = [m for m in models if m not in MODEL_ORDER]
@@ -35,9 +35,9 @@ def validate_logs(logs, models, psm=None, conductivity_correction=False, objects
     ``psm``: a PSM (object or JSON path) for every log, a dict sensor name -> PSM, or None (calibrated, cached).
     Shared by ``esense validate`` and ``esense demo``.
     """
-    from validation.compare import NEAR_OBJECT_M, NEAR_WALL_M
-    from validation.compare.validate import validate_log
-    from validation.models import EvaluatorCache
+    from electrosense.validation.comparison import NEAR_OBJECT_M, NEAR_WALL_M
+    from electrosense.validation.comparison.validate import validate_log
+    from electrosense.validation.simulation.models import EvaluatorCache
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     evaluators = EvaluatorCache(psm_model=psm, **bem_options)
@@ -62,7 +62,7 @@ def run_validation(logs, models, outdir, psm=None, conductivity_correction=False
     """Validate logs and write the report (metrics.json, PNGs, index.html) into ``outdir``; return (results, paths)."""
     from tqdm.auto import tqdm
 
-    from validation.report.validation_report import write_validation_report
+    from electrosense.validation.comparison.report import write_validation_report
 
     with tqdm(total=len(logs) * (len(models) + 1), desc="validate", unit="step", disable=not show_progress) as bar:
         results = validate_logs(logs, models, psm, conductivity_correction, objects, stride, near_wall_m,
@@ -84,7 +84,7 @@ def _label(log, earlier) -> str:
 
 def _every(log, stride: int):
     """Every ``stride``-th sample of each pass (the log's own rows, unchanged)."""
-    from validation.benchlog import BenchLog
+    from electrosense.validation.bench.log import BenchLog
 
     keep = []
     for p in log.pass_numbers:
@@ -97,7 +97,7 @@ def _every(log, stride: int):
 
 
 def print_summary(results, paths, echo=click.echo) -> None:
-    from validation.compare.validate import validation_summary_rows
+    from electrosense.validation.comparison.validate import validation_summary_rows
 
     echo(f"{'log':<24} {'comparison':<32} {'mean %':>8} {'max %':>8} {'RMS %':>8} {'bias %':>8}")
     for row in validation_summary_rows(results):
@@ -136,14 +136,17 @@ def print_summary(results, paths, echo=click.echo) -> None:
 def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_length, stride, near_wall,
              near_object, no_potential, outdir, quiet):
     """Compare BEM and PSM receiver currents with bench LOGS (bench-log CSV files); write a report to OUTDIR."""
-    from validation.transfer.cli import all_transfer_logs, run_transfer_logs  # transfer logs: their own comparison
+    from electrosense.validation.cli.transfer_logs import (  # transfer logs: their own comparison
+        all_transfer_logs,
+        run_transfer_logs,
+    )
 
     if all_transfer_logs(logs):
         return run_transfer_logs(logs, outdir, positions=False)
     import sys
 
-    from meshes.render import offscreen_backend
-    from validation.benchlog import BenchLogError, read_bench_log
+    from electrosense.meshes.render import offscreen_backend
+    from electrosense.validation.bench.log import BenchLogError, read_bench_log
 
     model_names = _parse_models(models)
     try:
@@ -155,7 +158,7 @@ def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_l
             click.echo(f"warning: {log.path.name}: {w}", err=True)
     objects = ()
     if scene_file is not None:
-        from meshes.scene_file import load_scene
+        from electrosense.meshes.scene_file import load_scene
 
         try:
             objects = tuple(load_scene(scene_file).objects)

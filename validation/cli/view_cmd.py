@@ -56,7 +56,7 @@ def view(file, png, html, scalars, title):
         raise click.ClickException("no display to open a window on: give --png FILE (or --html FILE)")
 
     if not interactive:  # a window on the display renders by itself; pictures need EGL or OSMesa
-        from meshes.render import RenderUnavailable, require_3d
+        from electrosense.meshes.render import RenderUnavailable, require_3d
 
         try:
             require_3d()
@@ -64,8 +64,8 @@ def view(file, png, html, scalars, title):
             raise click.ClickException(str(exc)) from None
     import pyvista as pv
 
-    from meshes.io import from_polydata, read_mesh
-    from meshes.render import data_plotter, mesh_plotter
+    from electrosense.meshes.io import from_polydata, read_mesh
+    from electrosense.meshes.render import data_plotter, mesh_plotter
 
     title = title or Path(file).name
     suffix = Path(file).suffix.lower()

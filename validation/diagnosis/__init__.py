@@ -20,12 +20,12 @@ Modules, one idea each:
 
 Example
 -------
->>> from validation.diagnosis import EFFECT_NAMES
+>>> from electrosense.validation.diagnosis import EFFECT_NAMES
 >>> EFFECT_NAMES[-1]
 'none'
 """
-from .effects import EFFECT_NAMES, library
-from .observations import DiagnosisInputError, Observations, from_bench_logs
-from .pipeline import Diagnosis, diagnose
+from electrosense.validation.diagnosis.effects import EFFECT_NAMES, library
+from electrosense.validation.diagnosis.observations import DiagnosisInputError, Observations, from_bench_logs
+from electrosense.validation.diagnosis.pipeline import Diagnosis, diagnose
 
 __all__ = ["EFFECT_NAMES", "library", "Observations", "DiagnosisInputError", "from_bench_logs", "Diagnosis", "diagnose"]

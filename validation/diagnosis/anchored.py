@@ -7,7 +7,7 @@ several percent near the walls, which is twenty times the bench noise. Here:
 1. the calibrated PSM is evaluated at every logged pose where it can be (it
    refuses poses where one of its spheres crosses a wall: those poses get the
    BEM itself);
-2. the BEM (:class:`bem.PoseSweep`, built once per scene) is run at a first
+2. the BEM (:class:`electrosense.bem.PoseSweep`, built once per scene) is run at a first
    spread of *anchor* poses, dense where the tank's effect changes fastest;
 3. the ratio log(K_bem / K_psm) of every entry of K is interpolated over pose
    space (cubic radial basis functions of the sensor's tip positions, with a
@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .forward import receiver_currents
+from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
            "psm_usable", "anchor_cache_dir", "estimated_error", "SENSOR_EDGE_FACTOR", "default_bem_options"]
@@ -69,7 +69,7 @@ MAX_BEM_SECONDS = 480.0
 def default_bem_options(sensor, options: dict | None = None) -> dict:
     """The anchors' BEM options: ``options`` with the sensor edge length defaulting to
     :data:`SENSOR_EDGE_FACTOR` times the mesher's default."""
-    from meshes.sensor_mesh import default_edge_length_m
+    from electrosense.meshes.sensor_mesh import default_edge_length_m
 
     out = dict(options or {})
     if out.get("edge_length_m") is None:
@@ -123,7 +123,7 @@ class RBFInterpolant:
 
 def pose_features(sensor, poses: np.ndarray) -> np.ndarray:
     """(P, 6): the tank-frame positions (m) of the sensor's two tips, a metric on poses that includes the heading."""
-    from meshes.pose import sensor_to_tank
+    from electrosense.meshes.pose import sensor_to_tank
 
     tips = np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]])
     return sensor_to_tank(tips, np.asarray(poses, float)).reshape(len(poses), 6)
@@ -131,7 +131,7 @@ def pose_features(sensor, poses: np.ndarray) -> np.ndarray:
 
 def psm_usable(model, poses: np.ndarray, tank) -> np.ndarray:
     """(P,) bool: poses where every sphere of the PSM ``model`` lies inside the water (the PSM refuses the others)."""
-    from psm.conductance import sphere_centres_m
+    from electrosense.psm.conductance import sphere_centres_m
 
     if tank is None:
         return np.ones(len(poses), bool)
@@ -156,7 +156,7 @@ class AnchorStore:
     """BEM conductances (at 1 S/m) of one sensor in one scene, on disk; one entry per tank mesh (focus).
 
     The file name is a hash of the sensor's geometry (its name left out), the
-    tank, the objects, the BEM options and :func:`validation.models.code_version`.
+    tank, the objects, the BEM options and :func:`electrosense.validation.simulation.models.code_version`.
     """
 
     sensor: object
@@ -166,7 +166,7 @@ class AnchorStore:
     folder: Path | None = None
 
     def __post_init__(self):
-        from validation.models import code_version
+        from electrosense.validation.simulation.models import code_version
 
         geometry = {k: v for k, v in self.sensor.to_dict().items() if k not in ("name", "notes")}
         text = json.dumps({"sensor": geometry, "tank": repr(self.tank), "objects": repr(tuple(self.objects)),
@@ -315,7 +315,7 @@ def estimated_error(X_nodes: np.ndarray, loo: np.ndarray, X: np.ndarray) -> np.n
 
 def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) -> np.ndarray:
     """About ``k`` of ``candidates``, both ends of each pass, spread in the cumulative ``1 + weight`` along the pass."""
-    from .multifidelity import choose_bem_poses
+    from electrosense.validation.diagnosis.multifidelity import choose_bem_poses
 
     chosen = choose_bem_poses(weight, passes, k)
     return np.intersect1d(chosen, candidates)
@@ -327,9 +327,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
                       progress=None) -> AnchoredBaseline:
     """The PSM corrected by the BEM at an adaptive set of logged poses until its estimated error is below
     ``target_factor * noise`` (module doc); K at the observations' conductivity."""
-    from validation.models import calibrated_psm, pose_evaluator
-
-    from .where import place_labels
+    from electrosense.validation.diagnosis.where import place_labels
+    from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
 
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
@@ -341,7 +340,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     model = psm_model if psm_model is not None else calibrated_psm(sensor)
     ok = psm_usable(model, obs.poses, tank)
     if ok.mean() < 0.5:  # its spheres do not fit the tank (or the calibration degenerated): spheres at the electrodes
-        from .forward import geometric_psm
+        from electrosense.validation.diagnosis.forward import geometric_psm
 
         geometric = geometric_psm(sensor, model)
         if psm_usable(geometric, obs.poses, tank).sum() > ok.sum():
@@ -359,7 +358,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     entry = store.load()
     cached_poses = np.zeros((0, 4)) if entry is None else entry["poses"]
     cached_K = np.zeros((0, n, n)) if entry is None else entry["K_unit"]
-    from meshes.scene_mesh import trajectory_focus_m
+    from electrosense.meshes.scene_mesh import trajectory_focus_m
 
     focus_new = trajectory_focus_m(sensor, obs.poses)
     # reuse the stored tank mesh if it was graded towards this log's trajectory (within a few mm)
@@ -392,7 +391,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         if not len(idx):
             return
         if sweep is None:
-            from bem import PoseSweep
+            from electrosense.bem import PoseSweep
 
             sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
         groups = np.unique(group[idx])  # one solve per distinct pose, shared by every sample at it
@@ -529,8 +528,8 @@ def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_be
     """The BEM at ``n_check`` anchor poses (strongest, median and weakest tank effect) on a mesh
     :data:`CHECK_COARSENING` times coarser: |K_coarse / K - 1| of the receiver currents (about the anchors' own
     discretisation error for a first-order convergence, an upper estimate for a faster one)."""
-    from bem import PoseSweep
-    from meshes.scene_mesh import default_tank_edge_length_m
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.scene_mesh import default_tank_edge_length_m
 
     idx = np.flatnonzero(have)
     order = idx[np.argsort(tank_effect[idx])]

@@ -28,12 +28,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.objects import Sphere
-from meshes.sensor import SensorDescription, preset
-from meshes.tank import Tank
-
-from .forward import receiver_currents
-from .observations import Observations
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.sensor import SensorDescription, preset
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.forward import receiver_currents
+from electrosense.validation.diagnosis.observations import Observations
 
 __all__ = ["BlindSetup", "blind_poses", "GEOMETRIC_TRUTH", "world_scene", "world_currents", "assemble", "write_log",
            "CURRENT_NOISE", "POSITION_NOISE_M"]
@@ -141,7 +140,7 @@ def assemble(
 
 def write_log(obs: Observations, path, overwrite: bool = True):
     """Write blind observations as a bench log (format version 1), passes and temperature included."""
-    from validation.benchlog import write_bench_log
+    from electrosense.validation.bench.log import write_bench_log
 
     data = {"t_s": obs.t_s, "x_m": obs.poses[:, 0], "y_m": obs.poses[:, 1], "z_m": obs.poses[:, 2],
             "yaw_rad": obs.poses[:, 3], "U_V": obs.U_V}

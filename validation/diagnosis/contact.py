@@ -1,13 +1,13 @@
 """Contact impedance as the BEM's boundary condition, in the diagnosis's lumped form: effective areas.
 
 The diagnosis applies a contact impedance z_c to a baseline K as series
-resistances z_c / A_k (:func:`validation.diagnosis.forward.series_contact`).
+resistances z_c / A_k (:func:`electrosense.validation.diagnosis.forward.series_contact`).
 With the electrode's geometric area A_k that is 10-20 % off the BEM, whose
 boundary condition sees the current crowd at the electrode's edges
-(:mod:`psm.contact`). Here the areas are replaced by *effective* areas
+(:mod:`electrosense.psm.contact`). Here the areas are replaced by *effective* areas
 A_k(z_c), fitted so that the lumped network reproduces the BEM with the
 contact boundary condition for the sensor alone in unbounded water (ring
-elements on the meridian, :func:`bem.meridian.meridian_conductance`: exact
+elements on the meridian, :func:`electrosense.bem.meridian.meridian_conductance`: exact
 for a sensor of revolution, about a second a solve) on a grid of z_c; between
 grid values A_k is interpolated in log z_c. The environment changes the
 water's resistance but hardly the distribution of the current over an
@@ -15,9 +15,9 @@ electrode's surface, which is what the effective area carries.
 
 Example
 -------
->>> from meshes.sensor import preset
+>>> from electrosense.meshes.sensor import preset
 >>> ea = effective_areas(preset("angels-2"), 0.0354)
->>> from psm.contact import electrode_areas_m2
+>>> from electrosense.psm.contact import electrode_areas_m2
 >>> bool(np.all(ea(1e-3) < electrode_areas_m2(preset("angels-2"))))   # crowding at the edges: smaller
 True
 """
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from meshes.sensor import SensorDescription
-from psm.contact import electrode_areas_m2
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.psm.contact import electrode_areas_m2
 
 __all__ = ["EffectiveAreas", "effective_areas", "Z_GRID_OHM_M2"]
 
@@ -58,7 +58,7 @@ class EffectiveAreas:
 def _fit_areas(K0, Kz, z, A0):
     from scipy.optimize import least_squares
 
-    from .forward import series_contact
+    from electrosense.validation.diagnosis.forward import series_contact
 
     n = K0.shape[0]
     off = ~np.eye(n, dtype=bool)
@@ -72,12 +72,11 @@ def _fit_areas(K0, Kz, z, A0):
 
 def _disk_path(sensor_json: str, sigma_S_per_m: float):
     """The file of the effective areas of one sensor geometry (its name left out) at one conductivity, keyed as
-    well by the model code's version (:func:`validation.models.code_version`)."""
+    well by the model code's version (:func:`electrosense.validation.simulation.models.code_version`)."""
     import hashlib
 
-    from validation.models import code_version
-
-    from .anchored import anchor_cache_dir
+    from electrosense.validation.diagnosis.anchored import anchor_cache_dir
+    from electrosense.validation.simulation.models import code_version
 
     geometry = {k: v for k, v in json.loads(sensor_json).items() if k not in ("name", "notes")}
     text = json.dumps({"sensor": geometry, "sigma": repr(float(sigma_S_per_m)), "z": Z_GRID_OHM_M2.tolist(),
@@ -109,7 +108,7 @@ def _cached(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
 
 
 def _compute(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
-    from bem.meridian import meridian_conductance
+    from electrosense.bem.meridian import meridian_conductance
 
     sensor = SensorDescription.from_dict(json.loads(sensor_json))
     A0 = electrode_areas_m2(sensor)

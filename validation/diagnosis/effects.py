@@ -44,18 +44,16 @@ from typing import Callable
 
 import numpy as np
 
-from meshes.objects import Sphere
-from meshes.tank import Tank
-
-from .forward import electrode_areas_m2, receiver_currents, series_contact
-from validation.bench_sim.effects import EFFECT_NAMES as BENCH_EFFECT_NAMES
-
-from .observations import Observations
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.tank import Tank
+from electrosense.validation.bench.virtual.effects import EFFECT_NAMES as BENCH_EFFECT_NAMES
+from electrosense.validation.diagnosis.forward import electrode_areas_m2, receiver_currents, series_contact
+from electrosense.validation.diagnosis.observations import Observations
 
 __all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]
 
 #: Candidate names, in the order they are reported: the virtual bench's effects (defined once, in
-#: :mod:`validation.bench_sim.effects`) and ``none``.
+#: :mod:`electrosense.validation.bench.virtual.effects`) and ``none``.
 EFFECT_NAMES = tuple(BENCH_EFFECT_NAMES) + ("none",)
 
 
@@ -192,10 +190,10 @@ class Problem:
 
     def contact_areas_m2(self, z_ohm_m2) -> np.ndarray:
         """Areas (n,) of the lumped contact z / A that reproduce the BEM's contact boundary condition
-        (:mod:`validation.diagnosis.contact`); the geometric areas if the BEM cannot be run."""
+        (:mod:`electrosense.validation.diagnosis.contact`); the geometric areas if the BEM cannot be run."""
         if self._effective_areas is None:
             try:
-                from .contact import effective_areas
+                from electrosense.validation.diagnosis.contact import effective_areas
 
                 self._effective_areas = effective_areas(self.obs.sensor, self.obs.sigma_S_per_m)
             except Exception:  # no BEM: the geometric areas (10-20 % off at small z_c)

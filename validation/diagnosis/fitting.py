@@ -34,9 +34,8 @@ import numpy as np
 from scipy.linalg import subspace_angles
 from scipy.optimize import lsq_linear
 
-from meshes.pose import sensor_to_tank
-
-from .effects import Effect, Problem, combined_scales
+from electrosense.meshes.pose import sensor_to_tank
+from electrosense.validation.diagnosis.effects import Problem, combined_scales
 
 __all__ = [
     "FitResult",

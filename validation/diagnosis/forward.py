@@ -7,7 +7,7 @@ proportional to it, so a conductivity change is a scale applied afterwards).
 Two kinds answer it:
 
 * :class:`ModelSimulator`: the project's models through
-  :func:`validation.models.simulate` (``"psm"``: the calibrated PSM,
+  :func:`electrosense.validation.simulation.models.simulate` (``"psm"``: the calibrated PSM,
   vectorised; ``"bem"``: the BEM pose sweep), with a memo of the answers so
   that a fit never asks twice for the same scene;
 * :class:`PointElectrodeSimulator`: a small, self-contained point-electrode
@@ -21,8 +21,8 @@ Both are callables ``sim(poses, tank, objects) -> K`` with ``.name``,
 Example
 -------
 >>> import numpy as np
->>> from meshes.sensor import preset
->>> from meshes.tank import Tank
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.tank import Tank
 >>> sim = PointElectrodeSimulator(preset("angels-4"), 0.0354)
 >>> K = sim(np.array([[0.0, 0.0, 0.0, 0.0]]), Tank((1.0, 1.0, 1.0)), ())
 >>> K.shape, bool(np.allclose(K.sum(axis=-1), 0.0, atol=1e-15))
@@ -35,11 +35,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.objects import Sphere
-from meshes.pose import sensor_to_tank
-from meshes.sensor import SensorDescription
-from meshes.tank import Tank
-from psm.contact import electrode_areas_m2  # wetted areas: a cap of height h has 2 pi r h
+from electrosense.meshes.objects import Sphere
+from electrosense.meshes.pose import sensor_to_tank
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.meshes.tank import Tank
+from electrosense.psm.contact import electrode_areas_m2  # wetted areas: a cap of height h has 2 pi r h
 
 __all__ = ["ModelSimulator", "PSMEffectModel", "CompositeEffectModel", "kelvin_sphere_term", "geometric_psm", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
 
@@ -84,7 +84,7 @@ def _key(*parts) -> str:
 # ------------------------------------------------------------------------ the models
 @dataclass
 class ModelSimulator:
-    """K at poses through :func:`validation.models.simulate` (``"psm"`` or ``"bem"``), memoised.
+    """K at poses through :func:`electrosense.validation.simulation.models.simulate` (``"psm"`` or ``"bem"``), memoised.
 
     Parameters
     ----------
@@ -92,7 +92,7 @@ class ModelSimulator:
     sensor : SensorDescription
     sigma_S_per_m : float
     options : dict
-        Passed on to :func:`validation.models.simulate` (``psm_model``,
+        Passed on to :func:`electrosense.validation.simulation.models.simulate` (``psm_model``,
         ``edge_length_m``, ``images``...).
     """
 
@@ -108,7 +108,7 @@ class ModelSimulator:
         return self.model
 
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
-        from validation.models import simulate
+        from electrosense.validation.simulation.models import simulate
 
         poses = np.asarray(poses, dtype=float)
         key = _key(poses, tank, tuple(objects), contact_impedance_ohm_m2)
@@ -140,10 +140,10 @@ def geometric_psm(sensor: SensorDescription, calibrated=None):
     absolute level is off by a few percent, which a relative change does not
     see.
     """
-    from psm import PolySphericalModel
+    from electrosense.psm import PolySphericalModel
 
     if calibrated is None:
-        from validation.models import calibrated_psm
+        from electrosense.validation.simulation.models import calibrated_psm
 
         calibrated = calibrated_psm(sensor)
     return PolySphericalModel(
@@ -154,7 +154,7 @@ def geometric_psm(sensor: SensorDescription, calibrated=None):
 
 @dataclass
 class PSMEffectModel:
-    """The PSM as effect model: :func:`psm.conductance` with a fixed image series.
+    """The PSM as effect model: :func:`electrosense.psm.conductance` with a fixed image series.
 
     The number of image shells is chosen once, adaptively, on the nominal
     scene, then kept fixed so that K varies smoothly with the tank's size
@@ -184,7 +184,7 @@ class PSMEffectModel:
         return "psm"
 
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
-        from psm.conductance import conductance_array
+        from electrosense.psm.conductance import conductance_array
 
         self.calls += 1
         poses = np.asarray(poses, dtype=float).reshape(-1, 4)

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .forward import receiver_currents
+from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = ["BEMCorrection", "choose_bem_poses", "bem_correction"]
 

@@ -8,8 +8,8 @@ and the temperature come from the meta line and the columns.
 Example
 -------
 >>> import numpy as np
->>> from meshes.sensor import preset
->>> from meshes.tank import Tank
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.tank import Tank
 >>> obs = Observations(poses=np.zeros((8, 4)), currents_A=np.ones((8, 3)), sensor=preset("angels-4"),
 ...                    tank=Tank((1, 1, 1)), sigma_S_per_m=0.0354)
 >>> obs.n_poses, obs.n_receivers, obs.passes.tolist()
@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from meshes.sensor import SensorDescription
-from meshes.tank import Tank
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.meshes.tank import Tank
 
 __all__ = ["Observations", "DiagnosisInputError", "from_bench_logs"]
 
@@ -145,7 +145,7 @@ def _one(log, pass_offset: int) -> dict:
 
 
 def from_bench_logs(logs) -> Observations:
-    """Observations from one or more :class:`validation.benchlog.BenchLog` of the same run set-up.
+    """Observations from one or more :class:`electrosense.validation.bench.log.BenchLog` of the same run set-up.
 
     Each log's passes keep their own numbers (offset so that logs never share
     one); times of later logs are shifted to follow the earlier ones, so that a

@@ -26,14 +26,14 @@ Geometric effects are evaluated by an *effect model*, as a relative change
 of the baseline. With the PSM as baseline it is that PSM itself (the gap is
 explained in the PSM's own physics). With the BEM as baseline it is the PSM
 with its radii calibrated and its spheres at the electrodes' centres
-(:func:`validation.diagnosis.forward.geometric_psm`), with Kelvin images for
-conducting spheres (:class:`validation.diagnosis.forward.CompositeEffectModel`):
+(:func:`electrosense.validation.diagnosis.forward.geometric_psm`), with Kelvin images for
+conducting spheres (:class:`electrosense.validation.diagnosis.forward.CompositeEffectModel`):
 its changes follow the BEM's within about 10 % where the calibrated PSM's are
 off by a factor of two to three near the walls.
 
 Example
 -------
->>> from validation.diagnosis.pipeline import diagnose  # doctest: +SKIP
+>>> from electrosense.validation.diagnosis.pipeline import diagnose  # doctest: +SKIP
 >>> d = diagnose(obs, model="psm")  # doctest: +SKIP
 >>> d.chosen, d.gap_before, d.gap_after  # doctest: +SKIP
 (['conductivity'], 0.0203, 0.0006)
@@ -46,13 +46,19 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .effects import EFFECT_NAMES, Problem, library, model_trust_weights
-from .fitting import make_folds, noise_level
-from .forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
-from .observations import Observations
-from .select import (CandidateScore, Selection, SelectionRules, confusable_pairs, forward_selection,
-                     rank_candidates)
-from .where import breakdown, region_mask
+from electrosense.validation.diagnosis.effects import EFFECT_NAMES, Problem, library, model_trust_weights
+from electrosense.validation.diagnosis.fitting import make_folds, noise_level
+from electrosense.validation.diagnosis.forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
+from electrosense.validation.diagnosis.observations import Observations
+from electrosense.validation.diagnosis.select import (
+    CandidateScore,
+    Selection,
+    SelectionRules,
+    confusable_pairs,
+    forward_selection,
+    rank_candidates,
+)
+from electrosense.validation.diagnosis.where import breakdown, region_mask
 
 __all__ = ["Diagnosis", "diagnose", "parse_effects", "default_effect_model"]
 
@@ -73,23 +79,23 @@ def parse_effects(spec: str | None) -> list[str]:
 def default_effect_model(obs: Observations, psm_model=None):
     """The calibrated PSM (or ``psm_model``) as effect model, or the point-electrode stand-in if the PSM cannot be used."""
     try:
-        from .forward import geometric_psm
+        from electrosense.validation.diagnosis.forward import geometric_psm
 
         calibrated = None
         if psm_model is not None:
-            from validation.models import _load_psm
+            from electrosense.validation.simulation.models import _load_psm
 
             calibrated = _load_psm(psm_model)
         return default_effect_model_from(obs.sensor, obs.sigma_S_per_m, geometric_psm(obs.sensor, calibrated),
                                          obs), "psm+kelvin"
     except Exception as exc:  # the PSM is missing or broken: say so and go on with the stand-in
-        warnings.warn(f"PSM unavailable as effect model ({exc}); using the point-electrode stand-in")
+        warnings.warn(f"PSM unavailable as effect model ({exc}); using the point-electrode stand-in", stacklevel=2)
         return PointElectrodeSimulator(obs.sensor, obs.sigma_S_per_m), "point-electrodes"
 
 
 def default_effect_model_from(sensor, sigma_S_per_m, psm_model, obs=None):
     """The geometric PSM with Kelvin spheres (:class:`CompositeEffectModel`)."""
-    from .forward import CompositeEffectModel
+    from electrosense.validation.diagnosis.forward import CompositeEffectModel
 
     psm = PSMEffectModel(sensor, sigma_S_per_m, psm_model)
     if obs is not None:
@@ -152,7 +158,7 @@ class Diagnosis:
 
 def _model_split(obs, model_K_psm, n_poses: int, bem_options: dict) -> dict:
     """PSM vs BEM on a subsample of the poses, and BEM vs bench there."""
-    from .forward import receiver_currents
+    from electrosense.validation.diagnosis.forward import receiver_currents
 
     idx = np.unique(np.linspace(0, obs.n_poses - 1, min(n_poses, obs.n_poses)).round().astype(int))
     bem = ModelSimulator("bem", obs.sensor, obs.sigma_S_per_m, dict(bem_options))
@@ -197,7 +203,7 @@ def diagnose(
     model : {"anchored", "bem", "psm"}
         The baseline simulation: ``"anchored"`` (default) the PSM corrected by
         the BEM until its estimated error is below a third of the noise
-        (:func:`validation.diagnosis.anchored.anchored_baseline`); ``"bem"``
+        (:func:`electrosense.validation.diagnosis.anchored.anchored_baseline`); ``"bem"``
         the BEM at every pose; ``"psm"`` the calibrated PSM (its own error is
         then not known: a note says so).
     effects : "all", "NAME,NAME" or list of names
@@ -210,7 +216,7 @@ def diagnose(
         The baseline's K at the logged poses, if already computed.
     rules : SelectionRules
     model_options : dict
-        Options of :func:`validation.models.simulate` for the baseline.
+        Options of :func:`electrosense.validation.simulation.models.simulate` for the baseline.
     psm_model : PolySphericalModel or path, optional
         The PSM for the effects (and the baseline with ``model="psm"``).
     split_with_bem : int
@@ -223,7 +229,7 @@ def diagnose(
         With ``model="psm"``: run the BEM on about this many poses (dense where
         the tank's effect changes fastest) and correct the PSM baseline by the
         BEM/PSM ratio interpolated along the path
-        (:mod:`validation.diagnosis.multifidelity`); samples weighted by the
+        (:mod:`electrosense.validation.diagnosis.multifidelity`); samples weighted by the
         estimated error of that correction. The diagnosis then explains the
         gap between the bench and the BEM's physics, not the PSM's
         approximation (0: the bare PSM).
@@ -235,7 +241,7 @@ def diagnose(
     names = parse_effects(effects) if isinstance(effects, (str, type(None))) else list(effects) + (["none"] if "none" not in effects else [])
     anchored = None
     if K_base is None and model == "anchored":
-        from .anchored import anchored_baseline
+        from electrosense.validation.diagnosis.anchored import anchored_baseline
 
         noise0 = _prior_noise(obs, psm_model)
         say(f"baseline: PSM corrected by BEM anchors at {obs.n_poses} poses (noise about {100 * noise0:.3f} %)")
@@ -259,7 +265,7 @@ def diagnose(
     if effect_model is None and model == "psm":
         # the baseline's own physics: effects as the (calibrated) PSM would show them
         try:
-            from validation.models import _load_psm, calibrated_psm
+            from electrosense.validation.simulation.models import _load_psm, calibrated_psm
 
             own = _load_psm(psm_model) if psm_model is not None else calibrated_psm(obs.sensor)
             effect_model, effect_name = PSMEffectModel(obs.sensor, obs.sigma_S_per_m, own), "psm"
@@ -286,8 +292,8 @@ def diagnose(
                         if simulated == model else ""))
     correction = None
     if model == "psm" and bem_correction_poses > 0:
-        from .forward import receiver_currents
-        from .multifidelity import bem_correction, choose_bem_poses
+        from electrosense.validation.diagnosis.forward import receiver_currents
+        from electrosense.validation.diagnosis.multifidelity import bem_correction, choose_bem_poses
 
         free = receiver_currents(effect_model(obs.poses, None, tuple(obs.objects)), obs.emitter)
         in_tank = receiver_currents(effect_model(obs.poses, obs.tank, tuple(obs.objects)), obs.emitter)
@@ -352,11 +358,11 @@ def diagnose(
 def simulated_by(obs: Observations) -> str | None:
     """``"psm"`` or ``"bem"`` when the log says it was made by the virtual bench (its meta or description), else None.
 
-    >>> from validation.bench_sim.bench import SIMULATOR_LABEL
+    >>> from electrosense.validation.bench.virtual.bench import SIMULATOR_LABEL
     >>> simulated_by(type("O", (), {"meta": {"notes": SIMULATOR_LABEL + "; model psm; sensor x"}})())
     'psm'
     """
-    from validation.bench_sim.bench import SIMULATOR_LABEL
+    from electrosense.validation.bench.virtual.bench import SIMULATOR_LABEL
 
     texts = [v for v in (obs.meta or {}).values() if isinstance(v, str)]
     for t in texts:
@@ -371,7 +377,7 @@ def simulated_by(obs: Observations) -> str | None:
 def _load(psm_model):
     if psm_model is None:
         return None
-    from validation.models import _load_psm
+    from electrosense.validation.simulation.models import _load_psm
 
     return _load_psm(psm_model)
 
@@ -382,12 +388,9 @@ def _prior_noise(obs: Observations, psm_model=None) -> float:
     The PSM's own error is smooth along a pass and hardly enters second
     differences; where the PSM refuses every pose, the log of the currents is used.
     """
-    from validation.models import calibrated_psm, pose_evaluator
-
-    from .anchored import psm_usable
-    from .forward import receiver_currents
-
-    from .forward import geometric_psm
+    from electrosense.validation.diagnosis.anchored import psm_usable
+    from electrosense.validation.diagnosis.forward import geometric_psm, receiver_currents
+    from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
 
     model = _load(psm_model) or calibrated_psm(obs.sensor)
     ok = psm_usable(model, obs.poses, obs.tank)
@@ -409,7 +412,7 @@ def _prior_noise(obs: Observations, psm_model=None) -> float:
 
 def model_error_budget(obs: Observations, model: str, noise: float, anchored=None, correction=None) -> dict:
     """The baseline's estimated error (RMS, by place) beside the bench noise, and the noise floor they make."""
-    from .where import place_labels
+    from electrosense.validation.diagnosis.where import place_labels
 
     rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if np.size(x) else 0.0  # noqa: E731
     out = {"noise": noise, "baseline": model}
@@ -460,7 +463,7 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
 def ambiguity_set(selection: Selection, ranking: list, rules: SelectionRules, floor: float) -> list[dict]:
     """Candidates that explain the data about as well as the first chosen one (held-out mean squares within one
     floor^2), with the measurement that would separate each from it."""
-    from .select import _hint
+    from electrosense.validation.diagnosis.select import _hint
 
     if not selection.chosen:
         return []

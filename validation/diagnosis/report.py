@@ -1,7 +1,7 @@
 """The diagnosis written out: ``diagnosis.json`` and an offline ``index.html`` with figures.
 
-The page reuses the validation report's machinery (:mod:`validation.report.html`
-for the page, :mod:`validation.report.figures` for the curves and bars).
+The page reuses the validation report's machinery (:mod:`electrosense.validation.report.html`
+for the page, :mod:`electrosense.validation.report.figures` for the curves and bars).
 
 ``diagnosis.json`` holds at least
 
@@ -21,7 +21,7 @@ for the page, :mod:`validation.report.figures` for the curves and bars).
 
 Example
 -------
->>> from validation.diagnosis.report import write_report  # doctest: +SKIP
+>>> from electrosense.validation.diagnosis.report import write_report  # doctest: +SKIP
 >>> write_report(diagnosis, "out/")  # doctest: +SKIP
 """
 from __future__ import annotations
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .pipeline import Diagnosis
-from .select import CandidateScore
+from electrosense.validation.diagnosis.pipeline import Diagnosis
+from electrosense.validation.diagnosis.select import CandidateScore
 
 __all__ = ["diagnosis_dict", "write_json", "write_report"]
 
@@ -220,9 +220,9 @@ def _figures(d: Diagnosis, folder: Path) -> list:
     report figure (the diagnosis itself works with r = bench / simulation - 1:
     simulation / bench - 1 = -r / (1 + r)).
     """
-    from validation.report.figures import Panel, Series, bar_figure, curves_figure, path_coordinate
-    from validation.report.html import Figure
-    from validation.report.style import RELATIVE_ERROR_LABEL
+    from electrosense.validation.report.figures import Panel, Series, bar_figure, curves_figure, path_coordinate
+    from electrosense.validation.report.html import Figure
+    from electrosense.validation.report.style import RELATIVE_ERROR_LABEL
 
     def sim_over_bench(r):
         return 100 * (-r / (1 + r))
@@ -271,7 +271,7 @@ def _figures(d: Diagnosis, folder: Path) -> list:
 
 def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
     """Write ``diagnosis.json`` and ``index.html`` (with figures unless ``figures=False``) into ``outdir``."""
-    from validation.report.html import Section, Table, write_html
+    from electrosense.validation.report.html import Section, Table, write_html
 
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)

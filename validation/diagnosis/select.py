@@ -1,7 +1,7 @@
 """Ranking the candidates and choosing the effect(s): held-out scores, greedy forward selection.
 
 Every candidate is fitted on training samples and scored on held-out ones
-(:func:`validation.diagnosis.fitting.cross_validate`). Its penalised score is
+(:func:`electrosense.validation.diagnosis.fitting.cross_validate`). Its penalised score is
 a Bayesian information criterion with the noise variance s^2 estimated from
 the data::
 
@@ -9,7 +9,7 @@ the data::
 
 (k parameters, N held-out residuals; the residuals weighted by how far the
 effect model can be trusted at each sample, see
-:func:`validation.diagnosis.effects.model_trust_weights`). A combination grows one effect at a
+:func:`electrosense.validation.diagnosis.effects.model_trust_weights`). A combination grows one effect at a
 time (at most three), taking the effect that lowers the score most; it stops
 when
 
@@ -52,11 +52,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-
-from .effects import Effect, Problem
 from scipy.linalg import subspace_angles
 
-from .fitting import FitResult, cross_validate, fit, object_starts, predict, subspace_angle_deg
+from electrosense.validation.diagnosis.effects import Effect, Problem
+from electrosense.validation.diagnosis.fitting import (
+    FitResult,
+    cross_validate,
+    fit,
+    object_starts,
+    predict,
+    subspace_angle_deg,
+)
 
 __all__ = ["SelectionRules", "CandidateScore", "Selection", "score_candidate", "rank_candidates", "forward_selection",
            "confusable_pairs"]

@@ -2,14 +2,14 @@
 
 Each candidate is a set of columns beside the BEM's Z (whose coefficient is
 the fitted scale), fitted on the even drive patterns and scored on the odd
-ones (:func:`validation.compare.transfer.score_fit`):
+ones (:func:`electrosense.validation.comparison.transfer.score_fit`):
 
 * ``channel_gains`` / ``channel_offsets`` / ``common_offset``: the
   measurement system, per measurement pair;
 * ``current_to_electrode_G``: part of the drive current returning through an
   electrode off the ring (a ground);
 * ``electrode_angles``: each ring electrode moved along the wall, from the
-  one solve's sensitivities (reciprocity, :mod:`bem.sensitivity`), with the
+  one solve's sensitivities (reciprocity, :mod:`electrosense.bem.sensitivity`), with the
   rigid rotation of the ring as gauge;
 * ``water_depth``, ``ring_radius``, ``wall_taper``: one more solve each
   (finite differences), and combinations of these.
@@ -27,7 +27,7 @@ Per-channel gains found on synthetic data (two measurement pairs, 1 % and
 >>> drive = np.array([[1, 2], [2, 3], [3, 4], [4, 1]] * 2); meas = np.array([[5, 6]] * 4 + [[6, 7]] * 4)
 >>> Zm = np.linspace(1.0, 2.0, 8); Zd = Zm * np.r_[[1.01] * 4, [0.99] * 4]
 >>> cols = channel_columns(Zm, meas)
->>> from validation.compare.transfer import drive_folds
+>>> from electrosense.validation.comparison.transfer import drive_folds
 >>> cands, _ = score_candidates({"channel_gains": cols["channel_gains"]}, Zd, drive_folds(drive)[2])
 >>> cands["channel_gains"]["gains_rel"], cands["channel_gains"]["heldout_rms_rel"] < 1e-5
 ([1.01, 0.99], True)
@@ -39,11 +39,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from bem.protocol import drive_impedances_ohm
-from bem.sensitivity import shift_sensitivities_ohm_per_m
-from meshes.surface_electrodes import DiscElectrode
-
-from ..compare.transfer import (
+from electrosense.bem.protocol import drive_impedances_ohm
+from electrosense.bem.sensitivity import shift_sensitivities_ohm_per_m
+from electrosense.meshes.surface_electrodes import DiscElectrode
+from electrosense.validation.comparison.transfer import (
     balls_at,
     model_transfer_ohm,
     score_fit,
@@ -75,7 +74,7 @@ def _on_wall(tank, centre_m) -> bool:
 def wall_discs(scene) -> list[tuple]:
     """(index, centre, outward normal, azimuthal tangent, radius) of the discs on a cylindrical tank's wall.
 
-    >>> from meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.0, 0.1, 0.0), 0.005)])
     >>> i, c, n, t, a = wall_discs(s)[0]
     >>> i, n.round(6).tolist(), t.round(6).tolist()
@@ -98,7 +97,7 @@ def wall_discs(scene) -> list[tuple]:
 def reshaped_tank(scene, radius_m=None, floor_radius_m=None):
     """The scene with its cylindrical tank's top/floor radii changed; wall discs follow the wall (same angle, height).
 
-    >>> from meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005)])
     >>> reshaped_tank(s, 0.09, 0.09).electrodes[0].centre_m
     (0.09, 0.0, 0.0)
@@ -210,7 +209,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
 
     Parameters
     ----------
-    comparison : :class:`validation.compare.transfer.TransferComparison` of the log.
+    comparison : :class:`electrosense.validation.comparison.transfer.TransferComparison` of the log.
     scene, sigma_S_per_m, bem_options : the scene and the BEM settings of its solve.
     protocol : the scene's ``[protocol]`` table (``ring``, ``floating``).
 

@@ -22,11 +22,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.pose import sensor_to_tank
-from meshes.sensor import Electrode, SensorDescription
-from meshes.tank import Tank
-
-from .blind import BlindSetup
+from electrosense.meshes.pose import sensor_to_tank
+from electrosense.meshes.sensor import Electrode, SensorDescription
+from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.blind import BlindSetup
 
 __all__ = ["random_sensor", "random_setup", "random_passes"]
 

@@ -10,9 +10,9 @@ wall, the floor, the free surface or a known object, else ``mid_tank``.
 Example
 -------
 >>> import numpy as np
->>> from meshes.sensor import preset
->>> from meshes.tank import Tank
->>> from validation.diagnosis.observations import Observations
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.validation.diagnosis.observations import Observations
 >>> x = np.linspace(-0.38, 0.38, 60)
 >>> poses = np.column_stack([x, 0 * x, 0 * x, 0 * x])
 >>> obs = Observations(poses, np.ones((60, 3)), preset("angels-4"), Tank((1, 1, 1)), 0.0354)
@@ -25,10 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from meshes.pose import sensor_to_tank
-from meshes.tank import TANK_REGIONS
-
-from .observations import Observations
+from electrosense.meshes.pose import sensor_to_tank
+from electrosense.meshes.tank import TANK_REGIONS
+from electrosense.validation.diagnosis.observations import Observations
 
 __all__ = ["place_labels", "breakdown", "region_mask", "group_table"]
 

@@ -7,7 +7,7 @@ Reusable pieces (plain arrays in, PNG or HTML out):
   2D plots (lines, markers, dashed styles, one legend above the panels, axis labels with units);
 * :func:`.figures.bar_figure`: grouped bars over named categories (e.g. regions of a path);
 * :func:`.figures.scene_figure`: tank, sensor mesh with its electrodes coloured, a path coloured by a value
-  (needs an offscreen OpenGL, see :func:`meshes.render.can_render_3d`);
+  (needs an offscreen OpenGL, see :func:`electrosense.meshes.render.can_render_3d`);
 * :func:`.figures.potential_figure`: a potential map with equipotentials and current lines;
 * :func:`.figures.png_is_blank`: for tests;
 * :func:`.html.write_html` with :class:`.html.Section`, :class:`.html.Table`, :class:`.html.Figure`.
@@ -15,6 +15,6 @@ Reusable pieces (plain arrays in, PNG or HTML out):
 The validation report (:mod:`.validation_report`) assembles them for ``esense validate`` and
 ``esense demo``; the gap diagnosis can use the same pieces.
 """
-from .html import Figure, Section, Table, format_number, write_html
+from electrosense.validation.report.html import Figure, Section, Table, format_number, write_html
 
 __all__ = ["Figure", "Section", "Table", "format_number", "write_html"]

@@ -11,8 +11,8 @@ Two kinds of figures:
 * 3D scenes (:func:`scene_figure`), drawn with pyvista offscreen: the tank,
   the sensor mesh with its electrodes coloured and the emitter named, the path
   coloured by a value. They need an offscreen OpenGL
-  (:func:`meshes.render.can_render_3d`); without one they raise
-  :class:`meshes.render.RenderUnavailable` and the reports leave them out.
+  (:func:`electrosense.meshes.render.can_render_3d`); without one they raise
+  :class:`electrosense.meshes.render.RenderUnavailable` and the reports leave them out.
 
 Every function takes plain arrays (and meshes), writes one PNG and returns its
 path. Relative errors follow one sign convention,
@@ -36,7 +36,16 @@ from typing import Sequence
 
 import numpy as np
 
-from .style import COLOURS, CYCLE, DPI, PANEL_SIZE_IN, RELATIVE_ERROR_LABEL, colour_of, new_figure, save
+from electrosense.validation.report.style import (
+    COLOURS,
+    CYCLE,
+    DPI,
+    PANEL_SIZE_IN,
+    RELATIVE_ERROR_LABEL,
+    colour_of,
+    new_figure,
+    save,
+)
 
 __all__ = [
     "Series",
@@ -471,8 +480,8 @@ def relative_error_figure(
 
 # ------------------------------------------------------------------ 3D figures
 def _pv():
-    """pyvista, once an offscreen backend is chosen (:class:`meshes.render.RenderUnavailable` without one)."""
-    from meshes.render import require_3d
+    """pyvista, once an offscreen backend is chosen (:class:`electrosense.meshes.render.RenderUnavailable` without one)."""
+    from electrosense.meshes.render import require_3d
 
     require_3d()
     import pyvista
@@ -489,9 +498,9 @@ def _polydata(mesh):
 
 
 def _add_sensor(plotter, sensor_mesh, pose=None, emitter=None):
-    """Sensor faces: grey insulator, one colour per electrode (those of :mod:`meshes.render`, so that
+    """Sensor faces: grey insulator, one colour per electrode (those of :mod:`electrosense.meshes.render`, so that
     every picture of a sensor agrees); returns the legend entries."""
-    from meshes.render import electrode_colour, electrode_legend
+    from electrosense.meshes.render import electrode_colour, electrode_legend
 
     mesh = sensor_mesh.transformed(pose) if pose is not None else sensor_mesh
     poly = _polydata(mesh)
@@ -607,7 +616,7 @@ def scene_figure(
         length = float(np.ptp(sensor_mesh.vertices_m[:, 0]))
         plotter.add_text(f"sensor mesh: {sensor_mesh.n_triangles} triangles, {length * 100:.1f} cm, head (1) at +x",
                          position="lower_edge", font_size=14, color="black")
-        from meshes.render import facing_emitter
+        from electrosense.meshes.render import facing_emitter
 
         plotter.view_vector(facing_emitter(sensor_mesh, emitter, base=(0.35, -1.0, 0.45)), viewup=(0.0, 0.0, 1.0))
         plotter.reset_camera()
@@ -697,7 +706,7 @@ def potential_figure(
         Closed polygon of the sensor's cut by the plane.
     electrode_segments : sequence of ((k, 2) array, label)
         The electrodes' traces on the outline (electrode k is the k-th),
-        coloured as in :mod:`meshes.render` and named in the legend.
+        coloured as in :mod:`electrosense.meshes.render` and named in the legend.
     seeds_m : (s, 2) array, optional
         Start points of the current lines (e.g. around the emitter); the lines
         follow E = -grad(potential), the direction of the current density.
@@ -710,7 +719,7 @@ def potential_figure(
     """
     from matplotlib.patches import Polygon
 
-    from meshes.render import electrode_colour
+    from electrosense.meshes.render import electrode_colour
 
     x = np.asarray(x_m, dtype=float)
     y = np.asarray(y_m, dtype=float)

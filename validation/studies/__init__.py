@@ -2,6 +2,6 @@
 
 Each module has ``main(argv=None)`` and prints its figures side by side with
 the reference (the paper, a closed form, or an issue's target). Run one with
-``esense study NAME`` or ``python -m validation.studies.NAME``; ``esense study
+``esense study NAME`` or ``python -m electrosense.validation.studies.NAME``; ``esense study
 --list`` lists them.
 """

@@ -18,7 +18,7 @@
    h0/4, h0/8, the edge grading refined with it, axisymmetric reduction),
    against the ring elements' converged value.
 
-Run: ``python -m validation.studies.bem_paper [--fit] [--sweep] [--convergence] [--fine-reference]``
+Run: ``python -m electrosense.validation.studies.bem_paper [--fit] [--sweep] [--convergence] [--fine-reference]``
 (no flag: all three; ``--fit`` takes several minutes).
 """
 from __future__ import annotations
@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from psm.paper import SIGMA_MEASURED_S_PER_M
+from electrosense.psm.paper import SIGMA_MEASURED_S_PER_M
 
 #: the paper's free-space S_BEM of the 4-electrode sensor, in units of sigma x cm (gamma/100 x ...)
 PAPER_S_BEM_SIGMA_CM = np.array([[7.1970, -2.7412, -2.2540], [-2.7412, 7.6781, -2.6875], [-2.2540, -2.6875, 7.6781]])
@@ -39,7 +39,7 @@ SIGMA_PAPER = SIGMA_MEASURED_S_PER_M
 
 def angels(n: int, radius_m, cap_extent_m, ring_width_m, ring_centre_m):
     """An angels-n sensor with the given dimensions (20 cm long)."""
-    from meshes.sensor import Electrode, SensorDescription
+    from electrosense.meshes.sensor import Electrode, SensorDescription
 
     half = LENGTH_M / 2
     electrodes = [Electrode("cap", half - cap_extent_m, half)]
@@ -52,17 +52,17 @@ def angels(n: int, radius_m, cap_extent_m, ring_width_m, ring_centre_m):
 
 def free_space_S_sigma_cm(sensor, edge_length_m=None, **mesh_options) -> np.ndarray:
     """Free-space S of a sensor in units of sigma x cm (sigma = 1 S/m, S in 1e-2 S): the surface BEM at
-    the default mesh with its edge correction (:mod:`bem.edge_correction`)."""
-    from bem.solve import conductance_matrix
-    from meshes.scene import Scene
+    the default mesh with its edge correction (:mod:`electrosense.bem.edge_correction`)."""
+    from electrosense.bem.solve import conductance_matrix
+    from electrosense.meshes.scene import Scene
 
     return conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m, **mesh_options).S_S * 100.0
 
 
 def meridian_S_sigma_cm(sensor) -> np.ndarray:
-    """Free-space S (sigma x cm) by ring elements on the meridian (:mod:`bem.meridian`), ~1e-4 of converged."""
-    from bem.edge_correction import MERIDIAN_GRADING
-    from bem.meridian import mesh_meridian, meridian_conductance
+    """Free-space S (sigma x cm) by ring elements on the meridian (:mod:`electrosense.bem.meridian`), ~1e-4 of converged."""
+    from electrosense.bem.edge_correction import MERIDIAN_GRADING
+    from electrosense.bem.meridian import meridian_conductance, mesh_meridian
 
     return meridian_conductance(sensor, 1.0, mesh=mesh_meridian(sensor, grading=MERIDIAN_GRADING)).S_S * 100.0
 
@@ -146,8 +146,8 @@ def report_fit(p, cap_2_m=None, edge_length_m=None):
 
 def tank_sweep(sensor, n_poses=17, sigma=SIGMA_PAPER, edge_length_m=None):
     """Resistance U/I wall to wall at y = 0 in the paper's 1 m tank."""
-    from bem.sweep import PoseSweep
-    from meshes.tank import Tank
+    from electrosense.bem.sweep import PoseSweep
+    from electrosense.meshes.tank import Tank
 
     tank = Tank((1.0, 1.0, 1.0))
     half = tank.size_m[0] / 2 - sensor.length_m / 2 - 0.02
@@ -186,7 +186,7 @@ def convergence(sensor, sigma=SIGMA_PAPER, tank_order=2.0):
     """Default-mesh conductance matrix against mesh-converged references, in free space, mid-tank and
     with the tip 1 cm from a wall. Errors are the largest relative error over the entries of S.
 
-    * Free space: the converged S from ring elements on the meridian (:func:`bem.meridian.converged_conductance`,
+    * Free space: the converged S from ring elements on the meridian (:func:`electrosense.bem.meridian.converged_conductance`,
       Richardson over three meridians, observed order 2) against the surface BEM at the default mesh,
       without and with the edge correction.
     * In the tank (sensor mesh at its default, with the edge correction): the tank mesh refined by 2
@@ -195,14 +195,14 @@ def convergence(sensor, sigma=SIGMA_PAPER, tank_order=2.0):
       and the sensor mesh refined by sqrt 2 (grading too) at the default tank, whose change bounds what
       the edge correction leaves of the sensor's own error.
     """
-    from bem.conductance import S_from_K
-    from bem.meridian import converged_conductance
-    from bem.solve import conductance_matrix, solve_scene
-    from meshes.pose import Pose
-    from meshes.scene import Scene
-    from meshes.scene_mesh import DEFAULT_TANK_GRADING, default_tank_edge_length_m
-    from meshes.sensor_mesh import default_edge_length_m
-    from meshes.tank import Tank
+    from electrosense.bem.conductance import S_from_K
+    from electrosense.bem.meridian import converged_conductance
+    from electrosense.bem.solve import conductance_matrix, solve_scene
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, default_tank_edge_length_m
+    from electrosense.meshes.sensor_mesh import default_edge_length_m
+    from electrosense.meshes.tank import Tank
 
     def default_and_raw_S(scene):
         """S at the default meshes, with and without the edge correction (one solve)."""
@@ -248,9 +248,9 @@ def fine_reference(sensor, sigma=SIGMA_PAPER, divisions=(1, 2, 4, 8), targets_pe
     """
     import inspect
 
-    from bem.axisymmetric import solve_axisymmetric
-    from bem.boundary_conditions import WaterBoundary
-    from meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+    from electrosense.bem.axisymmetric import solve_axisymmetric
+    from electrosense.bem.boundary_conditions import WaterBoundary
+    from electrosense.meshes.sensor_mesh import default_edge_length_m, mesh_sensor
 
     h0 = default_edge_length_m(sensor)
     g0 = inspect.signature(mesh_sensor).parameters["grading"].default
@@ -270,7 +270,7 @@ def fine_reference(sensor, sigma=SIGMA_PAPER, divisions=(1, 2, 4, 8), targets_pe
         print(f"  Richardson over the three finest (ratio 2): limit {limit:.7e} S, observed order {p:.2f}; "
               f"default mesh off by {100 * (values[0] / limit - 1):+.3f} %, finest by "
               f"{100 * (values[-1] / limit - 1):+.3f} %")
-        from bem.meridian import converged_conductance
+        from electrosense.bem.meridian import converged_conductance
 
         ring = converged_conductance(sensor, sigma).receiver_currents_A(1.0)[0]
         print(f"  ring elements on the meridian (an independent discretisation), converged: {ring:.7e} S, "
@@ -288,7 +288,7 @@ def main(argv=None):
     parser.add_argument("--poses", type=int, default=17, help="poses of the sweep")
     args = parser.parse_args(argv)
     everything = not (args.fit or args.sweep or args.convergence or args.fine_reference)
-    from meshes.sensor import _ANGELS_DIMENSIONS, preset
+    from electrosense.meshes.sensor import _ANGELS_DIMENSIONS, preset
 
     if args.fit or everything:
         d = _ANGELS_DIMENSIONS

@@ -18,11 +18,11 @@ Figures (printed side by side with the targets of the BEM issue):
   ``h0 / d`` and grading ``1 + 0.15 / d`` for refinement factors ``d``; the
   largest relative error over the entries of S against the number of
   triangles and time, ours and bempp-cl's (the mixed problem in Galerkin P0,
-  dense LU: :mod:`validation.studies.bempp_sensor`), and the time each needs
+  dense LU: :mod:`electrosense.validation.studies.bempp_sensor`), and the time each needs
   to reach 0.3 % and 0.1 %. bempp-cl stops at ``--bempp-max-triangles``
   (its dense matrices take some 7 GB at 16 000 triangles).
 
-Run: ``python -m validation.studies.bem_speed [--full] [--no-bempp] [--levels 1 2 3 4]
+Run: ``python -m electrosense.validation.studies.bem_speed [--full] [--no-bempp] [--levels 1 2 3 4]
 [--sensor-levels 0.5 0.7 1 1.41] [--bempp-max-triangles 20000] [--no-sensor-comparison]``
 (``--skip-sensor``: without the sensor timings against the targets). The
 default sensor levels take about a minute for ours and 3 minutes for bempp-cl
@@ -40,13 +40,13 @@ import time
 
 import numpy as np
 
-from bem.closed_forms import two_sphere_resistance_ohm
+from electrosense.bem.closed_forms import two_sphere_resistance_ohm
 
 
 def _two_sphere_mesh(subdivisions: int, a=0.01, d=0.03):
     import trimesh
 
-    from meshes.labelled_mesh import LabelledMesh, concatenate
+    from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
 
     s = trimesh.creation.icosphere(subdivisions)
     scale = a * (4 / 3 * np.pi / s.volume) ** (1 / 3)   # the polyhedron has the sphere's volume
@@ -56,8 +56,8 @@ def _two_sphere_mesh(subdivisions: int, a=0.01, d=0.03):
 
 
 def ours_two_spheres(levels):
-    from bem.boundary_conditions import WaterBoundary
-    from bem.solve import solve
+    from electrosense.bem.boundary_conditions import WaterBoundary
+    from electrosense.bem.solve import solve
 
     exact = two_sphere_resistance_ohm(0.01, 0.03)
     solve(WaterBoundary.from_meshes(_two_sphere_mesh(1)), 1.0)  # compile / load the cache
@@ -92,7 +92,7 @@ def bempp_two_spheres(levels):
         q = scipy.linalg.lu_solve(scipy.linalg.lu_factor(A), b)
         C = np.array([[np.sum(areas[mesh.electrode == m] * q[mesh.electrode == m, k]) for k in range(2)]
                       for m in (1, 2)])
-        from bem.conductance import isolate
+        from electrosense.bem.conductance import isolate
 
         R = 1 / isolate(C)[0, 0]
         if first:
@@ -120,7 +120,7 @@ def sensor_mesh_at(sensor, d: float):
     -------
     LabelledMesh
     """
-    from meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+    from electrosense.meshes.sensor_mesh import default_edge_length_m, mesh_sensor
 
     return mesh_sensor(sensor, edge_length_m=default_edge_length_m(sensor) / d, grading=1 + 0.15 / d)
 
@@ -132,7 +132,7 @@ def max_relative_error(S, reference_S) -> float:
 
 def _sensor(sensor):
     """A SensorDescription from a preset name or itself."""
-    from meshes import preset
+    from electrosense.meshes import preset
 
     return preset(sensor) if isinstance(sensor, str) else sensor
 
@@ -155,13 +155,13 @@ def ours_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 1
     list of (triangles, seconds, error, corrected seconds, corrected error)
         ``error``: :func:`max_relative_error` of S of the surface solution itself (full collocation);
         ``seconds``: boundary, assembly and solve. ``corrected``: with the edge correction of
-        :mod:`bem.edge_correction` added (what ``conductance_matrix`` returns by default; in unbounded
+        :mod:`electrosense.bem.edge_correction` added (what ``conductance_matrix`` returns by default; in unbounded
         water that is the ring elements' K, so its time adds theirs, computed afresh).
     """
-    from bem import edge_correction
-    from bem.boundary_conditions import WaterBoundary
-    from bem.conductance import S_from_K
-    from bem.solve import solve
+    from electrosense.bem import edge_correction
+    from electrosense.bem.boundary_conditions import WaterBoundary
+    from electrosense.bem.conductance import S_from_K
+    from electrosense.bem.solve import solve
 
     s = _sensor(sensor)
     solve(WaterBoundary.from_meshes(sensor_mesh_at(s, min(levels)), emitter=s.emitter), sigma_S_per_m)  # kernels
@@ -207,7 +207,7 @@ def bempp_sensor(levels, reference_S, sensor="angels-4", sigma_S_per_m: float = 
         ``rows``: (triangles, seconds, error) as for :func:`ours_sensor`;
         ``compile_s``: the first solve, compilation included. None without bempp-cl.
     """
-    from .bempp_sensor import bempp_available, bempp_conductance
+    from electrosense.validation.studies.bempp_sensor import bempp_available, bempp_conductance
 
     if not bempp_available():
         return None
@@ -295,12 +295,12 @@ def time_to_accuracy(rows, target):
 
 
 def sensor_timings(full: bool):
-    from bem.solve import conductance_matrix
-    from bem.sweep import PoseSweep
-    from meshes import Scene, Tank, preset
+    from electrosense.bem.solve import conductance_matrix
+    from electrosense.bem.sweep import PoseSweep
+    from electrosense.meshes import Scene, Tank, preset
 
     out = {}
-    from bem.edge_correction import clear_cache
+    from electrosense.bem.edge_correction import clear_cache
 
     conductance_matrix(Scene(preset("angels-4")), 1.0)  # compile or load cached kernels
     clear_cache()                                        # time the edge correction too
@@ -378,8 +378,8 @@ def main(argv=None):
     if theirs:
         print(f"bempp-cl first operator (compilation included): {theirs[1]:.1f} s")
     if not args.no_sensor_comparison:
-        from bem.meridian import converged_conductance
-        from meshes import preset
+        from electrosense.bem.meridian import converged_conductance
+        from electrosense.meshes import preset
 
         reference = converged_conductance(preset("angels-4"), 1.0)
         print(f"\nreference: converged S of angels-4 by ring elements on the meridian (bem.meridian, "

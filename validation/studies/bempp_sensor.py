@@ -1,7 +1,7 @@
 """The sensor's mixed boundary-value problem solved with bempp-cl (Galerkin P0, dense LU).
 
 An independent check of our collocation BEM on the sensor, used by
-:mod:`validation.studies.bem_speed`. The sensor is a closed body in
+:mod:`electrosense.validation.studies.bem_speed`. The sensor is a closed body in
 unbounded water of conductivity ``sigma``; the potential ``u`` is harmonic in
 the water, tends to 0 at infinity, equals ``V_k`` on electrode ``k`` and has
 zero normal current on the insulator.
@@ -27,12 +27,12 @@ gives the square system::
 
 The grounded conductance is ``C[m, k] = sigma * sum_{faces of m} area * q``
 with electrode ``k`` at 1 V and the others at 0 V (the far field at 0 V);
-:func:`bem.conductance.isolate` floats the sensor.
+:func:`electrosense.bem.conductance.isolate` floats the sensor.
 
 Example
 -------
->>> from meshes import preset                                    # doctest: +SKIP
->>> from meshes.sensor_mesh import mesh_sensor                   # doctest: +SKIP
+>>> from electrosense.meshes import preset                                    # doctest: +SKIP
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor                   # doctest: +SKIP
 >>> s = preset("angels-4")                                       # doctest: +SKIP
 >>> g = bempp_conductance(mesh_sensor(s), 1.0, emitter=s.emitter)  # doctest: +SKIP
 >>> g.S_S.round(4)                                               # doctest: +SKIP
@@ -173,7 +173,7 @@ def bempp_conductance(mesh, sigma_S_per_m: float = 1.0, emitter: int | None = No
     ConductanceMatrix
         ``K_S = isolate(C)``; ``info`` holds the triangles and timings.
     """
-    from bem.conductance import ConductanceMatrix, isolate
+    from electrosense.bem.conductance import ConductanceMatrix, isolate
 
     C, info = bempp_grounded_conductance(mesh, sigma_S_per_m)
     emitter = C.shape[0] if emitter is None else int(emitter)

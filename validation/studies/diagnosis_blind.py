@@ -20,7 +20,7 @@ radii and image sums than anything the diagnosis uses: fast) or ``bem`` (the
 shipped BEM runs of tests/data/diagnosis/bem_worlds.npz, geometric strengths
 fixed, output-side strengths random).
 
-Run: ``python -m validation.studies.diagnosis_blind [--trials 60] [--world standin|bem] [--seed 0]``
+Run: ``python -m electrosense.validation.studies.diagnosis_blind [--trials 60] [--world standin|bem] [--seed 0]``
 """
 from __future__ import annotations
 
@@ -79,8 +79,8 @@ def draw(effect: str, rng) -> tuple[dict, float]:
 
 def trial(world, setup, poses, t, passes, K0, effects, rng, effect_model, I_cache=None):
     """Make one dataset with ``effects`` (1 or 2 names), diagnose it; return a record."""
-    from validation.diagnosis.blind import assemble, world_currents
-    from validation.diagnosis.pipeline import diagnose
+    from electrosense.validation.diagnosis.blind import assemble, world_currents
+    from electrosense.validation.diagnosis.pipeline import diagnose
 
     output, geo, strengths = {}, None, {}
     for e in effects:
@@ -106,8 +106,8 @@ def trial(world, setup, poses, t, passes, K0, effects, rng, effect_model, I_cach
 
 def speed(setup, effect_model, world, rng) -> float:
     """Seconds to diagnose a 200-pose log (2 passes of 100) against all candidates."""
-    from validation.diagnosis.blind import assemble, blind_poses, world_currents
-    from validation.diagnosis.pipeline import diagnose
+    from electrosense.validation.diagnosis.blind import assemble, blind_poses, world_currents
+    from electrosense.validation.diagnosis.pipeline import diagnose
 
     poses, t, passes = blind_poses(100)
     K0 = world(poses, setup.tank, (), None)
@@ -119,9 +119,9 @@ def speed(setup, effect_model, world, rng) -> float:
 
 
 def main(argv=None):
-    from validation.diagnosis.blind import BlindSetup, blind_poses
-    from validation.diagnosis.forward import PointElectrodeSimulator, geometric_psm
-    from validation.diagnosis.pipeline import default_effect_model_from
+    from electrosense.validation.diagnosis.blind import BlindSetup, blind_poses
+    from electrosense.validation.diagnosis.forward import PointElectrodeSimulator, geometric_psm
+    from electrosense.validation.diagnosis.pipeline import default_effect_model_from
 
     ap = argparse.ArgumentParser(description="blind suite of the gap diagnosis")
     ap.add_argument("--trials", type=int, default=60, help="number of datasets")

@@ -1,6 +1,6 @@
 """Generate the BEM blind-test data of the gap diagnosis (tests/data/diagnosis/bem_worlds.npz).
 
-The BEM (:class:`bem.PoseSweep`) is run at the two passes of :func:`validation.diagnosis.blind.blind_poses`
+The BEM (:class:`electrosense.bem.PoseSweep`) is run at the two passes of :func:`electrosense.validation.diagnosis.blind.blind_poses`
 for the nominal scene and for each geometric effect built into the scene
 (contact impedance as the BEM's boundary condition, the sphere as a mesh, the
 other water depth and tank size as the tank mesh, the robot offset as the true
@@ -8,9 +8,9 @@ poses). One coarse but fixed discretisation is used for every run (the tank
 mesh graded towards the whole trajectory), so that the nominal run is the
 diagnosis's baseline and the effect runs differ from it by the physics only.
 The output-side effects and the noise are added at test time
-(:func:`validation.diagnosis.blind.assemble`).
+(:func:`electrosense.validation.diagnosis.blind.assemble`).
 
-Run: ``python -m validation.studies.diagnosis_blind_data [OUT.npz] [--per-pass N]``
+Run: ``python -m electrosense.validation.studies.diagnosis_blind_data [OUT.npz] [--per-pass N]``
 (a few minutes on 2 cores).
 """
 from __future__ import annotations
@@ -30,10 +30,10 @@ def bem_world(setup, focus_m, edge_length_m=EDGE_LENGTH_M, tank_edge_length_m=TA
     """``world(poses, tank, objects, z_c) -> K`` by the BEM pose sweep, fixed mesh settings.
 
     Each scene (tank, objects, contact impedance) gets its own
-    :class:`bem.PoseSweep`, with the tank mesh graded towards ``focus_m`` (the
+    :class:`electrosense.bem.PoseSweep`, with the tank mesh graded towards ``focus_m`` (the
     whole trajectory, for every scene alike).
     """
-    from bem import PoseSweep
+    from electrosense.bem import PoseSweep
 
     def world(poses, tank, objects, z_c):
         sweep = PoseSweep(setup.sensor, tank, tuple(objects), sigma_S_per_m=setup.sigma_S_per_m,
@@ -45,8 +45,8 @@ def bem_world(setup, focus_m, edge_length_m=EDGE_LENGTH_M, tank_edge_length_m=TA
 
 
 def main(argv=None):
-    from validation.diagnosis.blind import GEOMETRIC_TRUTH, BlindSetup, blind_poses, world_scene
-    from validation.diagnosis.forward import receiver_currents
+    from electrosense.validation.diagnosis.blind import GEOMETRIC_TRUTH, BlindSetup, blind_poses, world_scene
+    from electrosense.validation.diagnosis.forward import receiver_currents
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", nargs="?", default="tests/data/diagnosis/bem_worlds.npz", help="output .npz file")

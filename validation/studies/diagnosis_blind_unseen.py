@@ -1,7 +1,7 @@
 """Blind diagnosis of set-ups it has never seen: random sensors and tanks, data by the BEM, the default command.
 
 Each case draws a sensor (3-6 electrodes), a partly filled box tank, a
-conductivity and passes (:mod:`validation.diagnosis.unseen`), makes the
+conductivity and passes (:mod:`electrosense.validation.diagnosis.unseen`), makes the
 bench data with the BEM (a finer tank mesh than the diagnosis uses, and the
 *true* scene: the effect in the BEM's physics), writes a bench log and runs
 ``esense diagnose LOG -o DIR`` with its defaults. Printed: per case, the
@@ -10,7 +10,7 @@ after, the noise and the baseline's own error budget, the wall and CPU time;
 then the rates of the done-when criteria. A second log of the same set-up
 (new noise) is diagnosed again, to time the cached path.
 
-Run: ``python -m validation.studies.diagnosis_blind_unseen [--cases 6] [--seed 0] [--per-pass 41]``
+Run: ``python -m electrosense.validation.studies.diagnosis_blind_unseen [--cases 6] [--seed 0] [--per-pass 41]``
 """
 from __future__ import annotations
 
@@ -38,14 +38,14 @@ CASES = {
 }
 
 #: the world's sensor mesh edge, in units of the mesher's default: finer than the diagnosis's anchors
-#: (:data:`validation.diagnosis.anchored.SENSOR_EDGE_FACTOR`), so that data and baseline never share a mesh
+#: (:data:`electrosense.validation.diagnosis.anchored.SENSOR_EDGE_FACTOR`), so that data and baseline never share a mesh
 WORLD_SENSOR_EDGE_FACTOR = 2.0
 
 
 def world_scene(setup, poses, effect, args, rng):
     """(tank, objects, contact impedance) of the true scene."""
-    from meshes.objects import Box, Sphere
-    from meshes.tank import Tank
+    from electrosense.meshes.objects import Box, Sphere
+    from electrosense.meshes.tank import Tank
 
     tank, objects, z = setup.tank, (), None
     lx, ly, lz = tank.size_m
@@ -76,9 +76,9 @@ def world_K(setup, poses, effect, args, rng, cache: Path):
     """The BEM's K (P, n, n) of the true scene, cached in ``cache`` by a hash of everything it depends on."""
     import hashlib
 
-    from bem import PoseSweep
-    from meshes.scene_mesh import trajectory_focus_m
-    from meshes.sensor_mesh import default_edge_length_m
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.scene_mesh import trajectory_focus_m
+    from electrosense.meshes.sensor_mesh import default_edge_length_m
 
     tank, objects, z = world_scene(setup, poses, effect, args, rng)
     key = hashlib.sha256(repr((setup.sensor.to_dict(), tank, objects, z, np.round(poses, 9).tolist(),
@@ -98,9 +98,9 @@ def world_K(setup, poses, effect, args, rng, cache: Path):
 def make_log(case: str, seed: int, folder: Path, per_pass: int = 41, n_electrodes: int | None = None,
              noise_seed: int = 0, cache: Path | None = None):
     """Write the bench log of one blind case; returns (path, setup, truth)."""
-    from validation.diagnosis.blind import assemble, write_log
-    from validation.diagnosis.forward import receiver_currents
-    from validation.diagnosis.unseen import random_passes, random_setup
+    from electrosense.validation.diagnosis.blind import assemble, write_log
+    from electrosense.validation.diagnosis.forward import receiver_currents
+    from electrosense.validation.diagnosis.unseen import random_passes, random_setup
 
     rng = np.random.default_rng(seed)
     setup = random_setup(rng, n_electrodes)
@@ -115,7 +115,7 @@ def make_log(case: str, seed: int, folder: Path, per_pass: int = 41, n_electrode
     I = receiver_currents(K, setup.sensor.emitter)
     obs = assemble(setup, poses, t, passes, I, np.random.default_rng(1000 + noise_seed), **output)
     folder.mkdir(parents=True, exist_ok=True)
-    from meshes.sensor import save_sensor
+    from electrosense.meshes.sensor import save_sensor
 
     save_sensor(setup.sensor, folder / f"sensor-{seed}.json")  # a sensor file, not a preset
     obs.meta["sensor"] = f"sensor-{seed}.json"
@@ -127,7 +127,7 @@ def run_cli(log: Path, out: Path) -> tuple[dict, float, float]:
     """``esense diagnose LOG -o OUT`` (defaults) in this process; (diagnosis.json, wall s, CPU s)."""
     from click.testing import CliRunner
 
-    from validation.cli import main
+    from electrosense.validation.cli import main
 
     w0, c0 = time.perf_counter(), time.process_time()
     res = CliRunner().invoke(main, ["diagnose", str(log), "-o", str(out), "--no-figures"])

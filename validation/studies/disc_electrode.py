@@ -3,9 +3,9 @@
 The water fills a hemisphere of radius ``b`` (default 20 a); the flat face is
 an insulating plane with the disc electrode (radius ``a``) at its centre, the
 curved face is the return electrode. The exact resistance is
-``1/(4 sigma a) - 1/(2 pi sigma b)`` (:func:`bem.closed_forms.newman_disc_resistance_ohm`,
+``1/(4 sigma a) - 1/(2 pi sigma b)`` (:func:`electrosense.bem.closed_forms.newman_disc_resistance_ohm`,
 error O((a/b)^4)). The plane is meshed by the same code as a tank's floor
-with a disc electrode (:func:`meshes.cylinder_tank_mesh.mesh_plane_with_discs`,
+with a disc electrode (:func:`electrosense.meshes.cylinder_tank_mesh.mesh_plane_with_discs`,
 graded towards the rim), so the figure is the default tank electrode mesh's
 accuracy. It prints the relative error at the default mesh and under
 refinement (rim edge length and far edge length divided by a factor), with
@@ -22,14 +22,18 @@ from pathlib import Path
 
 import numpy as np
 
-from bem.boundary_conditions import WaterBoundary
-from bem.closed_forms import newman_disc_resistance_ohm
-from bem.solve import solve
-from meshes.cylinder_tank_mesh import mesh_plane_with_discs
-from meshes.labelled_mesh import LabelledMesh, concatenate
-from meshes.surface_electrodes import (DEFAULT_EDGE_FRACTION, DEFAULT_ELECTRODE_GRADING, DiscElectrode,
-                                       electrode_size_function)
-from meshes.tank_mesh import mesh_convex_polygon
+from electrosense.bem.boundary_conditions import WaterBoundary
+from electrosense.bem.closed_forms import newman_disc_resistance_ohm
+from electrosense.bem.solve import solve
+from electrosense.meshes.cylinder_tank_mesh import mesh_plane_with_discs
+from electrosense.meshes.labelled_mesh import LabelledMesh, concatenate
+from electrosense.meshes.surface_electrodes import (
+    DEFAULT_EDGE_FRACTION,
+    DEFAULT_ELECTRODE_GRADING,
+    DiscElectrode,
+    electrode_size_function,
+)
+from electrosense.meshes.tank_mesh import mesh_convex_polygon
 
 
 def hemisphere_cell(radius_m: float, return_radius_m: float, edge_fraction: float = DEFAULT_EDGE_FRACTION,

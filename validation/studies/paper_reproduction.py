@@ -20,7 +20,7 @@ The PSM runs at every logged pose; the BEM (one solve per pose) at
 ``--bem-poses`` poses spread along the path, on which the BEM-PSM figure is
 computed.
 
-Run: ``python -m validation.studies.paper_reproduction [--quick] [--bem-poses 41] [--out DIR]``.
+Run: ``python -m electrosense.validation.studies.paper_reproduction [--quick] [--bem-poses 41] [--out DIR]``.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from psm.paper import SIGMA_MEASURED_S_PER_M
+from electrosense.psm.paper import SIGMA_MEASURED_S_PER_M
 
 SIGMA_S_PER_M = SIGMA_MEASURED_S_PER_M  # the paper's tank water
 
@@ -50,8 +50,8 @@ PAPER_RECEIVER_COLOURS = ("#1f5fbf", "#d62728", "#2ca02c")
 
 def calibrate_like_the_paper(sensor, edge_length_m=None):
     """Free-space BEM of the sensor at 1 S/m and the PSM fitted to it the paper's way; (reference, calibration)."""
-    from psm import calibrate
-    from validation.models import free_space_bem
+    from electrosense.psm import calibrate
+    from electrosense.validation.simulation.models import free_space_bem
 
     reference = free_space_bem(sensor, edge_length_m)
     calibration = calibrate(reference, symmetric=True, sensor=sensor,
@@ -66,7 +66,7 @@ def _bem_subset(log, n: int) -> np.ndarray:
 
 
 def _subset_log(log, rows):
-    from validation.benchlog import BenchLog
+    from electrosense.validation.bench.log import BenchLog
 
     return BenchLog(log.meta, log.data.iloc[rows].reset_index(drop=True), log.sensor, log.tank, log.sigma_S_per_m,
                     log.emitter, list(log.warnings), log.path, log.paths)
@@ -74,12 +74,12 @@ def _subset_log(log, rows):
 
 def make_bem_bench_log(sensor, path: Path, n: int, edge_length_m=None, seed: int = 7) -> Path:
     """A wall-to-wall virtual-bench log with the BEM as the physics, conductivity -2.06 % (2 el.) / -2.37 % (4 el.)."""
-    from meshes.tank import Tank
-    from validation.bench_sim.bench import VirtualBench
-    from validation.bench_sim.effects import Effects
-    from validation.bench_sim.trajectory import wall_to_wall
-    from validation.benchlog import write_bench_log
-    from validation.benchlog.writer import bench_log_table
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.bench.log import write_bench_log
+    from electrosense.validation.bench.log.writer import bench_log_table
+    from electrosense.validation.bench.virtual.bench import VirtualBench
+    from electrosense.validation.bench.virtual.effects import Effects
+    from electrosense.validation.bench.virtual.trajectory import wall_to_wall
 
     effect = PAPER[sensor.name]["correction"]
     tank = Tank((1.0, 1.0, 1.0))
@@ -95,7 +95,7 @@ def make_bem_bench_log(sensor, path: Path, n: int, edge_length_m=None, seed: int
 
 def paper_axes_figure(name, x_psm, R_psm, x_bem, R_bem, x_bench, R_bench, R_corrected, receivers, png_path):
     """Our curves on the paper's axes (PSM solid, BEM dashed, bench dots, corrected bench squares)."""
-    from validation.report.figures import Panel, Series, curves_figure
+    from electrosense.validation.report.figures import Panel, Series, curves_figure
 
     paper = PAPER[name]
     panels = []
@@ -142,11 +142,10 @@ def _parameters_rows(name, calibration):
 
 def reproduce(sensor_name, log_path, bem_poses, edge_length_m, folder, say=print):
     """One sensor: calibration, validation (PSM at every pose, BEM on a subset), figures; a summary dict."""
-    from meshes.sensor import preset
-    from validation.benchlog import read_bench_log
-    from validation.compare.validate import validate_log
-    from validation.models import EvaluatorCache
-    from validation.compare.metrics import compare_currents
+    from electrosense.meshes.sensor import preset
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.comparison.validate import validate_log
+    from electrosense.validation.simulation.models import EvaluatorCache
 
     sensor = preset(sensor_name)
     t0 = time.perf_counter()
@@ -221,15 +220,15 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="coarse BEM mesh (12 mm) and 9 BEM poses")
     ap.add_argument("--out", type=Path, default=Path("paper-reproduction"), help="report folder")
     args = ap.parse_args(argv)
-    from meshes.render import offscreen_backend
+    from electrosense.meshes.render import offscreen_backend
 
     offscreen_backend()  # EGL or OSMesa for the 3D pictures, chosen once
     if args.quick:
         args.bem_poses = min(args.bem_poses, 9)
         args.edge_length = args.edge_length or 0.012
 
-    from validation.report.html import Figure, Section, Table
-    from validation.report.validation_report import write_validation_report
+    from electrosense.validation.comparison.report import write_validation_report
+    from electrosense.validation.report.html import Figure, Section, Table
 
     data = args.logs or Path(__file__).resolve().parent.parent / "data"
     args.out.mkdir(parents=True, exist_ok=True)
@@ -239,7 +238,7 @@ def main(argv=None):
         if name not in PAPER:
             raise SystemExit(f"unknown sensor {name!r}: the paper has angels-2 and angels-4")
         if args.bench_model == "bem":
-            from meshes.sensor import preset
+            from electrosense.meshes.sensor import preset
 
             log_path = make_bem_bench_log(preset(name), args.out / f"{name}_wall-to-wall_bem-bench.csv",
                                           n=max(args.bem_poses, 9), edge_length_m=args.edge_length)

@@ -16,16 +16,17 @@ with the BEM at two tank poses (x nearest -+0.33 m) added to the least
 squares (``calibrate(..., tank_reference=...)``), which places the spheres
 along the axis from the walls' effect instead of fixing the length.
 
-Run: ``python -m validation.studies.psm_accuracy [--steps 39] [--edge-length M]``.
-Needs ``bem.conductance_matrix`` and ``bem.PoseSweep`` (docs/architecture.md).
+Run: ``python -m electrosense.validation.studies.psm_accuracy [--steps 39] [--edge-length M]``.
+Needs ``electrosense.bem.conductance_matrix`` and ``electrosense.bem.PoseSweep`` (docs/architecture.md).
 """
 from __future__ import annotations
 
-from validation.defaults import NOMINAL_SIGMA_S_PER_M
 import argparse
 import time
 
 import numpy as np
+
+from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
 PAPER_TARGET = {"angels-2": 0.0022, "angels-4": 0.0097}
 
@@ -66,19 +67,19 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     try:
-        from bem import conductance_matrix
+        from electrosense.bem import conductance_matrix
     except ImportError as exc:
         print(f"psm_accuracy: the BEM is not available yet ({exc}); nothing to compare against.")
         return None
     try:
-        from bem import PoseSweep
+        from electrosense.bem import PoseSweep
     except ImportError:
         PoseSweep = None
 
-    from meshes.scene import Scene
-    from meshes.sensor import preset
-    from meshes.tank import Tank
-    from psm import calibrate, conductance
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.sensor import preset
+    from electrosense.meshes.tank import Tank
+    from electrosense.psm import calibrate, conductance
 
     tank = Tank((1.0, 1.0, 1.0))
     results = {}
@@ -95,10 +96,10 @@ def main(argv=None):
             sweep = PoseSweep(sensor, tank=tank, sigma_S_per_m=args.sigma, edge_length_m=args.edge_length)
             C_bem = sweep.conductance(poses)
         else:  # one full solve per pose
-            from meshes.pose import Pose
+            from electrosense.meshes.pose import Pose
 
             C_bem = [conductance_matrix(Scene(sensor, Pose(*p), tank), args.sigma, edge_length_m=args.edge_length) for p in poses]
-            from bem.conductance import ConductanceMatrix
+            from electrosense.bem.conductance import ConductanceMatrix
 
             C_bem = ConductanceMatrix(np.stack([c.K_S for c in C_bem]), sensor.emitter, args.sigma)
         I_bem = C_bem.receiver_currents_A()

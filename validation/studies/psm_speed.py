@@ -2,7 +2,7 @@
 
 Targets (issue): >= 100 000 poses/s for angels-4 with the paper's 8 images,
 >= 10 000 poses/s with the complete image series, calibration < 5 s.
-Run: ``python -m validation.studies.psm_speed [--poses N]``.
+Run: ``python -m electrosense.validation.studies.psm_speed [--poses N]``.
 """
 from __future__ import annotations
 
@@ -46,10 +46,10 @@ def main(argv=None):
     ap.add_argument("--poses", type=int, default=200_000, help="poses per timed batch (paper8); complete uses a tenth")
     args = ap.parse_args(argv)
 
-    from meshes.tank import Tank
-    from psm import calibrate, conductance, receiver_current_jacobian
-    from psm.paper import SIGMA_MEASURED_S_PER_M as sigma
-    from psm.paper import paper_reference
+    from electrosense.meshes.tank import Tank
+    from electrosense.psm import calibrate, conductance, receiver_current_jacobian
+    from electrosense.psm.paper import SIGMA_MEASURED_S_PER_M as sigma
+    from electrosense.psm.paper import paper_reference
 
     t = time.perf_counter()
     cal = calibrate(paper_reference(), symmetric=True)

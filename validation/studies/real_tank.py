@@ -2,12 +2,12 @@
 
 Run: ``esense study real_tank --data FILE.mat|LOG.csv --scene pail.toml -o DIR``.
 
-* The data are read into a transfer log (:mod:`validation.transfer`), written
+* The data are read into a transfer log (:mod:`electrosense.validation.bench.transfer`), written
   to ``DIR/transfer_log.csv`` beside a copy of the scene file.
 * Noise floor: reciprocity (drive (a,b)/measure (c,d) against drive
   (c,d)/measure (a,b)) of the reference set-up.
 * Empty tank: one BEM solve of the scene gives K of all electrodes and every
-  transfer impedance (:mod:`bem.protocol`). What a user cannot know (the
+  transfer impedance (:mod:`electrosense.bem.protocol`). What a user cannot know (the
   saline's conductivity times the system's gain: one scale, the two are
   indistinguishable in V/I) is fitted on the even drive patterns and scored
   on the odd ones: ``empty_heldout_rms_rel`` = RMS of (model - measured) /
@@ -28,10 +28,10 @@ Run: ``esense study real_tank --data FILE.mat|LOG.csv --scene pail.toml -o DIR``
   ball's measured/simulated amplitude is 1.
 
 The logic lives in the package along the data's path: the comparison in
-:mod:`validation.compare.transfer`, the diagnosis in
-:mod:`validation.diagnosis.transfer`, figures and report in
-:mod:`validation.compare.transfer_report`, the run in
-:func:`validation.transfer.cli.run_transfer_comparison` (what ``esense
+:mod:`electrosense.validation.comparison.transfer`, the diagnosis in
+:mod:`electrosense.validation.diagnosis.transfer`, figures and report in
+:mod:`electrosense.validation.comparison.transfer_report`, the run in
+:func:`electrosense.validation.cli.transfer_logs.run_transfer_comparison` (what ``esense
 validate`` / ``esense diagnose`` call on transfer logs). This study is its
 command line, printing the figures beside the goals.
 
@@ -43,9 +43,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from validation.compare.transfer import TransferMismatchError
-from validation.compare.transfer_report import summary_text
-from validation.transfer.cli import run_transfer_comparison
+from electrosense.validation.cli.transfer_logs import run_transfer_comparison
+from electrosense.validation.comparison.transfer import TransferMismatchError
+from electrosense.validation.comparison.transfer_report import summary_text
 
 
 def main(argv=None) -> None:

@@ -4,7 +4,7 @@ Three figures of issue 8, printed beside their targets:
 
 1. scaling: a BEM grid of ``--bem-poses`` poses (default 1000) in the 1 m
    tank: the serial sweep (``PoseSweep.conductance`` on all poses), then the
-   same through :func:`validation.sweep.run_sweep` with 1 local worker (in
+   same through :func:`electrosense.validation.simulation.sweep.run_sweep` with 1 local worker (in
    this process), 2 local workers (a LocalCluster of 2 processes that the
    runner starts) and a LocalCluster of 2 processes started here and passed
    by address (as ``--scheduler`` would). Target: at least 1.8x with 2 workers.
@@ -18,7 +18,7 @@ Three figures of issue 8, printed beside their targets:
 The machine is shared: scaling and timings measured while other work runs
 are contaminated; the load average is printed with every figure.
 
-Run: ``python -m validation.studies.sweep_scaling [--parts scaling,overhead,cost]``
+Run: ``python -m electrosense.validation.studies.sweep_scaling [--parts scaling,overhead,cost]``
 """
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ import numpy as np
 
 TARGET_SPEEDUP_2 = 1.8
 TARGET_OVERHEAD = 0.20
-from validation.defaults import NOMINAL_SIGMA_S_PER_M  # noqa: E402
+from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M  # noqa: E402
 
 SIGMA = NOMINAL_SIGMA_S_PER_M
 
@@ -55,13 +55,13 @@ def _grid_text(n_poses: int, half_x: float, half_y: float) -> str:
 
 # ----------------------------------------------------------------- 1. scaling
 def scaling(n_poses: int, sensor_name: str, edge_length_m: float | None, repeat_serial: bool = True) -> None:
-    import bem
     from dask.distributed import LocalCluster
 
-    from meshes.sensor import preset
-    from meshes.tank import Tank
-    from validation.models import pose_evaluator
-    from validation.sweep import parse_grid, run_sweep
+    from electrosense import bem
+    from electrosense.meshes.sensor import preset
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.simulation.models import pose_evaluator
+    from electrosense.validation.simulation.sweep import parse_grid, run_sweep
 
     print(f"\n== 1. scaling: {n_poses}-pose BEM grid, {sensor_name} in the 1 m tank ({_load()})")
     if not hasattr(bem, "PoseSweep"):
@@ -108,12 +108,11 @@ def scaling(n_poses: int, sensor_name: str, edge_length_m: float | None, repeat_
 
 # ---------------------------------------------------------------- 2. overhead
 def overhead(n_poses: int, sensor_name: str, repeats: int = 3) -> None:
-    import psm
-
-    from meshes.sensor import preset
-    from meshes.tank import Tank
-    from validation.models import calibrated_psm, pose_evaluator
-    from validation.sweep import SweepStore, parse_grid, run_sweep
+    from electrosense import psm
+    from electrosense.meshes.sensor import preset
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
+    from electrosense.validation.simulation.sweep import SweepStore, parse_grid, run_sweep
 
     print(f"\n== 2. overhead: {n_poses}-pose PSM grid (complete images), {sensor_name}, 1 m tank ({_load()})")
     sensor = preset(sensor_name)
@@ -131,7 +130,7 @@ def overhead(n_poses: int, sensor_name: str, repeats: int = 3) -> None:
         return run_sweep(ev, poses, store, workers=1, progress=False)
 
     ways = {
-        "psm.conductance directly": lambda tmp: psm.conductance(model, poses, SIGMA, tank=tank),
+        "electrosense.psm.conductance directly": lambda tmp: psm.conductance(model, poses, SIGMA, tank=tank),
         "run_sweep, 1 worker, in memory": lambda tmp: path(),
         "run_sweep, 1 worker, into a zarr store": lambda tmp: path(tmp),
     }
@@ -145,10 +144,10 @@ def overhead(n_poses: int, sensor_name: str, repeats: int = 3) -> None:
                 out[name] = f(tmp)
                 wall[name].append(time.perf_counter() - t0)
                 cpu[name].append(time.process_time() - c0)
-    direct = out["psm.conductance directly"]
+    direct = out["electrosense.psm.conductance directly"]
     swept = out["run_sweep, 1 worker, in memory"].conductance
     diff = float(np.max(np.abs(swept.K_S - direct.K_S)) / np.max(np.abs(direct.K_S)))
-    w0, c0 = min(wall["psm.conductance directly"]), min(cpu["psm.conductance directly"])
+    w0, c0 = min(wall["electrosense.psm.conductance directly"]), min(cpu["electrosense.psm.conductance directly"])
     print(f"   {'way':44s} {'wall s':>7s} {'poses/s':>9s} {'overhead':>9s} {'CPU s':>7s} {'overhead':>9s}")
     for name in ways:
         w, c = min(wall[name]), min(cpu[name])
@@ -162,9 +161,9 @@ def overhead(n_poses: int, sensor_name: str, repeats: int = 3) -> None:
 # ------------------------------------------------------------- 3. cost growth
 _ONE_SOLVE = r"""
 import json, resource, sys, time
-from bem import conductance_matrix
-from meshes.scene import Scene
-from meshes.sensor import preset
+from electrosense.bem import conductance_matrix
+from electrosense.meshes.scene import Scene
+from electrosense.meshes.sensor import preset
 sensor = preset(sys.argv[1]); h = float(sys.argv[2])
 conductance_matrix(Scene(preset("angels-2")), 0.0354, edge_length_m=0.02)  # compiled kernels loaded, not counted
 t0 = time.perf_counter()
@@ -176,7 +175,7 @@ print(json.dumps({"triangles": int(C.info.get("triangles", 0)), "seconds": secon
 
 
 def cost(sensor_name: str, budget_s: float, start_edge_m: float, ratio: float) -> None:
-    from bem.memory import available_bytes
+    from electrosense.bem.memory import available_bytes
 
     print(f"\n== 3. cost growth: one BEM solve of {sensor_name} in unbounded water against triangle count ({_load()})")
     print(f"   {'edge (mm)':>9s} {'triangles':>9s} {'seconds':>8s} {'peak RSS (MB)':>14s}")

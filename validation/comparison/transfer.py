@@ -1,0 +1,421 @@
+"""A transfer log against the BEM of its scene: noise floor, the empty tank held out, each object's signal.
+
+The measured side is a transfer log (:mod:`electrosense.validation.bench.transfer`): for each
+set-up, four-electrode transfer impedances ``Z = V / I`` and the drive pairs'
+own voltages. The model side is one BEM solve of the scene: the conductance
+matrix K of all its electrodes gives every transfer impedance
+(:mod:`electrosense.bem.protocol`).
+
+* Noise floor (:func:`reciprocity_rel`): drive (a, b) / measure (c, d)
+  against drive (c, d) / measure (a, b) of the reference set-up.
+* Empty tank (:func:`compare_empty_tank`): what a user cannot know (the
+  saline's conductivity times the system's gain: one scale) is fitted on the
+  even drive patterns and scored on the odd ones (:func:`drive_folds`,
+  :func:`fit_linear`): ``empty_heldout_rms_rel``; both halves held out in
+  turn: ``empty_twofold_rms_rel``.
+* Objects (:func:`compare_objects`): each set-up's difference signal (with
+  the balls / without - 1), measured against the BEM's with the balls where
+  the scene's ``[protocol]`` table says, their unstated height fitted (one
+  height shared by every set-up): ``object_rms_rel``.
+
+Nothing is tuned to one file: the ring, the set-ups and the balls come from
+the scene's ``[protocol]`` table, the electrodes from its geometry. The
+diagnosis of what remains is :mod:`electrosense.validation.diagnosis.transfer`; figures
+and report :mod:`electrosense.validation.comparison.transfer_report`.
+
+Example
+-------
+The fit of one scale on even drives, scored on odd ones (data 2 % above a
+model that is exact in shape):
+
+>>> Zm = np.array([1.0, 2.0, 3.0, 4.0])
+>>> res, coefs = fit_linear(1.02 * Zm, Zm[:, None], folds=np.array([0, 1, 0, 1]))
+>>> np.round(coefs[1], 6).tolist(), float(np.abs(res).max()) < 1e-9
+([1.02], True)
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from electrosense.bem.protocol import transfer_impedances_ohm
+from electrosense.bem.solve import solve_scene
+from electrosense.meshes.objects import Sphere
+from electrosense.validation.comparison.metrics import error_summary
+
+__all__ = [
+    "SetupTable",
+    "TransferComparison",
+    "TransferMismatchError",
+    "ball_heights_m",
+    "balls_at",
+    "compare_empty_tank",
+    "compare_objects",
+    "compare_transfer_log",
+    "drive_folds",
+    "fit_ball_height",
+    "fit_linear",
+    "mean_by_offset",
+    "model_transfer_ohm",
+    "noise_floor",
+    "reciprocity_rel",
+    "ring_offsets",
+    "score_fit",
+    "setup_table",
+    "solved_transfer_ohm",
+]
+
+
+class TransferMismatchError(ValueError):
+    """The log and the scene do not describe the same measurement (signs, set-ups)."""
+
+
+def _rms(x) -> float:
+    return error_summary(x)["rms"]
+
+
+@dataclass(frozen=True)
+class SetupTable:
+    """One set-up of a transfer log: its transfer rows (row-wise pairs, 1-based) and its drive rows.
+
+    ``drive`` (R, 2), ``measure`` (R, 2), ``Z_ohm`` (R,) of the four-electrode
+    rows; ``drive_pairs`` (D, 2) and ``drive_Z_ohm`` (D,) of the rows whose
+    measurement pair is the drive pair (the drive pair's own V / I).
+    """
+
+    drive: np.ndarray
+    measure: np.ndarray
+    Z_ohm: np.ndarray
+    drive_pairs: np.ndarray
+    drive_Z_ohm: np.ndarray
+
+
+def setup_table(log, setup: str) -> SetupTable:
+    """The :class:`SetupTable` of ``setup`` in a :class:`~validation.bench.transfer.TransferLog`."""
+    t = log.select(setup)
+    tr = ~t.is_drive_row
+    return SetupTable(t.drive[tr], t.measure[tr], t.Z_ohm[tr], t.drive[~tr], t.Z_ohm[~tr])
+
+
+def model_transfer_ohm(K_S, drive, measure) -> np.ndarray:
+    """Transfer impedance (ohm) of each row: drive pair ``drive[r]``, measurement pair ``measure[r]`` (1-based).
+
+    >>> K = np.array([[2.0, -1, -1], [-1, 2, -1], [-1, -1, 2]])     # three electrodes, 1 S between each two
+    >>> model_transfer_ohm(K, np.array([[1, 2], [1, 2]]), np.array([[1, 2], [1, 3]])).round(4).tolist()
+    [0.6667, 0.3333]
+    """
+    pairs_d, inv = np.unique(drive, axis=0, return_inverse=True)
+    V = transfer_impedances_ohm(K_S, pairs_d, measure)     # (D, R)
+    return V[inv.ravel(), np.arange(len(measure))]
+
+
+def solved_transfer_ohm(scene, sigma_S_per_m: float, bem_options: dict, drive, measure) -> np.ndarray:
+    """|transfer impedance| (ohm) of each row, from one BEM solve of ``scene``."""
+    K = solve_scene(scene, sigma_S_per_m, **bem_options).conductance.K_S
+    return np.abs(model_transfer_ohm(K, drive, measure))
+
+
+def reciprocity_rel(drive, measure, Z_ohm) -> np.ndarray:
+    """Relative differences ``(z - z') / mean`` of reciprocal pairs (drive and measurement swapped), each pair once.
+
+    >>> d = np.array([[1, 2], [4, 3]]); m = np.array([[4, 3], [1, 2]])
+    >>> reciprocity_rel(d, m, np.array([1.02, 0.98])).round(4).tolist()
+    [0.04]
+    """
+    key = {(tuple(d), tuple(m)): z for d, m, z in zip(drive.tolist(), measure.tolist(), Z_ohm)}
+    out = []
+    for (d, m), z in key.items():
+        # reciprocal: drive m (current from m's plus) measured on d; signs follow the pair orders
+        for r in ((m, d), ((m[1], m[0]), (d[1], d[0]))):
+            if r in key and (d, m) < r:
+                z2 = key[r]
+                out.append((z - z2) / (0.5 * (z + z2)))
+    return np.array(out)
+
+
+def noise_floor(rec) -> dict:
+    """The measurement's own floor from the reciprocal pairs' relative differences ``rec``.
+
+    >>> round(float(noise_floor(np.array([0.03, -0.03]))["per_measurement_rms_rel"]), 4)
+    0.0212
+    """
+    return {"reciprocity_rms_rel": _rms(rec), "reciprocity_median_abs_rel": float(np.median(np.abs(rec))),
+            "per_measurement_rms_rel": _rms(rec) / np.sqrt(2), "pairs": len(rec)}
+
+
+def drive_folds(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distinct drive pairs (D, 2), each row's index among them, and its fold: 0 even drive patterns, 1 odd.
+
+    >>> pairs, index, folds = drive_folds(np.array([[2, 3], [1, 2], [1, 2], [3, 4]]))
+    >>> index.tolist(), folds.tolist()
+    ([1, 0, 0, 2], [1, 0, 0, 0])
+    """
+    drives = np.unique(drive, axis=0)
+    dindex = np.array([np.flatnonzero(np.all(drives == d, axis=1))[0] for d in drive])
+    return drives, dindex, dindex % 2
+
+
+def fit_linear(Zd, columns, folds, gauge=None, ridge=1e-6):
+    """Weighted least squares ``Zd ~ sum_k c_k columns[k]`` (relative residuals), fitted and scored per fold.
+
+    Parameters
+    ----------
+    Zd : (R,) measured |Z| (ohm, or the system's units).
+    columns : (R, P); column 0 is the BEM's Z (its coefficient is the scale),
+        the others effects in ohm (sensitivity times displacement, channel
+        indicators...).
+    folds : (R,) fold number of each row; each fold is predicted by the fit
+        on the others.
+    gauge : (G, P) rows of constraints ``gauge @ c = 0`` (e.g. a rigid
+        rotation of the ring changes nothing), or None.
+    ridge : relative Tikhonov weight on the effects (not on the scale).
+
+    Returns
+    -------
+    The held-out relative residuals (R,) and ``{fold: coefficients}`` of each
+    fold's fit (the fit that holds that fold out).
+
+    >>> Zm = np.array([1.0, 2.0, 3.0, 4.0]); one = np.ones(4)
+    >>> res, c = fit_linear(2 * Zm + 0.5, np.c_[Zm, one], np.array([0, 1, 0, 1]))
+    >>> np.round(c[0], 3).tolist(), bool(np.abs(res).max() < 1e-4)     # the ridge keeps effects a hair small
+    ([2.0, 0.5], True)
+    """
+    A = np.asarray(columns, float)
+    w = 1.0 / Zd
+    P = A.shape[1]
+    reg = np.sqrt(ridge) * np.eye(P)[1:] * np.abs(A).max(axis=0)[None, :]
+    cons = np.zeros((0, P)) if gauge is None else np.asarray(gauge, float) * np.abs(A).max(axis=0)[None, :]
+    res = np.zeros(len(Zd))
+    coefs = {}
+    for f in np.unique(folds):
+        tr = folds != f
+        lhs = np.vstack([A[tr] * w[tr, None], reg, 1e3 * cons])
+        c = np.linalg.lstsq(lhs, np.r_[np.ones(tr.sum()), np.zeros(len(reg) + len(cons))], rcond=None)[0]
+        res[~tr] = (A[~tr] @ c) / Zd[~tr] - 1
+        coefs[int(f)] = c
+    return res, coefs
+
+
+def score_fit(Zd, columns, folds, gauge=None) -> tuple[dict, np.ndarray, dict]:
+    """:func:`fit_linear` of the columns (a list of (R,) arrays) and its scores: held out (fold 1) and 2-fold RMS.
+
+    >>> Zm = np.array([1.0, 2.0, 3.0, 4.0])
+    >>> sc, res, c = score_fit(1.1 * Zm, [Zm], np.array([0, 1, 0, 1]))
+    >>> sc["n_parameters"], sc["heldout_rms_rel"] < 1e-9
+    (1, True)
+    """
+    res, coefs = fit_linear(Zd, np.stack(columns, axis=1), folds, gauge)
+    return {"heldout_rms_rel": _rms(res[folds == 1]), "twofold_rms_rel": _rms(res),
+            "n_parameters": len(columns)}, res, coefs
+
+
+def ring_offsets(drive, measure, ring) -> np.ndarray | None:
+    """(R,) cyclic offset of each measurement pair from its drive pair along ``ring`` (None: no ring, or off it).
+
+    >>> ring_offsets(np.array([[1, 2], [1, 2]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
+    [2, 3]
+    """
+    ring = [int(e) for e in ring]
+    if not ring:
+        return None
+    pos, n = {e: i for i, e in enumerate(ring)}, len(ring)
+
+    def first(pair):      # the pair's first electrode in ring order (cyclic neighbours: the wrap-round pair too)
+        i, j = pos[pair[0]], pos[pair[1]]
+        return i if (j - i) % n == 1 else j if (i - j) % n == 1 else min(i, j)
+
+    try:
+        return np.array([(first(m) - first(d)) % n for d, m in zip(drive.tolist(), measure.tolist())])
+    except KeyError:
+        return None
+
+
+def mean_by_offset(offsets, values) -> dict:
+    """Mean of ``values`` over the rows of each ring offset.
+
+    >>> mean_by_offset(np.array([2, 2, 3]), np.array([0.1, 0.3, -0.2]))
+    {2: 0.2, 3: -0.2}
+    """
+    return {int(o): float(np.mean(values[offsets == o])) for o in np.unique(offsets)}
+
+
+def ball_heights_m(z_m: float, radius_m: float, tank) -> np.ndarray:
+    """Heights scanned for balls of unstated height: the stated plane and 2, 4 radii above, under the water's surface.
+
+    >>> ball_heights_m(0.0, 0.01, None).tolist()
+    [0.0, 0.02, 0.04]
+    """
+    heights = z_m + np.array([0.0, 2.0, 4.0]) * radius_m
+    if hasattr(tank, "water_depth_m"):
+        heights = heights[heights + radius_m < tank.free_surface_z_m - 0.5 * radius_m]
+    return heights
+
+
+def balls_at(positions_xy, z_m: float, radius_m: float) -> tuple:
+    """Spheres of ``radius_m`` at the (x, y) positions (m) of a set-up, centred at height ``z_m``.
+
+    >>> [b.centre_m for b in balls_at([[0.05, 0.0]], 0.01, 0.02)]
+    [(0.05, 0.0, 0.01)]
+    """
+    return tuple(Sphere(centre_m=(float(x), float(y), float(z_m)), radius_m=radius_m) for x, y in positions_xy)
+
+
+def fit_ball_height(heights, measured, simulated):
+    """One height shared by every set-up, from signals simulated at a few heights (quadratic in z).
+
+    ``measured``: {set-up: (R,) measured difference signal}; ``simulated``:
+    {set-up: [(R,) signal at each of ``heights``]}. Returns the fitted height
+    and, per set-up, the relative RMS misfit at the first (assumed) height and
+    at the fitted one, the measured/simulated amplitude and the signal there.
+
+    >>> h = [0.0, 1.0, 2.0]; s = lambda z: np.array([1.0, -1.0]) * (1 + z)
+    >>> z, out = fit_ball_height(h, {"A": s(1.5)}, {"A": [s(z) for z in h]})
+    >>> round(z, 3), round(out["A"]["at_fitted_height"], 6)
+    (1.5, 0.0)
+    """
+    h = np.asarray(heights, float)
+    grid = np.linspace(h.min(), h.max(), 201)
+
+    def at(sig, z):
+        S = np.stack(sig)                            # (H, R)
+        if len(h) == 1:
+            return S[0]
+        c = np.polyfit(h, S, min(2, len(h) - 1))     # per entry
+        return np.polyval(c, z) if c.ndim == 1 else sum(c[k] * z ** (len(c) - 1 - k) for k in range(len(c)))
+
+    cost = [sum(np.sum((measured[k] - at(simulated[k], z)) ** 2) / np.sum(measured[k] ** 2) for k in measured)
+            for z in grid]
+    z_fit = float(grid[int(np.argmin(cost))])
+    out = {}
+    for k in measured:
+        s_fit = at(simulated[k], z_fit)
+        amp = float(np.sum(s_fit * measured[k]) / np.sum(s_fit ** 2))
+        out[k] = {"at_assumed_height": _rms(measured[k] - simulated[k][0]) / _rms(measured[k]),
+                  "measured_over_simulated_amplitude": amp,
+                  "at_fitted_height": _rms(measured[k] - s_fit) / _rms(measured[k]), "signal": s_fit}
+    return z_fit, out
+
+
+@dataclass
+class TransferComparison:
+    """The comparison of one transfer log with the BEM of its scene (arrays over the reference's transfer rows).
+
+    ``Z_measured_ohm`` and ``Z_model_ohm`` are magnitudes (``sign``: the
+    measured sign, which the BEM's agrees with); ``scale`` is the fit on the
+    even drives (measured = scale * BEM); ``residual`` the empty tank's
+    relative residuals with each half held out in turn; ``offsets`` each
+    row's ring offset (None: no ring). ``measured_signals`` /
+    ``simulated_signals``: each set-up's difference signal, measured and
+    simulated at each of ``heights_m``; ``signals``: measured and simulated
+    at the fitted height. ``metrics``: the dict written to metrics.json.
+    """
+
+    table: SetupTable
+    solution: object
+    Z_measured_ohm: np.ndarray
+    Z_model_ohm: np.ndarray
+    sign: np.ndarray
+    drive_pairs: np.ndarray
+    drive_index: np.ndarray
+    folds: np.ndarray
+    scale: float
+    residual: np.ndarray
+    reciprocity: np.ndarray
+    offsets: np.ndarray | None
+    metrics: dict
+    heights_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    measured_signals: dict = field(default_factory=dict)
+    simulated_signals: dict = field(default_factory=dict)
+    signals: dict = field(default_factory=dict)
+
+    @property
+    def held_out(self) -> np.ndarray:
+        """True on the rows of the odd drive patterns (scored, not fitted)."""
+        return self.folds == 1
+
+
+def compare_empty_tank(table: SetupTable, solution, sigma_S_per_m: float, ring=()) -> TransferComparison:
+    """The reference set-up against the BEM solution of the empty scene: noise floor, scale fitted on even drives.
+
+    Raises :class:`TransferMismatchError` when a measurement has the opposite
+    sign to the BEM's (electrode numbering or sign convention).
+    """
+    rec = reciprocity_rel(table.drive, table.measure, table.Z_ohm)
+    metrics: dict = {"noise_floor": noise_floor(rec)}
+    Zm = model_transfer_ohm(solution.conductance.K_S, table.drive, table.measure)
+    Zd = table.Z_ohm
+    if np.any(np.sign(Zm) != np.sign(Zd)):
+        raise TransferMismatchError(f"{np.sum(np.sign(Zm) != np.sign(Zd))} measurements have the opposite sign to "
+                                    "the BEM: check the electrode numbering and the log's sign convention")
+    Zm, Zd_abs = np.abs(Zm), np.abs(Zd)
+    drives, dindex, folds = drive_folds(table.drive)
+    held = folds == 1
+    base, res0, c0 = score_fit(Zd_abs, [Zm], folds)
+    s = float(c0[1][0])
+    metrics["empty_heldout_rms_rel"] = base["heldout_rms_rel"]
+    metrics["empty_twofold_rms_rel"] = base["twofold_rms_rel"]
+    metrics["empty_train_rms_rel"] = _rms(s * Zm[~held] / Zd_abs[~held] - 1)
+    metrics["fitted_scale_gain_over_sigma"] = {"scale": s, "sigma_nominal_S_per_m": sigma_S_per_m,
+                                               "meaning": "measured V/I = scale * BEM Z at the nominal sigma"}
+    off = ring_offsets(table.drive, table.measure, ring)
+    if off is not None:
+        metrics["empty_rel_error_by_ring_offset"] = mean_by_offset(off, s * Zm / Zd_abs - 1)
+    return TransferComparison(table, solution, Zd_abs, Zm, np.sign(Zd), drives, dindex, folds, s, res0, rec, off,
+                              metrics)
+
+
+def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: float, bem_options: dict,
+                    protocol: dict) -> dict:
+    """Each ball set-up's difference signal, measured against the BEM's; fills ``comparison``'s signals.
+
+    The set-ups are the log's that the ``[protocol]`` table places (a list
+    of ball (x, y) per set-up; ``ball_radius_m``, ``ball_z_m``). Returns the
+    metrics (``object_rms_rel`` ...) and the seconds of the ball solves.
+    """
+    t = comparison.table
+    ref = str(protocol.get("reference", log.setups[0]))
+    radius = float(protocol.get("ball_radius_m", 0.02))
+    zb = float(protocol.get("ball_z_m", 0.0))
+    setups = [k for k in log.setups if k != ref and k in protocol]
+    heights = ball_heights_m(zb, radius, scene.tank)
+    dm_all, ds_all = {}, {}
+    for setup in setups:
+        other = setup_table(log, setup)
+        if not (np.array_equal(other.drive, t.drive) and np.array_equal(other.measure, t.measure)):
+            raise TransferMismatchError(f"set-up {setup} does not have the reference's measurements")
+        dm_all[setup] = other.Z_ohm / t.Z_ohm - 1
+        ds_all[setup] = [solved_transfer_ohm(replace(scene, objects=balls_at(protocol[setup], z, radius)),
+                                             sigma_S_per_m, bem_options, t.drive, t.measure) / comparison.Z_model_ohm - 1
+                         for z in heights]
+    z_fit, ball = fit_ball_height(heights, dm_all, ds_all)
+    comparison.heights_m, comparison.measured_signals, comparison.simulated_signals = heights, dm_all, ds_all
+    comparison.signals = {k: (dm_all[k], v["signal"]) for k, v in ball.items()}
+    return {"object_rms_rel": {k: v["at_fitted_height"] for k, v in ball.items()},
+            "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},
+            "ball_height": {"assumed_z_m": zb, "fitted_z_m": z_fit, "scanned_z_m": heights.tolist(),
+                            "note": "one height shared by every set-up, scanned above the assumed plane "
+                                    "(a ball as far below it gives nearly the same signal)",
+                            "measured_over_simulated_amplitude": {
+                                k: v["measured_over_simulated_amplitude"] for k, v in ball.items()}}}
+
+
+def compare_transfer_log(log, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict) -> TransferComparison:
+    """The whole comparison of a transfer log with its scene (one solve of the empty tank, a few per ball set-up).
+
+    ``protocol``: the scene's ``[protocol]`` table (``reference``, ``ring``,
+    ball set-ups). ``metrics`` of the result holds the noise floor, the empty
+    tank's scores, the objects' and the BEM's size and times (``bem``).
+    """
+    table = setup_table(log, str(protocol.get("reference", log.setups[0])))
+    t0 = time.perf_counter()
+    sol0 = solve_scene(scene, sigma_S_per_m, **bem_options)
+    bem = {"triangles": sol0.info["triangles"], "solve_s": time.perf_counter() - t0}
+    comp = compare_empty_tank(table, sol0, sigma_S_per_m, protocol.get("ring", []))
+    comp.metrics = {"noise_floor": comp.metrics.pop("noise_floor"), "bem": bem, **comp.metrics}
+    t0 = time.perf_counter()
+    objects = compare_objects(comp, log, scene, sigma_S_per_m, bem_options, protocol)
+    bem["ball_solves_s"] = time.perf_counter() - t0
+    comp.metrics.update(objects)
+    return comp

@@ -1,0 +1,171 @@
+"""Figures and the report of a transfer log's comparison with the BEM (and of its diagnosis, when run).
+
+* ``empty_tank.png``: measured against BEM x fitted scale (fitted and held-out
+  drives), and the reciprocity histogram (the measurement's own floor);
+* ``difference_signals.png``: each set-up's measured and simulated signal;
+* ``geometry.png``: model / measured - 1 by ring offset for the stated tank
+  and the shape candidates, and the ring radius the empty tank and each ball
+  want (:func:`electrosense.validation.diagnosis.transfer.one_geometry`);
+* ``report.md``: the numbers beside the goals, and the figures.
+
+Figures use the shared look of :mod:`electrosense.validation.report.style` (a PDF beside
+each PNG).
+
+Example
+-------
+>>> import tempfile, pathlib
+>>> folder = pathlib.Path(tempfile.mkdtemp())
+>>> Zd = np.array([1.0, 2.0, 3.0, 4.0])
+>>> empty_tank_figure(folder, Zd, 1.01 * Zd, np.array([True, False, True, False]), np.array([0.01, -0.02])).name
+'empty_tank.png'
+>>> print(summary_text({"noise_floor": {}, "empty_heldout_rms_rel": 0.1, "object_rms_rel": {}}).splitlines()[-1])
+goals: empty_heldout_rms_rel <= 0.045; each object_rms_rel <= 0.15; diagnosis shrink >= 0.5
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from electrosense.validation.report.style import new_figure, save
+
+__all__ = [
+    "GOALS",
+    "difference_signals_figure",
+    "empty_tank_figure",
+    "geometry_figure",
+    "report_markdown",
+    "summary_text",
+    "write_transfer_report",
+]
+
+#: the goals of issue #13, printed beside the figures
+GOALS = "goals: empty_heldout_rms_rel <= 0.045; each object_rms_rel <= 0.15; diagnosis shrink >= 0.5"
+
+
+def empty_tank_figure(folder, Z_measured, Z_fitted, train, rec) -> Path:
+    """Measured V/I against BEM x fitted scale (fitted and held-out drives); histogram of reciprocity (%)."""
+    fig, ax = new_figure(1, 2, panel_size_in=(5.0, 4.2))
+    a, b = ax[0]
+    a.loglog(Z_measured[train], Z_fitted[train], "o", ms=3, label="fitted drives (even)")
+    a.loglog(Z_measured[~train], Z_fitted[~train], "s", ms=3, mfc="none", label="held-out drives (odd)")
+    lim = [Z_measured.min() * 0.8, Z_measured.max() * 1.2]
+    a.plot(lim, lim, "k-", lw=0.8)
+    a.set(xlabel="measured V/I (system units)", ylabel="BEM x fitted scale", title="empty tank")
+    a.legend()
+    b.hist(100 * rec, bins=30)
+    b.set(xlabel="reciprocal pair difference (%)", ylabel="pairs", title="measurement's own floor (reciprocity)")
+    return save(fig, Path(folder) / "empty_tank.png")
+
+
+def difference_signals_figure(folder, signals: dict) -> Path | None:
+    """Each set-up's difference signal (with / without - 1, %): ``signals`` {set-up: (measured, simulated)}."""
+    if not signals:
+        return None
+    fig, axes = new_figure(len(signals), 1, panel_size_in=(10.0, 2.6))
+    for a, (name, (dm, ds)) in zip(axes[:, 0], signals.items()):
+        a.plot(100 * dm, "k.-", lw=0.6, ms=3, label="measured")
+        a.plot(100 * ds, "r.-", lw=0.6, ms=3, label="BEM")
+        a.set(ylabel="with/without - 1 (%)", title=f"set-up {name}")
+        a.legend(loc="upper left", fontsize=8, ncol=2)
+    axes[-1, 0].set_xlabel("measurement (drive-major, drive-touching pairs left out)")
+    return save(fig, Path(folder) / "difference_signals.png")
+
+
+def geometry_figure(folder, offsets, resid: dict, one: dict | None) -> Path:
+    """Model / measured - 1 by ring offset (each half held out in turn) for the stated tank and the shape
+    candidates in ``resid``; with ``one`` (:func:`~validation.diagnosis.transfer.one_geometry`), the ring radius
+    the empty tank and each ball want."""
+    fig, ax = new_figure(1, 2 if one else 1, panel_size_in=(5.5, 4.2) if one else (6.0, 4.2))
+    a = ax[0, 0]
+    offs = np.unique(offsets)
+    for name, mk in (("stated geometry", "ko-"), ("ring_radius", "bs-"), ("wall_taper", "cd--"),
+                     ("water_depth", "r^-")):
+        if name in resid:
+            r = resid[name]
+            a.plot(offs, [100 * np.mean(r[offsets == o]) for o in offs], mk, ms=4, lw=1, label=name.replace("_", " "))
+    r0 = resid["stated geometry"]
+    a.plot(offsets + 0.15 * (np.random.default_rng(0).random(len(offsets)) - 0.5), 100 * r0, ".", color="0.7", ms=2,
+           zorder=0, label="each measurement (stated)")
+    a.axhline(0, color="k", lw=0.5)
+    a.set(xlabel="ring offset of the measurement pair from the drive pair", ylabel="model / measured - 1 (%)",
+          title="empty tank: mean by offset, each half held out in turn")
+    a.set_ylim(-30, 30)
+    a.legend(fontsize=8)
+    if one:
+        b = ax[0, 1]
+        items = [("stated", one["ring_radius_m_stated"]), ("empty tank fit", one["ring_radius_m_for_empty_tank"])] + [
+            (f"ball amplitude {k}", v) for k, v in one["ring_radius_m_for_ball_amplitude"].items()]
+        colours = ["0.4", "b"] + ["r"] * (len(items) - 2)
+        for i, ((_, v), c) in enumerate(zip(items, colours)):
+            b.plot(100 * v, i, "o", color=c, ms=8)
+            b.annotate(f"{100 * v:.1f}", (100 * v, i), textcoords="offset points", xytext=(8, -4), fontsize=9)
+        b.axvline(100 * one["ring_radius_m_stated"], color="0.4", lw=0.8, ls=":")
+        b.set_yticks(range(len(items)), [k for k, _ in items])
+        b.set_ylim(-0.6, len(items) - 0.4)
+        b.set_xlim(100 * min(v for _, v in items) - 1, 100 * max(v for _, v in items) + 1.5)
+        b.grid(axis="x", lw=0.3)
+        b.set(xlabel="radius of the electrode ring (cm)", title="one tank shape for both? (ring radius wanted)")
+    return save(fig, Path(folder) / "geometry.png")
+
+
+def report_markdown(m: dict) -> str:
+    """The report (markdown) of a metrics dict written by the transfer comparison."""
+    lines = ["# Real tank: BEM against the measured phantom", "",
+             (f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
+              f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s."), "",
+             (f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
+              f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement."),
+             f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= 0.045).",
+             f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
+             f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
+             *[f"- Set-up {k}: object_rms_rel = {v:.3f} at the fitted height, "
+               f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= 0.15); measured/BEM "
+               f"amplitude {m['ball_height']['measured_over_simulated_amplitude'][k]:.2f}"
+               for k, v in m["object_rms_rel"].items()]]
+    if "diagnosis" in m:
+        d = m["diagnosis"]
+        lines += [(f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
+                   f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
+                  *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
+                    f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
+                  f"  - remaining: {d['remaining']}"]
+        if "one_geometry" in d:
+            g = d["one_geometry"]
+            lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "
+                      f"empty tank's held-out fit wants {100 * g['ring_radius_m_for_empty_tank']:.1f} cm (held-out "
+                      f"{g['empty_heldout_rms_rel_with_ring_radius']:.4f}); the balls' amplitudes (ball radius "
+                      f"{1e3 * g['ball_radius_m']:.2f} mm) want " + ", ".join(
+                          f"{k} {100 * v:.1f} cm" for k, v in g["ring_radius_m_for_ball_amplitude"].items()) + "."]
+    else:
+        lines += ["- Diagnosis: not run (--no-diagnosis)."]
+    lines += ["", "![empty tank](empty_tank.png)", "", "![tank shape](geometry.png)", "",
+              "![difference signals](difference_signals.png)", ""]
+    return "\n".join(lines)
+
+
+def summary_text(m: dict) -> str:
+    """The headline numbers (noise floor, empty tank, objects, diagnosis) and the goals beside them."""
+    lines = [json.dumps({k: m[k] for k in ("noise_floor", "empty_heldout_rms_rel", "object_rms_rel")}, indent=1)]
+    if "diagnosis" in m:
+        lines.append(f"diagnosis: {({k: m['diagnosis'][k] for k in ('chosen', 'gap_before', 'gap_after')})}")
+    return "\n".join(lines + [GOALS])
+
+
+def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None = None) -> Path:
+    """Every figure and ``report.md`` of a comparison (:class:`electrosense.validation.comparison.transfer.TransferComparison`).
+
+    ``resid``: 2-fold residuals of the diagnosis' candidates by name (with
+    ``"stated geometry"``); None: the stated geometry's only.
+    """
+    folder = Path(folder)
+    c = comparison
+    empty_tank_figure(folder, c.Z_measured_ohm, c.scale * c.Z_model_ohm, ~c.held_out, c.reciprocity)
+    difference_signals_figure(folder, c.signals)
+    if c.offsets is not None:
+        geometry_figure(folder, c.offsets, resid or {"stated geometry": c.residual},
+                        metrics.get("diagnosis", {}).get("one_geometry"))
+    path = folder / "report.md"
+    path.write_text(report_markdown(metrics))
+    return path

@@ -1,0 +1,462 @@
+"""From a model name to conductance matrices: the one door to the BEM and the PSM.
+
+Every command that needs model currents for many poses (sweeps, comparisons
+with bench logs, the virtual bench, the gap diagnosis) comes through here, so
+that ``"bem"`` and ``"psm"`` mean the same thing everywhere:
+
+* ``"bem"``: the boundary-element reference, :class:`electrosense.bem.PoseSweep`, which
+  builds the pose-invariant blocks once and then solves pose after pose;
+* ``"psm"``: the poly-spherical model, :func:`electrosense.psm.conductance`, vectorised
+  over poses. Without an explicit model the PSM is calibrated against the
+  free-space BEM conductance of the same sensor (:func:`calibrated_psm`), once:
+  the calibration is cached on disk, keyed by the sensor description, the BEM
+  edge length and the code version.
+
+The split into :func:`pose_evaluator` (the pose-invariant part, a picklable
+object with ``.conductance(poses)``) and :func:`simulate` (evaluate it) is what
+lets :mod:`electrosense.validation.simulation.sweep` ship the expensive part to dask workers once.
+
+Example
+-------
+>>> import numpy as np
+>>> from electrosense.meshes.sensor import preset
+>>> from electrosense.meshes.tank import Tank
+>>> from electrosense.validation.simulation.models import simulate
+>>> poses = np.array([[x, 0.0, 0.0, 0.0] for x in np.linspace(-0.3, 0.3, 5)])
+>>> C = simulate("psm", preset("angels-4"), poses, Tank((1.0, 1.0, 1.0)), 0.0354)  # doctest: +SKIP
+>>> C.resistance_ohm.shape  # doctest: +SKIP
+(5, 3)
+"""
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from electrosense.bem.conductance import ConductanceMatrix
+from electrosense.meshes.pose import poses_array as _poses_from_any
+from electrosense.meshes.sensor import SensorDescription
+from electrosense.meshes.tank import Tank
+
+__all__ = [
+    "MODELS",
+    "EvaluatorCache",
+    "ModelError",
+    "PSMEvaluator",
+    "pose_evaluator",
+    "simulate",
+    "calibrated_psm",
+    "free_space_bem",
+    "calibration_layout",
+    "psm_cache_dir",
+    "code_version",
+    "poses_array",
+]
+
+#: The model names understood by :func:`simulate`.
+MODELS = ("bem", "psm")
+
+#: Keyword arguments of the calibration BEM that a PSM run accepts.
+_PSM_CALIBRATION_OPTIONS = ("edge_length_m",)
+
+
+class ModelError(ValueError):
+    """A model name, model file or model option that cannot be used as given."""
+
+
+def poses_array(poses) -> np.ndarray:
+    """Poses as a (P, 4) float array; a (P, 4) array passes without a copy per row.
+
+    :func:`electrosense.meshes.pose.poses_array` for anything else (Pose objects, rows).
+    """
+    if isinstance(poses, np.ndarray) and poses.ndim == 2 and poses.shape[1] == 4:
+        poses = np.asarray(poses, dtype=float)
+        if not np.all(np.isfinite(poses)):
+            raise ValueError("poses contain non-finite values")
+        return poses
+    return _poses_from_any(poses)
+
+
+# --------------------------------------------------------------------------- version
+def code_version(refresh: bool = False) -> str:
+    """``"electrosense <version> src <hash>"``: the package version and a hash of the model sources.
+
+    The hash covers every ``.py`` file of :mod:`meshes`, :mod:`bem` and
+    :mod:`psm`, so that an edited solver (an editable install keeps its version
+    number) is told apart from the one that filled a cache or a sweep store.
+    It is computed once per process; ``refresh=True`` reads the files again.
+    """
+    if refresh:
+        _code_version.cache_clear()
+    return _code_version()
+
+
+@functools.lru_cache(maxsize=1)
+def _code_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        package_version = version("electrosense")
+    except Exception:  # not installed: running from a checkout
+        package_version = "unknown"
+    digest = hashlib.sha256()
+    root = Path(__file__).resolve().parent.parent
+    for package in ("meshes", "bem", "psm"):
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(str(path.relative_to(root)).encode())
+            digest.update(path.read_bytes())
+    return f"electrosense {package_version} src {digest.hexdigest()[:12]}"
+
+
+# ------------------------------------------------------------------------------- PSM
+@dataclass(frozen=True)
+class PSMEvaluator:
+    """The PSM at fixed scene and water: ``.conductance(poses)`` for any batch of poses.
+
+    A small picklable object (the model's radii and centres plus the scene),
+    the PSM counterpart of :class:`electrosense.bem.PoseSweep`. ``image_shells`` fixes the
+    number of shells of the complete image series (see :meth:`for_poses`),
+    so that a sweep cut into chunks gives exactly what one call would.
+    """
+
+    model: object  # psm.PolySphericalModel
+    sigma_S_per_m: float
+    tank: Tank | None = None
+    objects: tuple = ()
+    images: str = "complete"
+    contact_impedance_ohm_m2: object = None
+    sensor: SensorDescription | None = None
+    image_shells: int | None = None
+    info: dict = field(default_factory=dict, compare=False)
+
+    def conductance(self, poses, progress: bool = False) -> ConductanceMatrix:
+        """Conductance matrices of batch shape (P,) at the poses (P, 4) (``progress`` is ignored: one vectorised call)."""
+        from electrosense.psm import conductance
+
+        return conductance(
+            self.model,
+            poses_array(poses),
+            self.sigma_S_per_m,
+            tank=self.tank,
+            images=self.images,
+            objects=tuple(self.objects),
+            contact_impedance_ohm_m2=self.contact_impedance_ohm_m2,
+            sensor=self.sensor,
+            image_shells=self.image_shells,
+        )
+
+    def for_poses(self, poses, max_probes: int = 24) -> "PSMEvaluator":
+        """The same evaluator with the image shell count settled once for this whole set of poses.
+
+        The complete series adds shells until K stops changing on probe poses;
+        the probes are taken here from the whole set (the poses nearest each
+        boundary plus an even spread), not chunk by chunk.
+        """
+        if self.tank is None or self.images != "complete" or self.image_shells is not None:
+            return self
+        from electrosense.psm.conductance import sphere_centres_m
+
+        poses = poses_array(poses)
+        if len(poses) > max_probes:
+            X = sphere_centres_m(self.model, poses)  # (P, n, 3)
+            gap = self.tank.distance_to_boundary_m(X).min(axis=1)  # (P, 6)
+            nearest = set(np.argmin(gap, axis=0).tolist())
+            spread = np.linspace(0, len(poses) - 1, max(1, max_probes - len(nearest))).astype(int)
+            poses = poses[sorted(nearest | set(spread.tolist()))]
+        shells = self.conductance(poses).info.get("image_shells")
+        return replace(self, image_shells=None if shells is None else int(shells))
+
+
+def psm_cache_dir() -> Path:
+    """Folder of the cached PSM calibrations: ``$ESENSE_CACHE_DIR/psm`` or the user's cache folder."""
+    base = os.environ.get("ESENSE_CACHE_DIR")
+    if not base:
+        from platformdirs import user_cache_dir
+
+        base = user_cache_dir("electrosense")
+    return Path(base) / "psm"
+
+
+def _psm_cache_key(sensor: SensorDescription, edge_length_m, layout: dict) -> str:
+    geometry = {k: v for k, v in sensor.to_dict().items() if k not in ("name", "notes")}
+    description = {
+        "sensor": geometry,
+        "bem_edge_length_m": edge_length_m,
+        "layout": layout,
+        "code_version": code_version(),
+    }
+    return hashlib.sha256(json.dumps(description, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def calibration_layout(sensor: SensorDescription, symmetric: bool | None = None) -> dict:
+    """The least constrained PSM layout that a free-space S determines: ``{"symmetric", "fix_length_m"}``.
+
+    S has m (m + 1) / 2 distinct entries (m receivers); the free layout of n
+    spheres has 2n - 1 parameters, the paper's symmetric one about half as
+    many. When even that is too many (n = 2: one conductance), the distance
+    between the outer sphere centres is fixed to the sensor's length, as the
+    paper does for its two-electrode sensor (L = 20 cm).
+
+    >>> calibration_layout(preset("angels-4"))  # doctest: +SKIP
+    {'symmetric': True, 'fix_length_m': None}
+    """
+    from electrosense.psm.calibration import Layout
+
+    n = sensor.n_electrodes
+    n_data = (n - 1) * n // 2
+    candidates = [(False, None), (True, None), (True, float(sensor.length_m))]
+    if symmetric is not None:
+        candidates = [c for c in candidates if c[0] == bool(symmetric)] + [(bool(symmetric), float(sensor.length_m))]
+    for sym, fix in candidates:
+        if Layout(n, sym, fix).n_free <= n_data:
+            return {"symmetric": sym, "fix_length_m": fix}
+    raise ModelError(f"no PSM layout of {n} spheres is determined by the {n_data} conductance(s) of {sensor.name!r}")
+
+
+def free_space_bem(sensor: SensorDescription, edge_length_m: float | None = None):
+    """The sensor's BEM conductance matrix alone in unbounded water at 1 S/m (with the edge correction of
+    :mod:`electrosense.bem.edge_correction`): the reference every PSM calibration of the package fits."""
+    from electrosense.bem import conductance_matrix
+    from electrosense.meshes.scene import Scene
+
+    return conductance_matrix(Scene(sensor), 1.0, edge_length_m=edge_length_m)
+
+
+def calibrated_psm(
+    sensor: SensorDescription,
+    edge_length_m: float | None = None,
+    symmetric: bool | None = None,
+    cache: bool = True,
+):
+    """A PSM calibrated against the free-space BEM conductance of ``sensor``, computed once.
+
+    The reference is :func:`free_space_bem` in
+    unbounded water (the PSM's geometry does not depend on the conductivity);
+    :func:`electrosense.psm.calibrate` fits the spheres to it in the layout of
+    :func:`calibration_layout`. The result is cached as a PSM JSON file in
+    :func:`psm_cache_dir`, keyed by the sensor description, the BEM edge
+    length, the layout and :func:`code_version`.
+
+    Parameters
+    ----------
+    sensor : SensorDescription
+    edge_length_m : float, optional
+        Edge length of the calibration BEM mesh (``None``: the mesher's default).
+    symmetric : bool, optional
+        Force (True) or forbid (False) the paper's symmetry constraints;
+        default: the least constrained layout the data determine.
+    cache : bool
+        Read and write the on-disk cache (``False``: always recompute).
+
+    Returns
+    -------
+    psm.PolySphericalModel
+    """
+    from electrosense.psm import PolySphericalModel
+
+    layout = calibration_layout(sensor, symmetric)
+    # the file name is a hash only: a sensor's name is a user's label, never part of a path
+    path = psm_cache_dir() / f"psm-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
+    if cache and path.exists():
+        try:
+            return PolySphericalModel.load(path)
+        except Exception:  # a damaged cache entry is recomputed, never trusted
+            path.unlink(missing_ok=True)
+
+    from electrosense.psm.calibration import calibrate
+
+    reference = free_space_bem(sensor, edge_length_m)
+    model = calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
+    if cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
+        model.save(partial)
+        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
+    return model
+
+
+def _load_psm(psm_model):
+    """A PSM from a model object or a path to its JSON file."""
+    if isinstance(psm_model, (str, os.PathLike)):
+        from electrosense.psm import PolySphericalModel
+
+        path = Path(psm_model)
+        if not path.exists():
+            raise ModelError(f"PSM file {path} does not exist")
+        try:
+            return PolySphericalModel.load(path)
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ModelError(f"{path}: not a PSM model file ({exc})") from None
+    return psm_model
+
+
+def _check_psm_matches(model, sensor: SensorDescription) -> None:
+    n = len(np.asarray(model.radii_m))
+    if n != sensor.n_electrodes:
+        raise ModelError(
+            f"the PSM has {n} spheres but the sensor {sensor.name!r} has {sensor.n_electrodes} electrodes"
+        )
+    if int(model.emitter) != sensor.emitter:
+        raise ModelError(f"the PSM's emitter is electrode {model.emitter}, the sensor's is {sensor.emitter}")
+
+
+# ------------------------------------------------------------------------- the door
+def pose_evaluator(
+    model: str,
+    sensor: SensorDescription,
+    tank: Tank | None,
+    sigma_S_per_m: float,
+    objects=(),
+    psm_model=None,
+    contact_impedance_ohm_m2=None,
+    images: str = "complete",
+    poses=None,
+    prepare: bool = True,
+    **bem_options,
+):
+    """The pose-invariant part of a model run: an object with ``.conductance(poses) -> ConductanceMatrix``.
+
+    For ``"bem"`` a :class:`electrosense.bem.PoseSweep` (sensor and tank blocks assembled
+    once); for ``"psm"`` a :class:`PSMEvaluator`. Both are picklable, so a
+    sweep can scatter them to dask workers once and send only poses after.
+
+    Parameters are those of :func:`simulate`; ``poses`` (optional) are the
+    poses it will be used for. Give them for a sweep cut into chunks: the
+    BEM then grades one tank mesh towards all of them and assembles its
+    pose-invariant blocks at once, the PSM settles its image series over all
+    of them, so that every chunk, on any worker, is computed exactly as one
+    call over all poses would. ``prepare=False`` leaves the BEM's blocks to
+    its first call (for a single call over all poses).
+    """
+    if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
+        raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
+    code_version()  # pin the model code's version now, as it is loaded; dask workers must run the same
+    objects = tuple(objects)
+    if model == "bem":
+        if psm_model is not None:
+            raise ModelError("psm_model is given but the model is 'bem'")
+        from electrosense.bem import PoseSweep
+
+        options = dict(bem_options)
+        if contact_impedance_ohm_m2 is not None:
+            options["contact_impedance_ohm_m2"] = contact_impedance_ohm_m2
+        if poses is not None and tank is not None and "focus_m" not in options:
+            from electrosense.meshes.scene_mesh import trajectory_focus_m
+
+            # one tank mesh for the whole sweep, graded towards every pose (not the first chunk's)
+            options["focus_m"] = trajectory_focus_m(sensor, poses_array(poses))
+        sweep = PoseSweep(sensor, tank=tank, objects=objects, sigma_S_per_m=sigma_S_per_m, **options)
+        if poses is not None and prepare:
+            # build the environment's blocks here, once, before the sweep is shipped to workers
+            sweep.conductance(poses_array(poses)[:1])
+        return sweep
+    if model == "psm":
+        unknown = sorted(set(bem_options) - set(_PSM_CALIBRATION_OPTIONS))
+        if unknown:
+            raise ModelError(
+                f"option(s) {', '.join(unknown)} are BEM options; with the PSM only "
+                f"{', '.join(_PSM_CALIBRATION_OPTIONS)} (of the calibration BEM) is used"
+            )
+        calibrated = psm_model is None
+        if calibrated:
+            psm_model = calibrated_psm(sensor, edge_length_m=bem_options.get("edge_length_m"))
+        psm_model = _load_psm(psm_model)
+        _check_psm_matches(psm_model, sensor)
+        info = {"model": "psm", "images": images, "calibrated_on_free_space_bem": calibrated}
+        evaluator = PSMEvaluator(psm_model, float(sigma_S_per_m), tank, objects, images,
+                                 contact_impedance_ohm_m2, sensor, info=info)
+        return evaluator if poses is None else evaluator.for_poses(poses)
+    raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
+
+
+def simulate(
+    model: str,
+    sensor: SensorDescription,
+    poses,
+    tank: Tank | None,
+    sigma_S_per_m: float,
+    objects=(),
+    psm_model=None,
+    contact_impedance_ohm_m2=None,
+    images: str = "complete",
+    progress: bool = False,
+    **bem_options,
+) -> ConductanceMatrix:
+    """Conductance matrices of ``sensor`` at many poses, by the BEM or the PSM.
+
+    Parameters
+    ----------
+    model : {"bem", "psm"}
+    sensor : SensorDescription
+    poses : array (P, 4) or sequence of Pose
+        Sensor centre (x_m, y_m, z_m) and yaw_rad in the tank frame.
+    tank : Tank or None
+        ``None`` for unbounded water.
+    sigma_S_per_m : float
+        Conductivity of the water.
+    objects : sequence of Sphere/Box/Cylinder
+    psm_model : PolySphericalModel or path to its JSON, optional
+        The PSM to use; ``None`` calibrates one on the sensor's free-space BEM
+        (:func:`calibrated_psm`, cached). Only for ``"psm"``.
+    contact_impedance_ohm_m2 : float or array (n,), optional
+    images : {"complete", "paper8", "none"}
+        The PSM's tank images (ignored by the BEM, which meshes the tank).
+    progress : bool
+        Progress bar (BEM pose sweeps).
+    **bem_options
+        Passed to :class:`electrosense.bem.PoseSweep` (e.g. ``edge_length_m``); with the
+        PSM only ``edge_length_m`` of the calibration BEM.
+
+    Returns
+    -------
+    ConductanceMatrix of batch shape (P,)
+
+    Example
+    -------
+    >>> C = simulate("psm", preset("angels-2"), [[0, 0, 0, 0]], None, 0.0354)  # doctest: +SKIP
+    >>> C.batch_shape  # doctest: +SKIP
+    (1,)
+    """
+    poses = poses_array(poses)
+    evaluator = pose_evaluator(
+        model, sensor, tank, sigma_S_per_m, objects, psm_model, contact_impedance_ohm_m2, images,
+        poses=poses, prepare=False, **bem_options,
+    )
+    return evaluator.conductance(poses, progress=progress)
+
+
+class EvaluatorCache:
+    """Pose evaluators (BEM pose sweeps, PSMs) shared by the logs of one scene.
+
+    The BEM's pose-invariant blocks (sensor and tank matrices) are built once
+    per (model, sensor, tank, conductivity, objects) and reused for every log
+    of that scene.
+    """
+
+    def __init__(self, psm_model=None, **bem_options):
+        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
+        self.psm_model = psm_model
+        self.bem_options = bem_options
+        self._evaluators = {}
+
+    def _key(self, model, sensor, tank, sigma, objects):
+        tank_key = None if tank is None else (tank.size_m, tank.water_depth_m)
+        return (model, json.dumps(sensor.to_dict(), sort_keys=True), tank_key, float(sigma), repr(tuple(objects)))
+
+    def get(self, model: str, sensor, tank, sigma_S_per_m: float, objects=()):
+        key = self._key(model, sensor, tank, sigma_S_per_m, objects)
+        if key not in self._evaluators:
+            options = dict(self.bem_options)
+            psm = None
+            if model == "psm":
+                psm = self.psm_model
+                if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
+                    psm = psm.get(sensor.name)
+                options = {k: v for k, v in options.items() if k == "edge_length_m"}
+            self._evaluators[key] = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
+        return self._evaluators[key]

@@ -1,0 +1,338 @@
+"""The sweep store: conductance matrices of many poses in a chunked zarr store, written chunk by chunk.
+
+Why zarr (and not netCDF)
+-------------------------
+A sweep is long, embarrassingly parallel, and may be killed. Zarr keeps every
+chunk in its own object (a file in a folder), so a finished chunk is durable
+the moment it is written, chunks can be written in any order and by several
+writers without touching the others, and nothing has to be rewritten or
+closed at the end: a killed sweep leaves a valid store that says which chunks
+are done. A netCDF/HDF5 file is one file with one writer and a global index;
+a crash during a write can spoil the whole file, and the netCDF library
+installed here (netCDF3 through scipy) has no chunking at all. Zarr stores open
+with ``xarray.open_zarr`` like any netCDF file; :func:`export_netcdf` writes
+a finished sweep as netCDF for tools that want one file.
+
+Layout (``xarray.open_zarr(path)``)
+-----------------------------------
+dimensions ``pose``, ``electrode`` (1..n, the current's electrode),
+``driven`` (1..n, the electrode at 1 V), ``receiver`` (receiver numbers):
+
+* coordinates ``x_m``, ``y_m``, ``z_m``, ``yaw_rad`` (pose): the poses, tank frame;
+* ``K_S`` (pose, electrode, driven): nodal conductance matrices (S);
+* ``I_A`` (pose, receiver): receiver currents at U = 1 V (A, into the receiver);
+* ``R_ohm`` (pose, receiver): U / I (ohm);
+* ``computed`` (pose): 1 where the pose's chunk has been computed.
+
+Attributes: ``format`` (``"esense-sweep 1"``), ``model``, ``sensor``,
+``tank_m``, ``water_depth_m``, ``objects``, ``sigma_S_per_m``, ``emitter``,
+``model_options`` (mesh parameters, PSM images...), ``mesh`` (what the model
+reported: triangles...), ``code_version``, ``grid`` (when the poses are a
+grid), ``fingerprint`` (what makes two sweeps the same computation).
+
+Example
+-------
+>>> import numpy as np
+>>> from electrosense.validation.simulation.sweep.store import SweepStore
+>>> poses = np.zeros((10, 4)); poses[:, 0] = np.linspace(-0.2, 0.2, 10)
+>>> store = SweepStore.open_or_create("demo.zarr", poses, n_electrodes=2, emitter=2,
+...                                   identity={"model": "demo"}, chunk_poses=4)  # doctest: +SKIP
+>>> store.pending_chunks()  # doctest: +SKIP
+[(0, 4), (4, 8), (8, 10)]
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from electrosense.bem.conductance import ConductanceMatrix
+
+__all__ = ["STORE_FORMAT", "StoreError", "SweepStore", "open_sweep", "as_map", "export_netcdf", "fingerprint"]
+
+STORE_FORMAT = "esense-sweep 1"
+
+
+class StoreError(ValueError):
+    """A sweep store that cannot be used as asked (a different sweep, unfinished, damaged)."""
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return repr(value)
+
+
+def _as_json(value) -> str:
+    return json.dumps(value, sort_keys=True, default=_json_default)
+
+
+def fingerprint(identity: dict, poses: np.ndarray) -> str:
+    """A hash of what defines a sweep: the model, scene, options, code version, and the poses."""
+    digest = hashlib.sha256(_as_json(identity).encode())
+    digest.update(np.ascontiguousarray(poses, dtype="<f8").tobytes())
+    return digest.hexdigest()[:32]
+
+
+def _zarr_kwargs() -> dict:
+    """Zarr format 2 where xarray can write it: readable by zarr-python 2 and 3 alike."""
+    import inspect
+
+    import xarray as xr
+
+    return {"zarr_format": 2} if "zarr_format" in inspect.signature(xr.Dataset.to_zarr).parameters else {}
+
+
+@dataclass
+class SweepStore:
+    """A zarr sweep store on disk; open one with :meth:`open_or_create`."""
+
+    path: Path
+    n_poses: int
+    chunk_poses: int
+    n_electrodes: int
+    emitter: int
+
+    # ---------------------------------------------------------------- creation
+    @classmethod
+    def open_or_create(
+        cls,
+        path,
+        poses: np.ndarray,
+        n_electrodes: int,
+        emitter: int,
+        identity: dict,
+        chunk_poses: int,
+        attrs: dict | None = None,
+    ) -> "SweepStore":
+        """Open the store at ``path`` to resume it, or create it.
+
+        Parameters
+        ----------
+        path : str or Path
+            The ``.zarr`` folder.
+        poses : array (P, 4)
+        n_electrodes, emitter : int
+        identity : dict
+            What defines the computation (model, scene, options, code version).
+            An existing store is resumed only if its identity and poses match.
+        chunk_poses : int
+            Poses per stored chunk (an existing store keeps its own).
+        attrs : dict, optional
+            More attributes that do not define the computation (command line, grid).
+        """
+        path = Path(path)
+        poses = np.asarray(poses, dtype=float)
+        fp = fingerprint(identity, poses)
+        if path.exists():
+            return cls._open_existing(path, fp, identity)
+        return cls._create(path, poses, n_electrodes, emitter, identity, int(chunk_poses), fp, attrs or {})
+
+    @classmethod
+    def _open_existing(cls, path: Path, fp: str, identity: dict) -> "SweepStore":
+        import zarr
+
+        try:
+            group = zarr.open_group(str(path), mode="r")
+            stored = dict(group.attrs)
+        except Exception as exc:
+            raise StoreError(f"{path} exists but is not a readable zarr store ({exc}); remove it or choose another output") from None
+        if stored.get("format") != STORE_FORMAT:
+            raise StoreError(f"{path} exists but is not an esense sweep store; remove it or choose another output")
+        if stored.get("fingerprint") != fp:
+            old = json.loads(stored.get("identity", "{}"))
+            new = json.loads(_as_json(identity))
+            differ = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k)) or ["poses"]
+            raise StoreError(
+                f"{path} holds a different sweep (differs in: {', '.join(differ)}); "
+                "it cannot be resumed with these settings: remove it or choose another output"
+            )
+        K = group["K_S"]
+        return cls(path, int(K.shape[0]), int(K.chunks[0]), int(K.shape[1]), int(stored["emitter"]))
+
+    @classmethod
+    def _create(cls, path, poses, n_electrodes, emitter, identity, chunk_poses, fp, attrs) -> "SweepStore":
+        import dask.array as da
+        import xarray as xr
+
+        if chunk_poses < 1:
+            raise StoreError(f"chunk_poses must be a positive number of poses, got {chunk_poses}")
+        P, n = len(poses), int(n_electrodes)
+        receivers = [k for k in range(1, n + 1) if k != emitter]
+        chunks = (min(chunk_poses, max(P, 1)),)
+        lazy = lambda *shape: da.full(shape, np.nan, chunks=chunks + shape[1:])  # noqa: E731 - never computed
+        all_attrs = {k: (v if isinstance(v, (str, int, float, bool)) else _as_json(v)) for k, v in attrs.items()}
+        all_attrs.update(
+            {
+                "format": STORE_FORMAT,
+                "emitter": int(emitter),
+                "fingerprint": fp,
+                "identity": _as_json(identity),
+                "convention": (
+                    "K_S[pose, i, j]: current (A) leaving electrode i into the water with electrode j at 1 V, "
+                    "others at 0 V; I_A: receiver currents (into the receiver) with the emitter 1 V above the "
+                    "receivers; R_ohm = 1 V / I_A; electrodes 1-based from the head"
+                ),
+            }
+        )
+        for key, value in identity.items():
+            all_attrs[key] = value if isinstance(value, (str, int, float, bool)) else _as_json(value)
+        ds = xr.Dataset(
+            {
+                "K_S": (("pose", "electrode", "driven"), lazy(P, n, n), {"units": "S"}),
+                "I_A": (("pose", "receiver"), lazy(P, n - 1), {"units": "A", "long_name": "receiver current at U = 1 V"}),
+                "R_ohm": (("pose", "receiver"), lazy(P, n - 1), {"units": "ohm", "long_name": "U / I"}),
+                "computed": (("pose",), np.zeros(P, dtype="i1"), {"long_name": "1 where computed"}),
+            },
+            coords={
+                "pose": np.arange(P),
+                "electrode": np.arange(1, n + 1),
+                "driven": np.arange(1, n + 1),
+                "receiver": receivers,
+                "x_m": ("pose", poses[:, 0], {"units": "m"}),
+                "y_m": ("pose", poses[:, 1], {"units": "m"}),
+                "z_m": ("pose", poses[:, 2], {"units": "m"}),
+                "yaw_rad": ("pose", poses[:, 3], {"units": "rad"}),
+            },
+            attrs=all_attrs,
+        )
+        # uncompressed: float64 conductances hardly compress, and compressing costs a fast model (the PSM) ~20 % more
+        import zarr
+
+        plain = {"compressors" if int(zarr.__version__.split(".")[0]) >= 3 else "compressor": None}
+        encoding = {name: {"chunks": chunks + ds[name].shape[1:], **plain} for name in ("K_S", "I_A", "R_ohm", "computed")}
+        for name in ("x_m", "y_m", "z_m", "yaw_rad", "pose"):
+            encoding[name] = {"chunks": chunks}
+        ds.to_zarr(str(path), mode="w-", compute=False, encoding=encoding, consolidated=True, **_zarr_kwargs())
+        return cls(Path(path), P, chunks[0], n, int(emitter))
+
+    # ------------------------------------------------------------------- state
+    def _group(self, mode="r+"):
+        import zarr
+
+        return zarr.open_group(str(self.path), mode=mode)
+
+    @property
+    def chunks(self) -> list[tuple[int, int]]:
+        """(start, stop) of every stored chunk, in pose order."""
+        starts = range(0, self.n_poses, self.chunk_poses)
+        return [(a, min(a + self.chunk_poses, self.n_poses)) for a in starts]
+
+    @property
+    def computed(self) -> np.ndarray:
+        """(P,) bool: the poses already computed."""
+        return np.asarray(self._group("r")["computed"][:]).astype(bool)
+
+    def pending_chunks(self) -> list[tuple[int, int]]:
+        """The chunks (start, stop) still to compute."""
+        done = self.computed
+        return [(a, b) for a, b in self.chunks if not done[a:b].all()]
+
+    @property
+    def attrs(self) -> dict:
+        return dict(self._group("r").attrs)
+
+    # ------------------------------------------------------------------ writes
+    def write_chunk(self, start: int, K_S: np.ndarray) -> None:
+        """Store the matrices (m, n, n) of the chunk starting at ``start``; mark it computed last."""
+        K = np.asarray(K_S, dtype=float)
+        stop = start + len(K)
+        if start % self.chunk_poses or not (stop == self.n_poses or stop % self.chunk_poses == 0):
+            raise StoreError(f"poses {start}:{stop} do not cover whole chunks of {self.chunk_poses} poses")
+        C = ConductanceMatrix(K, self.emitter, 1.0)
+        I = C.receiver_currents_A(1.0)
+        group = self._group()
+        group["K_S"][start:stop] = K
+        group["I_A"][start:stop] = I
+        group["R_ohm"][start:stop] = 1.0 / I
+        group["computed"][start:stop] = np.ones(stop - start, dtype="i1")  # after the data: a crash in between recomputes
+
+    def update_attrs(self, **attrs) -> None:
+        """Add attributes (e.g. the mesh the model reported after its first pose)."""
+        import zarr
+
+        group = self._group()
+        group.attrs.update({k: (v if isinstance(v, (str, int, float, bool)) else _as_json(v)) for k, v in attrs.items()})
+        zarr.consolidate_metadata(str(self.path))
+
+    # ------------------------------------------------------------------- reads
+    def dataset(self):
+        """The store as an ``xarray.Dataset`` (lazy)."""
+        return open_sweep(self.path)
+
+    def conductance(self, sigma_S_per_m: float) -> ConductanceMatrix:
+        """All matrices as one ConductanceMatrix of batch shape (P,); the sweep must be complete."""
+        group = self._group("r")
+        done = np.asarray(group["computed"][:]).astype(bool)
+        if not done.all():
+            raise StoreError(f"{self.path}: {np.count_nonzero(~done)} of {done.size} poses are not computed yet")
+        return ConductanceMatrix(np.asarray(group["K_S"][:]), self.emitter, sigma_S_per_m, self.attrs)
+
+
+def open_sweep(path):
+    """Open a sweep store (``.zarr``) or an exported sweep (``.nc``) as an ``xarray.Dataset``."""
+    import xarray as xr
+
+    path = Path(path)
+    if not path.exists():
+        raise StoreError(f"{path}: no such sweep")
+    if path.suffix == ".nc":
+        return xr.open_dataset(path)
+    return xr.open_zarr(str(path))
+
+
+def as_map(ds):
+    """A grid sweep reshaped to dimensions (yaw_rad, y_m, x_m): a tank map per heading.
+
+    >>> m = as_map(open_sweep("tank_map.zarr"))  # doctest: +SKIP
+    >>> m.R_ohm.sel(receiver=1).isel(yaw_rad=0).plot()  # doctest: +SKIP
+    """
+    from electrosense.validation.simulation.sweep.grid import PoseGrid
+
+    if "grid" not in ds.attrs:
+        raise StoreError("this sweep is not a grid (it has no 'grid' attribute): it cannot be shown as a tank map")
+    grid = PoseGrid.from_dict(ds.attrs["grid"])
+    n_yaw, n_y, n_x = grid.shape
+    data = {}
+    for name in ("K_S", "I_A", "R_ohm", "computed"):
+        v = ds[name]
+        dims = ("yaw_rad", "y_m", "x_m") + v.dims[1:]
+        data[name] = (dims, np.asarray(v.values).reshape((n_yaw, n_y, n_x) + v.shape[1:]), v.attrs)
+    import xarray as xr
+
+    coords = {
+        "yaw_rad": ("yaw_rad", grid.yaw.values, {"units": "rad"}),
+        "y_m": ("y_m", grid.y.values, {"units": "m"}),
+        "x_m": ("x_m", grid.x.values, {"units": "m"}),
+    }
+    for dim in ("electrode", "driven", "receiver"):
+        coords[dim] = ds[dim].values
+    return xr.Dataset(data, coords=coords, attrs=dict(ds.attrs))
+
+
+def export_netcdf(zarr_path, nc_path) -> Path:
+    """Write a complete sweep store as one netCDF file (for tools that want one file)."""
+    ds = open_sweep(zarr_path)
+    if not bool(np.asarray(ds["computed"].values).all()):
+        raise StoreError(f"{zarr_path}: the sweep is not complete; finish it before exporting")
+    ds = ds.load()
+    for v in ds.variables.values():
+        v.encoding = {}
+    nc_path = Path(nc_path)
+    partial = nc_path.with_name(nc_path.name + ".partial")
+    ds.to_netcdf(partial)
+    partial.replace(nc_path)
+    return nc_path
+
+
+def remove_store(path) -> None:
+    """Delete a sweep store folder (after exporting it)."""
+    shutil.rmtree(path, ignore_errors=True)
