@@ -40,6 +40,8 @@ from electrosense.meshes.pose import sensor_to_tank
 from electrosense.meshes.sensor import SensorDescription
 from electrosense.meshes.tank import Tank
 from electrosense.psm.contact import electrode_areas_m2  # wetted areas: a cap of height h has 2 pi r h
+from electrosense.psm.images import box_images
+from electrosense.psm.objects import contrast
 
 __all__ = ["ModelSimulator", "PSMEffectModel", "CompositeEffectModel", "kelvin_sphere_term", "geometric_psm", "PointElectrodeSimulator", "electrode_areas_m2", "series_contact", "receiver_currents", "sphere_dipole_m3"]
 
@@ -249,19 +251,10 @@ class PointElectrodeSimulator:
         return 0.5 * (K + np.swapaxes(K, -1, -2))
 
     def _images(self, c: np.ndarray, tank: Tank) -> np.ndarray:
-        lo, hi = tank.water_bounds_m
-        width = hi - lo
-        centre = 0.5 * (lo + hi)
-        k = np.arange(-self.shells, self.shells + 1)
-        ii, jj, kk = np.meshgrid(k, k, k, indexing="ij")
-        idx = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
-        idx = idx[np.any(idx != 0, axis=1)]  # (Q, 3), the source itself excluded
-        sign = np.where(idx % 2 == 0, 1.0, -1.0)  # mirror parity per axis
-        offset = idx * width
-        rel = c - centre  # (P, n, 3)
-        images = centre + offset[None, None] + sign[None, None] * rel[:, :, None, :]  # (P, n, Q, 3)
-        d = c[:, :, None, None, :] - images[:, None, :, :, :]  # (P, p, q, Q, 3)
-        return np.sum(1.0 / np.linalg.norm(d, axis=-1), axis=-1)
+        """Sum over the insulating box's images (the PSM's, ``shells`` cubic shells) of 1 / |c_p - image(c_q)|."""
+        images = box_images(tank, self.shells, trapezoid=False).apply(c)  # (Q, P, n, 3)
+        d = c[None, :, :, None, :] - images[:, :, None, :, :]  # (Q, P, p, q, 3)
+        return np.sum(1.0 / np.linalg.norm(d, axis=-1), axis=0)
 
     def _dipole(self, c: np.ndarray, obj) -> np.ndarray:
         if not isinstance(obj, Sphere):
@@ -347,7 +340,5 @@ class CompositeEffectModel:
 
 
 def sphere_dipole_m3(obj, sigma_water_S_per_m: float) -> float:
-    """Dipole strength chi b^3 (m^3) of a sphere: chi = (s_o - s)/(s_o + 2 s), 1 for a conductor."""
-    s = obj.conductivity_S_per_m
-    chi = 1.0 if np.isinf(s) else (s - sigma_water_S_per_m) / (s + 2 * sigma_water_S_per_m)
-    return chi * obj.radius_m**3
+    """Dipole strength chi b^3 (m^3) of a sphere (the PSM's contrast chi, 1 for a conductor)."""
+    return contrast(obj.conductivity_S_per_m, sigma_water_S_per_m) * obj.radius_m**3
