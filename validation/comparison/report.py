@@ -225,7 +225,7 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
 
 def _noise(error, log) -> float | None:
     """The bench's relative noise (1 sigma) from the scatter of ``error`` (P, m) along each pass; None if too short."""
-    from electrosense.validation.diagnosis.fitting import noise_level
+    from electrosense.validation.comparison.metrics import noise_level
 
     groups = [np.flatnonzero(np.asarray(log.passes) == p) for p in log.pass_numbers]
     if sum(max(len(g) - 2, 0) for g in groups) < 8:  # too few second differences for a spread

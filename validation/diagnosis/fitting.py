@@ -21,6 +21,7 @@
 Example
 -------
 >>> import numpy as np
+
 >>> rng = np.random.default_rng(0)
 >>> r = 1e-3 * rng.standard_normal((400, 3))
 >>> bool(abs(noise_level(r, [np.arange(400)]) / 1e-3 - 1) < 0.1)  # within 3 standard errors
@@ -35,6 +36,7 @@ from scipy.linalg import subspace_angles
 from scipy.optimize import lsq_linear
 
 from electrosense.meshes.pose import sensor_to_tank
+from electrosense.validation.comparison.metrics import noise_level
 from electrosense.validation.diagnosis.effects import Problem, combined_scales
 
 __all__ = [
@@ -50,31 +52,6 @@ __all__ = [
 
 #: residual given to a parameter set the model refuses (e.g. a sphere through the sensor)
 _REFUSED = 1.0
-
-
-def noise_level(r: np.ndarray, groups) -> float:
-    """Relative noise (1 sigma) from the second differences of ``r`` (P, m) along each group (time-ordered indices).
-
-    White noise of spread s gives second differences of spread sqrt(6) s; a
-    smooth gap gives almost none. A robust first estimate (median absolute
-    deviation) sets a 3-sigma cut against the few large differences where the
-    gap bends sharply; the RMS of the rest, corrected for the cut, is the
-    estimate (more precise than the MAD alone on Gaussian noise).
-    """
-    d = []
-    for g in groups:
-        if len(g) >= 3:
-            x = r[g]
-            d.append((x[:-2] - 2 * x[1:-1] + x[2:]).ravel())
-    if not d:
-        raise ValueError("need at least 3 samples in a pass to estimate the noise")
-    d = np.concatenate(d)
-    spread = 1.4826 * np.median(np.abs(d - np.median(d)))
-    if spread == 0:
-        return 0.0
-    kept = d[np.abs(d - np.median(d)) < 3 * spread]
-    # variance of a unit Gaussian truncated at +-3: 1 - 6 phi(3) / (2 Phi(3) - 1) = 0.97334
-    return float(np.sqrt(np.mean((kept - np.median(d)) ** 2) / 0.97334) / np.sqrt(6.0))
 
 
 def make_folds(obs, n_blocks: int = 8, max_folds: int = 5, min_passes: int = 3) -> list[np.ndarray]:
