@@ -21,7 +21,6 @@
 Example
 -------
 >>> import numpy as np
-
 >>> rng = np.random.default_rng(0)
 >>> r = 1e-3 * rng.standard_normal((400, 3))
 >>> bool(abs(noise_level(r, [np.arange(400)]) / 1e-3 - 1) < 0.1)  # within 3 standard errors
