@@ -305,8 +305,9 @@ def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
         caption="every candidate alone, best first",
     )
     where_tables = [
-        Table(["group", "n", "RMS (%)", "mean (%)", "share", "enrichment"],
-              [[str(r["group"]), r["n"], pct(r["rms"]), pct(r["mean"]), r["share"], r["enrichment"]]
+        Table(["group", "n", "RMS (%)", "mean, simulation / bench - 1 (%)", "share", "enrichment"],
+              [[str(r["group"]), r["n"], pct(r["rms"]), pct(-r["mean"] / (1.0 + r["mean"])), r["share"],
+                r["enrichment"]]
                for r in dd["where"][key]], caption=key.replace("_", " "))
         for key in ("by_receiver", "by_place", "by_time", "by_heading", "by_pass")
     ]
