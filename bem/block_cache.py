@@ -44,14 +44,26 @@ CACHE_MIN_TRIANGLES = 6000
 _FORMAT = b"bem-sensor-block-v2"  # v2: float32 LU factors
 
 
-def default_cache_dir() -> Path:
-    """``$ESENSE_CACHE_DIR`` or the platform's user cache directory for electrosense, subfolder ``bem-blocks``."""
+def cache_root() -> Path:
+    """Where every electrosense cache lives: ``$ESENSE_CACHE_DIR``, else the platform's user cache directory.
+
+    >>> import os
+    >>> os.environ["ESENSE_CACHE_DIR"] = "/tmp/esense-example"
+    >>> str(cache_root())
+    '/tmp/esense-example'
+    >>> del os.environ["ESENSE_CACHE_DIR"]
+    """
     root = os.environ.get("ESENSE_CACHE_DIR")
     if not root:
         import platformdirs
 
         root = platformdirs.user_cache_dir("electrosense")
-    return Path(root) / "bem-blocks"
+    return Path(root)
+
+
+def default_cache_dir() -> Path:
+    """The sensor blocks' folder: ``bem-blocks`` under :func:`cache_root`."""
+    return cache_root() / "bem-blocks"
 
 
 class BlockCache:

@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.bem.block_cache import cache_root
 from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
@@ -142,13 +143,8 @@ def psm_usable(model, poses: np.ndarray, tank) -> np.ndarray:
 
 # --------------------------------------------------------------------- the store
 def anchor_cache_dir() -> Path:
-    """``$ESENSE_CACHE_DIR/diagnosis-anchors`` or the user's cache folder."""
-    base = os.environ.get("ESENSE_CACHE_DIR")
-    if not base:
-        from platformdirs import user_cache_dir
-
-        base = user_cache_dir("electrosense")
-    return Path(base) / "diagnosis-anchors"
+    """``diagnosis-anchors`` under the one cache root (:func:`electrosense.bem.block_cache.cache_root`)."""
+    return cache_root() / "diagnosis-anchors"
 
 
 @dataclass

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.bem.block_cache import cache_root
 from electrosense.bem.conductance import ConductanceMatrix
 from electrosense.meshes.pose import poses_array as _poses_from_any
 from electrosense.meshes.sensor import SensorDescription
@@ -173,13 +174,9 @@ class PSMEvaluator:
 
 
 def psm_cache_dir() -> Path:
-    """Folder of the cached PSM calibrations: ``$ESENSE_CACHE_DIR/psm`` or the user's cache folder."""
-    base = os.environ.get("ESENSE_CACHE_DIR")
-    if not base:
-        from platformdirs import user_cache_dir
-
-        base = user_cache_dir("electrosense")
-    return Path(base) / "psm"
+    """Folder of the cached PSM calibrations: ``psm`` under the one cache root
+    (:func:`electrosense.bem.block_cache.cache_root`)."""
+    return cache_root() / "psm"
 
 
 def _psm_cache_key(sensor: SensorDescription, edge_length_m, layout: dict) -> str:
