@@ -48,10 +48,10 @@ def cache_root() -> Path:
     """Where every electrosense cache lives: ``$ESENSE_CACHE_DIR``, else the platform's user cache directory.
 
     >>> import os
-    >>> os.environ["ESENSE_CACHE_DIR"] = "/tmp/esense-example"
-    >>> str(cache_root())
+    >>> from unittest import mock
+    >>> with mock.patch.dict(os.environ, {"ESENSE_CACHE_DIR": "/tmp/esense-example"}):
+    ...     str(cache_root())
     '/tmp/esense-example'
-    >>> del os.environ["ESENSE_CACHE_DIR"]
     """
     root = os.environ.get("ESENSE_CACHE_DIR")
     if not root:
