@@ -39,6 +39,7 @@ Example
 from __future__ import annotations
 
 import hashlib
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
@@ -196,7 +197,10 @@ class Problem:
                 from electrosense.validation.diagnosis.contact import effective_areas
 
                 self._effective_areas = effective_areas(self.obs.sensor, self.obs.sigma_S_per_m)
-            except Exception:  # no BEM: the geometric areas (10-20 % off at small z_c)
+            except Exception as exc:  # say so: the geometric areas are 10-20 % off at small z_c
+                warnings.warn(f"contact impedance: the BEM's effective areas failed ({exc}); the effect model falls "
+                              "back to the electrodes' geometric areas (10-20 % off at small z_c)", RuntimeWarning,
+                              stacklevel=2)
                 self._effective_areas = lambda z: self.areas_m2
         return self._effective_areas(z_ohm_m2)
 
