@@ -516,7 +516,7 @@ def _add_sensor(plotter, sensor_mesh, pose=None, emitter=None):
 def _scalar_bar(title: str, fmt: str = "%.2f") -> dict:
     # vertical, at the panel's right edge: its title above, its labels beside it (a horizontal bar in VTK
     # writes both above the bar, where they overlap)
-    return {"title": title, "title_font_size": 20, "label_font_size": 18, "color": "black", "vertical": True,
+    return {"title": title + "\n", "title_font_size": 20, "label_font_size": 18, "color": "black", "vertical": True,
             "position_x": 0.82, "position_y": 0.12, "height": 0.6, "width": 0.07, "fmt": fmt, "n_labels": 5}
 
 
