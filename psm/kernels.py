@@ -9,7 +9,7 @@ this module only loops.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 __all__ = ["conductance_kernel"]
 
@@ -26,7 +26,7 @@ def _image_sum(xp, yp, zp, xq, yq, zq, signs, offsets, weights, k0, k1, zero):
     return acc
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def conductance_kernel(X, R0, signs, offsets, weights, obj_pos, obj_coef, series_ohm, inv_4pi_sigma, receivers, emitter, K):
     """Fill K (P, n, n) for electrode centres X (P, n, 3) in the tank frame.
 
@@ -58,11 +58,11 @@ def conductance_kernel(X, R0, signs, offsets, weights, obj_pos, obj_coef, series
     n_img = signs.shape[0]
     n_obj = obj_pos.shape[0]
     zero = X[0, 0, 0] * 0.0
-    M = np.empty((n, n), dtype=X.dtype)
-    A = np.empty((m, m), dtype=X.dtype)
-    Ainv = np.empty((m, m), dtype=X.dtype)
-    G = np.empty((n, 3), dtype=X.dtype)
-    for ip in range(n_pose):
+    for ip in prange(n_pose):   # poses are independent: one thread each (numba's threads, NUMBA_NUM_THREADS)
+        M = np.empty((n, n), dtype=X.dtype)
+        A = np.empty((m, m), dtype=X.dtype)
+        Ainv = np.empty((m, m), dtype=X.dtype)
+        G = np.empty((n, 3), dtype=X.dtype)
         # potential coefficients R + dR (images), symmetric
         for p in range(n):
             for q in range(p, n):

@@ -162,6 +162,30 @@ def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
     np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)
 
 
+@pytest.mark.parametrize("scene", ["closed tank", "tank and a conducting ball", "objects in unbounded water"])
+def test_woodbury_poses_equal_the_factorised_schur_complement(scene, monkeypatch):
+    """Each pose solved by the Woodbury formula on the once-factorised, regularised environment block gives the
+    K of a fresh factorisation of the Schur complement, in a closed tank (whose block alone is singular),
+    with a conductor (its extra unknowns), and without a tank."""
+    import electrosense.bem.sweep as sweep_module
+    from electrosense.meshes import Sphere
+
+    tank = None if scene == "objects in unbounded water" else Tank((0.4, 0.3, 0.3))
+    objects = () if scene == "closed tank" else (
+        Sphere(centre_m=(0.0, 0.08, 0.0), radius_m=0.02, conductivity_S_per_m=float("inf")),)
+    poses = np.array([[0.03, 0.0, 0.0, 0.2], [-0.1, -0.02, 0.03, -0.5]])
+
+    def K(min_rcond):
+        monkeypatch.setattr(sweep_module, "WOODBURY_MIN_RCOND", min_rcond)
+        sweep = PoseSweep(preset("angels-2"), tank, objects, sigma_S_per_m=1.0, edge_length_m=H,
+                          tank_edge_length_m=0.05)
+        return sweep.conductance(poses).K_S, sweep.timings["woodbury"]
+
+    (K_woodbury, used), (K_schur, not_used) = K(0.0), K(np.inf)
+    assert used and not not_used
+    np.testing.assert_allclose(K_woodbury, K_schur, rtol=1e-10, atol=1e-12 * np.abs(K_schur).max())
+
+
 def test_axisymmetric_reduction_matches_the_full_collocation(free_solution):
     from electrosense.bem.axisymmetric import solve_axisymmetric
 

@@ -9,9 +9,10 @@ from electrosense.validation.diagnosis.effects import EFFECT_NAMES
 @click.command("diagnose")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
 @click.option("--model", type=click.Choice(["anchored", "bem", "psm"]), default="anchored", show_default=True,
-              help="Baseline simulation of the logged poses. 'anchored': the PSM corrected by the BEM at as many "
-                   "poses as it takes for its cross-validated error to fall below a third of the noise (the BEM "
-                   "itself where the PSM refuses a pose; BEM runs cached on disk per sensor and tank); 'bem': the BEM "
+              help="Baseline simulation of the logged poses. 'anchored': the BEM at as many poses as it takes for "
+                   "its interpolation over pose (as a ratio to the PSM or to the free-space K, whichever "
+                   "cross-validates better) to reach an estimated error below a third of the noise (BEM runs "
+                   "cached on disk per sensor and tank); 'bem': the BEM "
                    "at every pose; 'psm': the bare calibrated PSM (its own error is then unknown). Geometric effects "
                    "are evaluated with that PSM for 'psm', with the PSM whose spheres sit at the electrodes (plus "
                    "Kelvin images for spheres) otherwise.")

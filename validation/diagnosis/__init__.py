@@ -3,8 +3,9 @@
 Modules, one idea each:
 
 * :mod:`.observations`: what the logs say (poses, currents, times, passes, meta);
-* :mod:`.anchored`: the default baseline, the PSM corrected by the BEM at
-  adaptive anchor poses (cached per sensor and tank), with its estimated error;
+* :mod:`.anchored`: the default baseline, the BEM at adaptive anchor poses
+  (cached per sensor and tank) interpolated over pose against the PSM or the
+  free-space K, with its estimated error;
 * :mod:`.contact`: contact impedance through areas fitted to the BEM's
   contact boundary condition;
 * :mod:`.forward`: forward models ``(poses, tank, objects) -> K`` (the PSM

@@ -1,18 +1,25 @@
-"""The default baseline of the diagnosis: the PSM corrected by the BEM at adaptive anchor poses, cached on disk.
+"""The default baseline of the diagnosis: the BEM at adaptive anchor poses, interpolated over pose, cached on disk.
 
 The diagnosis may only blame the water for a gap that the model does not
 make itself. The BEM is the reference; the PSM is fast but off it by up to
 several percent near the walls, which is twenty times the bench noise. Here:
 
 1. the calibrated PSM is evaluated at every logged pose where it can be (it
-   refuses poses where one of its spheres crosses a wall: those poses get the
-   BEM itself);
+   refuses poses where one of its spheres crosses a wall: with nothing
+   cached, those poses are the first anchors, near the walls where the tank
+   matters most; with the PSM as base, below, they must be);
 2. the BEM (:class:`electrosense.bem.PoseSweep`, built once per scene) is run at a first
    spread of *anchor* poses, dense where the tank's effect changes fastest;
-3. the ratio log(K_bem / K_psm) of every entry of K is interpolated over pose
+3. the ratio log(K_bem / K_ref) of every entry of K is interpolated over pose
    space (cubic radial basis functions of the sensor's tip positions, with a
    linear trend), and its leave-one-out error at every anchor is computed in
-   closed form (Rippa's formula);
+   closed form (Rippa's formula). The reference ``K_ref`` (the *base*) is the
+   PSM or the free-space K (a constant: the BEM interpolated by itself),
+   whichever predicts the BEM better at the anchors, by that leave-one-out
+   error: near the walls the calibrated PSM can be off the BEM by more, and
+   more sharply, than the tank changes K (5-electrode sensor, tip 1.5 cm from
+   a wall: 1.5 % RMS leave-one-out error with the PSM base, 0.1 % with the
+   free one); the choice is made again at every round, on the anchors;
 4. the estimated error of each sample (the leave-one-out error of its nearest
    anchors scaled by its distance from them, :func:`estimated_error`: an
    upper estimate, the anchors being denser with the pose back in; zero at
@@ -60,6 +67,9 @@ __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseli
 #: about 2e-4 mid-tank, 1e-3 with a tip 1.5 cm from a wall (5-electrode sensor, factors 2 against 3), which
 #: the budget's discretisation estimate reports
 SENSOR_EDGE_FACTOR = 3.0
+
+#: interpolation nodes closer than this (m, every tip coordinate) are merged into one
+NODE_MERGE_M = 5e-4
 
 #: CPU seconds (this process) of BEM poses after which no more anchors are added (the estimated error is then
 #: reported as it stands, and raises the noise floor); CPU, not wall-clock: on a machine busy with other work the
@@ -214,6 +224,7 @@ class AnchoredBaseline:
     seconds: float
     bem_error: np.ndarray | None = None  # (P, m) estimated discretisation error of the BEM itself
     stopped: str = ""
+    base: str = "psm"  # what the BEM's ratio was interpolated against: the PSM, or the free-space K ("free")
 
     @property
     def interpolation_rms(self) -> float:
@@ -321,7 +332,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
                       store: AnchorStore | None = None, first_fraction: float = 0.2, step_fraction: float = 0.1,
                       max_bem_s: float = MAX_BEM_SECONDS, check_discretisation: bool = True,
                       progress=None) -> AnchoredBaseline:
-    """The PSM corrected by the BEM at an adaptive set of logged poses until its estimated error is below
+    """The BEM at an adaptive set of logged poses, interpolated (module doc), until its estimated error is below
     ``target_factor * noise`` (module doc); K at the observations' conductivity."""
     from electrosense.validation.diagnosis.where import place_labels
     from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
@@ -343,10 +354,6 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
             model = geometric
             ok = psm_usable(model, obs.poses, tank)
             say("the calibrated PSM does not fit these poses; its radii with the spheres at the electrodes are used")
-    K_psm = np.full((P, n, n), np.nan)
-    if ok.any():
-        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=obs.poses[ok])
-        K_psm[ok] = ev.conductance(obs.poses[ok]).K_S
     F = pose_features(sensor, obs.poses)
     group = same_pose_groups(F)
     first_of = np.full(group.max() + 1, P)
@@ -376,6 +383,19 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         exact[d < 5e-5] = j[d < 5e-5]
     K_bem = np.full((P, n, n), np.nan)
     K_bem[exact >= 0] = cached_K[exact[exact >= 0]]
+    # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
+    # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
+    # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
+    extra = np.zeros(len(cached_poses), bool)
+    if len(cached_poses):
+        extra = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0]) & psm_usable(model, cached_poses, tank)
+    K_psm = np.full((P, n, n), np.nan)
+    psm_poses = np.vstack([obs.poses[ok], cached_poses[extra]])
+    K_psm_all = np.zeros((0, n, n))
+    if len(psm_poses):
+        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=psm_poses)
+        K_psm_all = ev.conductance(psm_poses).K_S
+        K_psm[ok] = K_psm_all[: int(ok.sum())]
     sweep = None
     n_new = 0
     new_poses, new_K = [], []
@@ -403,70 +423,72 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         new_poses.append(obs.poses[rep])
         new_K.append(K)
 
-    # the PSM refuses: the BEM covers
-    run_bem(np.flatnonzero(~ok))
     rec = _receiver_entries(sensor)
     passes = obs.pass_indices()
-    # where the tank matters most: the PSM's own tank effect (unit for refused poses)
+    # the free-space K (pose independent): the reference of the "free" base, and of the tank's effect
+    K_free = pose_evaluator("psm", sensor, None, 1.0, (), psm_model=model).conductance(obs.poses[:1]).K_S[0]
+    free = receiver_currents(K_free[None], obs.emitter)[0]
+    tank_effect = np.ones(P)  # where the tank matters most: the PSM's own tank effect (unit where it refuses)
     if ok.any():
-        free = receiver_currents(pose_evaluator("psm", sensor, None, 1.0, (), psm_model=model).conductance(
-            obs.poses[:1]).K_S, obs.emitter)[0]
-        tank_effect = np.ones(P)
         tank_effect[ok] = np.max(np.abs(receiver_currents(K_psm[ok], obs.emitter) / free - 1), axis=1)
-    else:
-        tank_effect = np.ones(P)
+    off_log = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0])  # cached anchors off this log's poses
+    # the bases, K_ref: what the BEM's ratio is interpolated against, at the samples, the samples it serves, the
+    # cached anchors it uses and K_ref there
+    K_psm_cached = np.full((len(cached_poses), n, n), np.nan)
+    K_psm_cached[extra] = K_psm_all[int(ok.sum()):]
+    bases = {"psm": (K_psm, ok, extra, K_psm_cached),
+             "free": (np.broadcast_to(K_free, (P, n, n)), np.ones(P, bool), off_log,
+                      np.broadcast_to(K_free, (len(cached_poses), n, n)))}
+    cached_usable = psm_usable(model, cached_poses, tank) if len(cached_poses) else np.zeros(0, bool)
     rounds = []
     stopped = ""
     labels = place_labels(obs)
-    # cached anchors off the log's poses still serve as interpolation nodes (PSM at them as well)
-    extra = np.zeros(len(cached_poses), bool)
-    if len(cached_poses):
-        extra = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0]) & psm_usable(model, cached_poses, tank)
-    K_psm_extra = None
-    if extra.any():
-        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=cached_poses[extra])
-        K_psm_extra = ev.conductance(cached_poses[extra]).K_S
     error = np.zeros((P, n - 1))
     loo_all = np.zeros((0, n - 1))
     psm_vs_bem = np.zeros((0, n - 1))
     L = np.zeros((P, n * (n - 1) // 2))
-    first = True
+    base = "psm"
+    first = not off_log.any() and not (exact >= 0).any()   # nothing cached: a first spread of anchors
+    if first:
+        run_bem(np.flatnonzero(~ok))   # where the PSM refuses (near the walls: where the tank matters most)
     while True:
         have = np.isfinite(K_bem[:, 0, 0])
-        nodes = np.flatnonzero(have & ok)
-        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
-        if first and len(nodes) + int(extra.sum()) < max(8, int(first_fraction * ok.sum())) and not have[ok].all():
-            k = max(8, int(np.ceil(first_fraction * ok.sum())))
-            ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
-            run_bem(_spread(np.flatnonzero(ok), tank_effect, ok_passes, k))
+        if first:
             first = False
+            k = max(8, int(np.ceil(first_fraction * ok.sum())))
+            if len(_distinct(np.flatnonzero(have & ok), group)) < k and not have[ok].all():
+                ok_passes = [p[ok[p]] for p in passes if ok[p].any()]
+                run_bem(_spread(np.flatnonzero(ok), tank_effect, ok_passes, k))
+                continue
+        fits = {name: _fit_base(K_bem, F, group, have, *spec, cached_K, cached_poses, cached_usable, ok, sensor, rec)
+                for name, spec in bases.items()}
+        fits = {name: fit for name, fit in fits.items() if fit is not None}
+        if not fits:
+            run_bem(np.flatnonzero(~have))
             continue
-        first = False
-        have = np.isfinite(K_bem[:, 0, 0])
-        nodes = np.flatnonzero(have & ok)
-        nodes = nodes[np.sort(np.unique(group[nodes], return_index=True)[1])]  # one node per distinct pose
-        Xn, Ln = F[nodes], _offdiag_log_ratio(K_bem[nodes], K_psm[nodes])
-        if K_psm_extra is not None:
-            Xn = np.vstack([Xn, pose_features(sensor, cached_poses[extra])])
-            Ln = np.vstack([Ln, _offdiag_log_ratio(cached_K[extra], K_psm_extra)])
-        todo = np.flatnonzero(ok & ~have)
-        if len(Xn) == 0:
-            run_bem(todo)
+        # the base whose interpolation predicts the BEM better at the PSM-usable anchors (leave-one-out)
+        base = min(fits, key=lambda name: fits[name]["loo_usable_rms"])
+        fit = fits[base]
+        usable = bases[base][1]
+        if (~have & ~usable).any():   # samples this base cannot serve: the BEM covers
+            run_bem(np.flatnonzero(~have & ~usable))
             continue
-        interp = RBFInterpolant(Xn, Ln)
-        loo = np.abs(np.expm1(interp.leave_one_out[:, rec]))  # (B, m) relative error of receiver currents
-        loo_all = loo[: len(nodes)]
-        psm_vs_bem = np.abs(np.expm1(Ln[: len(nodes)][:, rec]))
+        todo = np.flatnonzero(~have)
+        loo = fit["loo"]
+        loo_all = loo[fit["from_log"]]
+        if "psm" in fits:
+            psm_vs_bem = np.abs(np.expm1(fits["psm"]["L"][fits["psm"]["from_log"]][:, rec]))
         error = np.zeros((P, n - 1))
         if len(todo):
-            L[todo] = interp(F[todo])
-            error[todo] = estimated_error(Xn, loo, F[todo])
+            L[todo] = fit["interp"](F[todo])
+            error[todo] = estimated_error(fit["X"], loo, F[todo])
         region_rms = {g: float(np.sqrt(np.mean(error[labels == g] ** 2))) for g in dict.fromkeys(labels.tolist())}
         total = float(np.sqrt(np.mean(error**2)))
         worst_region = max(region_rms.values()) if region_rms else 0.0
-        rounds.append({"bem_poses": int(have.sum()), "rms_error": total, "worst_region_rms": worst_region})
+        rounds.append({"bem_poses": int(have.sum()), "rms_error": total, "worst_region_rms": worst_region,
+                       "base": base, **{f"loo_rms_{k}": v["loo_usable_rms"] for k, v in fits.items()}})
         say(f"baseline error {100 * total:.4f} % RMS (worst region {100 * worst_region:.4f} %) with the BEM at "
-            f"{int(have.sum())} of {P} poses; target {100 * target:.4f} %")
+            f"{int(have.sum())} of {P} poses, ratio to the {base} base; target {100 * target:.4f} %")
         if (total <= target and worst_region <= target) or not len(todo):
             break
         k = max(4, int(np.ceil(step_fraction * P)))
@@ -483,7 +505,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     K = np.where(have[:, None, None], K_bem, 0.0)
     fill = ~have
     if fill.any():
-        K[fill] = _apply_log_ratio(K_psm[fill], L[fill])
+        K[fill] = _apply_log_ratio(bases[base][0][fill], L[fill])
     # the BEM's own discretisation: a coarser mesh at a few anchor poses (cached with the anchors)
     check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
     if check_discretisation and not check and len(np.flatnonzero(have)):
@@ -508,11 +530,45 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     anchors = np.flatnonzero(have)
     return AnchoredBaseline(
         K=K * obs.sigma_S_per_m, error=error, anchors=anchors, refused=np.flatnonzero(~ok), n_bem_new=n_new,
-        n_cached=int(np.sum(exact >= 0)) + int(extra.sum()), target=target, rounds=rounds,
+        n_cached=int(np.sum(exact >= 0)) + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped,
     )
+
+
+def _distinct(idx: np.ndarray, group: np.ndarray) -> np.ndarray:
+    """``idx`` less the samples at a pose already in it (one per distinct pose, in order)."""
+    return idx[np.sort(np.unique(group[idx], return_index=True)[1])]
+
+
+def _fit_base(K_bem, F, group, have, K_ref, usable, cached_off, K_ref_cached, cached_K, cached_poses, cached_usable,
+              psm_ok, sensor, rec) -> dict | None:
+    """The RBF interpolant of log(K_bem / K_ref) over the BEM anchors a base can use (this log's and the cached
+    ones off its poses), its leave-one-out errors, and their RMS at the anchors where the PSM is usable (the
+    nodes every base has, on which the bases are compared)."""
+    nodes = _distinct(np.flatnonzero(have & usable), group)
+    X = [F[nodes]]
+    Lv = [_offdiag_log_ratio(K_bem[nodes], K_ref[nodes])]
+    on_usable = [psm_ok[nodes]]
+    if cached_off.any():
+        X.append(pose_features(sensor, cached_poses[cached_off]))
+        Lv.append(_offdiag_log_ratio(cached_K[cached_off], K_ref_cached[cached_off]))
+        on_usable.append(cached_usable[cached_off])
+    X, Lv, on_usable = np.vstack(X), np.vstack(Lv), np.concatenate(on_usable)
+    from_log = np.arange(len(X)) < len(nodes)
+    if not len(X):
+        return None
+    # nodes closer than NODE_MERGE_M (an earlier log's anchor beside this log's, a fraction of a millimetre
+    # apart with the robot's position noise) carry the same information and make the interpolation
+    # matrix, and the leave-one-out errors from its inverse, meaningless: keep the first (this log's)
+    keep = np.sort(np.unique(same_pose_groups(X, NODE_MERGE_M), return_index=True)[1])
+    X, Lv, on_usable, from_log = X[keep], Lv[keep], on_usable[keep], from_log[keep]
+    interp = RBFInterpolant(X, Lv)
+    loo = np.abs(np.expm1(interp.leave_one_out[:, rec]))  # (B, m) relative error of receiver currents
+    at = loo[on_usable]
+    return {"X": X, "L": Lv, "interp": interp, "loo": loo, "from_log": from_log,
+            "loo_usable_rms": float(np.sqrt(np.mean(at**2))) if at.size else np.inf}
 
 
 #: the coarser mesh of the discretisation check, in units of the anchors' (sensor edge, tank edge)

@@ -3,9 +3,10 @@
 :func:`diagnose` runs the whole chain:
 
 1. the baseline at the logged poses, in the believed tank, at the believed
-   conductivity: by default (``"anchored"``) the PSM corrected by the BEM at
-   an adaptive set of poses until its cross-validated error is below a third
-   of the noise, the BEM itself where the PSM refuses a pose
+   conductivity: by default (``"anchored"``) the BEM at an adaptive set of
+   poses, interpolated over pose (as a ratio to the PSM or to the free-space
+   K, whichever cross-validates better), until its estimated error is below a
+   third of the noise
    (:mod:`.anchored`, cached on disk per sensor and tank); or the bare
    ``"bem"`` or ``"psm"``; with ``"psm"`` and ``bem_correction_poses``,
    corrected by the BEM on that many poses (:mod:`.multifidelity`);
@@ -201,8 +202,8 @@ def diagnose(
     ----------
     obs : Observations
     model : {"anchored", "bem", "psm"}
-        The baseline simulation: ``"anchored"`` (default) the PSM corrected by
-        the BEM until its estimated error is below a third of the noise
+        The baseline simulation: ``"anchored"`` (default) the BEM at adaptive
+        anchor poses, interpolated, until its estimated error is below a third of the noise
         (:func:`electrosense.validation.diagnosis.anchored.anchored_baseline`); ``"bem"``
         the BEM at every pose; ``"psm"`` the calibrated PSM (its own error is
         then not known: a note says so).
@@ -244,12 +245,13 @@ def diagnose(
         from electrosense.validation.diagnosis.anchored import anchored_baseline
 
         noise0 = _prior_noise(obs, psm_model)
-        say(f"baseline: PSM corrected by BEM anchors at {obs.n_poses} poses (noise about {100 * noise0:.3f} %)")
+        say(f"baseline: BEM anchors interpolated over {obs.n_poses} poses (noise about {100 * noise0:.3f} %)")
         anchored = anchored_baseline(obs, noise0, psm_model=_load(psm_model),
                                      bem_options={k: v for k, v in (model_options or {}).items() if k != "psm_model"},
                                      progress=say)
         K_base = anchored.K
-        notes.append(f"baseline: the PSM corrected by the BEM at {len(anchored.anchors)} of {obs.n_poses} poses "
+        notes.append(f"baseline: the BEM at {len(anchored.anchors)} of {obs.n_poses} poses, interpolated as a ratio "
+                     f"to the {'PSM' if anchored.base == 'psm' else 'free-space K'} "
                      f"({anchored.n_bem_new} run now, {anchored.n_cached} from the cache, {len(anchored.refused)} "
                      f"refused by the PSM); estimated error {100 * anchored.rms_error:.4f} % RMS against a target of "
                      f"{100 * anchored.target:.4f} % ({anchored.seconds:.1f} s)")
@@ -424,7 +426,9 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
             "baseline_by_place": by_place(anchored.total_error),
             "interpolation_rms": anchored.interpolation_rms,
             "interpolation_by_place": by_place(anchored.error),
-            "how": "the PSM corrected by the BEM/PSM ratio interpolated over pose; interpolation error = leave-one-out "
+            "base": anchored.base,
+            "how": "the BEM at anchor poses, its ratio to the base (the PSM, or the free-space K: whichever predicts "
+                   "the BEM better at the anchors) interpolated over pose; interpolation error = leave-one-out "
                    "error at the nearest BEM poses scaled by the distance from them (an upper estimate, zero at the "
                    "BEM poses), in quadrature with the "
                    "BEM's own discretisation error",
