@@ -154,3 +154,40 @@ def test_estimated_error_bounds_the_true_one_and_vanishes_at_the_nodes():
     assert np.sqrt(np.mean(true**2)) <= np.sqrt(np.mean(est**2))
     near = X[:5] + 1e-4  # a fraction of a millimetre off an anchor (position noise of a second log)
     assert np.all(estimated_error(X, loo, near) < 0.05 * loo[:5].max(axis=0) + 1e-12)
+
+
+def test_a_second_log_with_position_noise_reuses_the_anchors(tmp_path, monkeypatch):
+    """A second log of the same path, its poses a tenth of a millimetre off the first's (the robot's position
+    noise), is served by the first log's anchors: no new BEM pose, the estimated error within the target; and
+    whichever base is chosen is the one with the smaller leave-one-out error."""
+    from electrosense import bem
+    from electrosense.validation.diagnosis.anchored import AnchorStore, anchored_baseline
+    from electrosense.validation.diagnosis.blind import assemble
+    from electrosense.validation.simulation.models import pose_evaluator
+
+    rng = np.random.default_rng(5)
+    setup = random_setup(rng, 4)
+    poses, t, passes = random_passes(setup, rng, 2, 15)
+    solved = []
+
+    class SmoothSweep:  # a stand-in BEM: the PSM in the tank, smoothly changed
+        def __init__(self, sensor, tank, objects, sigma_S_per_m, focus_m=None, **options):
+            self.ev = pose_evaluator("psm", sensor, tank, 1.0, objects)
+
+        def conductance(self, poses_, progress=False):
+            solved.append(len(poses_))
+            return SimpleNamespace(K_S=self.ev.conductance(poses_).K_S * (1 + 0.01 * np.sin(5 * poses_[:, 0]))[:, None, None])
+
+    monkeypatch.setattr(bem, "PoseSweep", SmoothSweep)
+    I = np.ones((len(poses), setup.sensor.n_electrodes - 1))
+    store = AnchorStore(setup.sensor, setup.tank, folder=tmp_path)
+    first = anchored_baseline(assemble(setup, poses, t, passes, I, np.random.default_rng(0), position_noise_m=0.0),
+                              3e-4, store=store, check_discretisation=False)
+    assert first.n_bem_new >= 1 and first.rounds[-1]["base"] == first.base
+    losses = {k[8:]: v for k, v in first.rounds[-1].items() if k.startswith("loo_rms_")}
+    assert losses[first.base] == min(losses.values())
+    solved.clear()
+    second = anchored_baseline(assemble(setup, poses, t, passes, I, np.random.default_rng(1), position_noise_m=1e-4),
+                               3e-4, store=store, check_discretisation=False)
+    assert second.n_bem_new == 0 and not solved and second.n_cached >= first.n_bem_new
+    assert second.interpolation_rms <= second.target
