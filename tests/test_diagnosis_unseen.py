@@ -105,3 +105,28 @@ def test_an_elongated_object_is_never_a_confident_wrong_name():
     I = _world(setup, poses, objects=(box,))
     d = _diagnose(setup, poses, t, passes, I, 31)
     assert d.selection.verdict == "unexplained" or d.chosen[0] in ("unmodelled_object", "none"), d.chosen
+
+
+def test_a_null_effect_solved_by_the_bem_is_the_baseline(small):
+    """The BEM check of an explanation at zero (the walls where they were believed) reproduces the baseline at
+    its BEM poses: the check compares models, not meshes."""
+    from types import SimpleNamespace
+
+    from electrosense.validation.diagnosis.anchored import anchored_baseline
+    from electrosense.validation.diagnosis.bem_check import bem_check
+    from electrosense.validation.diagnosis.effects import Problem, library
+    from electrosense.validation.diagnosis.pipeline import default_effect_model
+
+    setup, poses, t, passes, I = small
+    obs = assemble(setup, poses, t, passes, I, np.random.default_rng(4), conductivity=-0.02)
+    options = {"tank_edge_length_m": TANK_EDGE_FACTOR * default_tank_edge_length_m(setup.sensor)}
+    base = anchored_baseline(obs, 5e-4, bem_options=options, check_discretisation=False)
+    problem = Problem(obs, base.K, default_effect_model(obs)[0])
+    walls = SimpleNamespace(effects=(library(obs)["tank_size"][0],), fit=SimpleNamespace(theta=np.zeros(2)),
+                            name="tank_size")
+    check = bem_check(problem, walls, base.anchors, 5e-4, options, n_poses=3)
+    assert len(check["poses"]) == 3 and set(check["poses"]) <= set(base.anchors.tolist())
+    assert check["gap_effect_model"] == pytest.approx(check["gap_before"], rel=1e-12)
+    assert check["gap_bem"] == pytest.approx(check["gap_before"], rel=1e-6)
+    # a 2 % conductivity gap that walls at zero leave as it is, in both models: the BEM confirms the effect model
+    assert check["gap_before"] > 0.015 and check["confirmed"]

@@ -188,9 +188,10 @@ def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path)
                       dashboard_address=None) as cluster, Client(cluster, set_as_default=False) as client:
         store = SweepStore.open_or_create(tmp_path / "electrosense.bem.zarr", poses, 2, 2, {"model": "bem"}, 2)
         result = run_sweep(ev, poses, store, client=client, progress=False)
-    # equal to round-off: the workers' BLAS runs single-threaded, this process's may not (other sums' order);
-    # the coupling's truncated SVD (tol 1e-6, randomised range finding) turns that into ~1e-10
-    np.testing.assert_allclose(result.conductance.K_S, serial.K_S, rtol=1e-8, atol=1e-8 * np.abs(serial.K_S).max())
+    # equal to the truncation: the workers' BLAS runs single-threaded, this process's may not (other sums'
+    # order); the coupling's truncated SVD (tol 1e-6, its range sampled in single precision) turns that into
+    # up to ~1e-7, below the truncation's own effect on K (~1e-6 against tol 1e-10)
+    np.testing.assert_allclose(result.conductance.K_S, serial.K_S, rtol=1e-6, atol=1e-6 * np.abs(serial.K_S).max())
     R = result.conductance.resistance_ohm[:, 0]
     assert np.all(np.isfinite(R)) and np.all(R > 0)
     assert '"triangles"' in store.attrs["mesh"]

@@ -151,8 +151,13 @@ class Problem:
             n = K.shape[-1]
             off = K * (1 - np.eye(n))
             K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
+        return self.currents(K, scenario, at, idx)
+
+    def currents(self, K: np.ndarray, scenario: Scenario, at, idx: np.ndarray, contact: bool = True) -> np.ndarray:
+        """Receiver currents (p, m) from the scene's K (p, n, n) at unit water scale: then the water's conductivity,
+        the contact impedance in series (unless ``contact`` is False: already in K) and the channel gains."""
         K = K * np.asarray(scenario.sigma_scale)[at][:, None, None]
-        if scenario.contact_ohm_m2 is not None:
+        if contact and scenario.contact_ohm_m2 is not None:
             z = np.asarray(scenario.contact_ohm_m2, float)
             K = series_contact(K, z / self.contact_areas_m2(z))
         I = receiver_currents(K, self.obs.emitter) * self.obs.U_V[idx, None]

@@ -126,6 +126,7 @@ class Diagnosis:
     I_base: np.ndarray | None = None
     model_error: dict = field(default_factory=dict)
     ambiguity: list = field(default_factory=list)
+    bem_check: dict | None = None
 
     @property
     def noise_floor(self) -> float:
@@ -194,6 +195,7 @@ def diagnose(
     psm_model=None,
     model_error: float = 0.0,
     bem_correction_poses: int = 0,
+    bem_check_poses: int = 12,
     progress=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.
@@ -234,6 +236,10 @@ def diagnose(
         estimated error of that correction. The diagnosis then explains the
         gap between the bench and the BEM's physics, not the PSM's
         approximation (0: the bare PSM).
+    bem_check_poses : int
+        With the anchored baseline: solve the chosen explanation's fitted scene with the BEM at this many of
+        the baseline's BEM poses, when it holds a geometric effect or a contact impedance
+        (:mod:`electrosense.validation.diagnosis.bem_check`; 0: skip).
     progress : callable(str), optional
     """
     t0 = time.perf_counter()
@@ -346,6 +352,21 @@ def diagnose(
     confusable = confusable_pairs(ranking, rules)
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
     notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
+    check = None
+    if anchored is not None and selection.verdict == "explained" and selection.chosen and bem_check_poses > 0:
+        from electrosense.validation.diagnosis.bem_check import bem_check
+
+        try:
+            check = bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
+                              {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
+                              n_poses=bem_check_poses, progress=say)
+        except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
+            notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
+        if check is not None and not check["confirmed"]:
+            notes.append(f"the BEM does not confirm {check['effect']}: with its fitted parameters the BEM leaves "
+                         f"{100 * check['gap_bem']:.3f} % at {len(check['poses'])} BEM poses where the effect model "
+                         f"left {100 * check['gap_effect_model']:.3f} % (noise floor {100 * floor:.3f} %): the effect "
+                         "model, not the data, made this answer")
     split = None
     if model == "psm" and split_with_bem > 0:
         try:
@@ -354,7 +375,7 @@ def diagnose(
         except Exception as exc:  # report, do not fail the diagnosis
             notes.append(f"PSM/BEM split not computed: {exc}")
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
-                     time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity)
+                     time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check)
 
 
 def simulated_by(obs: Observations) -> str | None:

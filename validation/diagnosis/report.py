@@ -185,6 +185,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "noise_floor": d.noise_floor,
         "model_error": d.model_error,
         "ambiguity": d.ambiguity,
+        "bem_check": d.bem_check,
         "combination": _candidate_row(final, d) if d.selection.chosen else None,
         "where": where,
         "model_split": d.model_split,
@@ -204,6 +205,16 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "seconds": d.seconds,
     }
     return _clean(out)
+
+
+def _bem_check_text(check: dict | None) -> str:
+    if not check:
+        return ("not needed (the chosen effect is exact in any model: conductivity, drift, channel gains) or no "
+                "effect was named")
+    verdict = "confirms" if check["confirmed"] else "does NOT confirm"
+    return (f"The BEM {verdict} {check['effect']}: at {len(check['poses'])} of the baseline's BEM poses the gap is "
+            f"{100 * check['gap_before']:.3g} % before, {100 * check['gap_effect_model']:.3g} % with the effect model's "
+            f"prediction and {100 * check['gap_bem']:.3g} % with the BEM's. {check['how']}.")
 
 
 def write_json(d: Diagnosis, path) -> Path:
@@ -331,6 +342,7 @@ def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
         Section("Model-error budget", f"{me.get('how', '')}. {me.get('rule', '')}.", tables=[budget],
                 notes=[f"BEM discretisation: {k}: {v}" for k, v in me.get("bem_discretisation", {}).items()]),
         Section("Ambiguity set", ambiguity or "no other candidate explains the data as well as the chosen one"),
+        Section("The chosen effect solved by the BEM", _bem_check_text(dd.get("bem_check"))),
         Section("Where the gap lies", where_text, tables=where_tables, figures=figs[:2]),
         Section("Which effect", "Each candidate fitted on training samples and scored on held-out ones.",
                 tables=[ranking], figures=figs[2:]),
