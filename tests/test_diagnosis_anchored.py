@@ -63,8 +63,9 @@ def test_psm_usable_flags_spheres_beyond_a_wall():
     assert psm_usable(model, poses, tank).tolist() == [True, True, False]
 
 
-def _cand(name, gap, score, k):
-    return SimpleNamespace(name=name, heldout_gap=gap, score=score, n_params=k)
+def _cand(name, gap, score, k, other_forms=()):
+    return SimpleNamespace(name=name, heldout_gap=gap, score=score, n_params=k, other_forms=list(other_forms),
+                           at_bound=[])
 
 
 def test_one_parameter_reaching_the_floor_beats_three():
@@ -75,6 +76,11 @@ def test_one_parameter_reaching_the_floor_beats_three():
     assert _fewest_reaching_floor(three, [three, one], current, rules, floor) is one
     far = _cand("conductivity", 0.0019, 1900.0, 1)  # beyond 1.5x the floor: not a full explanation
     assert _fewest_reaching_floor(three, [three, far], current, rules, floor) is three
+    # a candidate's one-parameter form counts even where its richer form scored better (a common contact
+    # impedance against per-electrode ones)
+    common = _cand("contact_impedance", 0.0011, 940.0, 1)
+    per_electrode = _cand("contact_impedance", 0.00099, 905.0, 4, other_forms=[common])
+    assert _fewest_reaching_floor(three, [three, per_electrode], current, rules, floor) is common
 
 
 def test_gap_within_the_model_error_is_none_and_says_where_the_model_is_the_limit():

@@ -100,6 +100,7 @@ class CandidateScore:
     heldout_gap: float
     region_gap: float | None = None
     fold_thetas: list = field(default_factory=list, repr=False)
+    other_forms: list = field(default_factory=list, repr=False)  # the candidate's other forms, scored alike
 
     @property
     def name(self) -> str:
@@ -171,12 +172,11 @@ def _combo_starts(problem: Problem, current: CandidateScore, single: CandidateSc
 
 
 def score_candidate(problem: Problem, forms, folds, noise: float, r0: np.ndarray, region_mask=None) -> CandidateScore:
-    """The best form of one candidate (lowest penalised held-out score)."""
-    best = None
-    for effect in forms:
-        cs = _evaluate(problem, [effect], folds, noise, _starts(problem, effect, r0), region_mask)
-        if best is None or cs.score < best.score:
-            best = cs
+    """The best form of one candidate (lowest penalised held-out score), the others in its ``other_forms``."""
+    scored = sorted((_evaluate(problem, [effect], folds, noise, _starts(problem, effect, r0), region_mask)
+                     for effect in forms), key=lambda c: c.score)
+    best = scored[0]
+    best.other_forms = scored[1:]
     return best
 
 
@@ -304,7 +304,10 @@ def _fewest_reaching_floor(best: CandidateScore, tried: list, current: Candidate
     well are reported as the ambiguity set."""
     if best.n_params <= 1 or best.heldout_gap > rules.at_noise * floor:
         return best
-    reach = [c for c in tried if c.n_params == 1 and c.heldout_gap <= rules.at_noise * floor
+    # every form counts: a common contact impedance (one parameter) that reaches the floor beats per-channel gains
+    # even where its per-electrode form scored better
+    pool = [f for c in tried for f in (c, *c.other_forms) if not f.at_bound]
+    reach = [c for c in pool if c.n_params == 1 and c.heldout_gap <= rules.at_noise * floor
              and c.score < current.score and c.heldout_gap**2 - best.heldout_gap**2 < floor**2]
     return min(reach, key=lambda c: c.score) if reach else best
 
