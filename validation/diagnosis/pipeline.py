@@ -353,7 +353,8 @@ def diagnose(
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
     notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
     check = None
-    if anchored is not None and selection.verdict == "explained" and selection.chosen and bem_check_poses > 0:
+    if anchored is not None and selection.verdict in ("explained", "partly explained") and selection.chosen \
+            and bem_check_poses > 0:
         from electrosense.validation.diagnosis.bem_check import bem_check
 
         try:
