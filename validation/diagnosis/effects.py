@@ -256,6 +256,7 @@ class Effect:
     geometric: bool = False
     order: int = 10
     describe: str = ""
+    local: bool = False  # seen by a part of the log only (an object): held out by segments, not whole passes
 
     @property
     def n_params(self) -> int:
@@ -436,6 +437,7 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
     lib["unmodelled_object"] = [
         Effect("unmodelled_object", "", ("x_m", "y_m", "z_m", "dipole_m3"), ("m", "m", "m", "m^3"),
                (0.05, 0.05, 0.05, 1e-6), tuple(lo) + (-1e-3,), tuple(hi) + (1e-3,), _object, geometric=True, order=0,
+               local=True,
                describe="a sphere of dipole strength chi b^3 (conducting if > 0, insulating if < 0) at (x, y, z)")
     ]
     lib["none"] = [Effect("none", "", (), (), (), (), (), _none, describe="nothing: the gap is noise")]

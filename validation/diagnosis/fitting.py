@@ -42,6 +42,7 @@ __all__ = [
     "FitResult",
     "noise_level",
     "make_folds",
+    "segment_folds",
     "predict",
     "fit",
     "cross_validate",
@@ -51,6 +52,21 @@ __all__ = [
 
 #: residual given to a parameter set the model refuses (e.g. a sphere through the sensor)
 _REFUSED = 1.0
+
+
+def segment_folds(obs, n_blocks: int = 8) -> list[np.ndarray]:
+    """Held-out contiguous time segments of every pass (:func:`make_folds` with any number of passes): the
+    folds of a *local* effect (an object beside one pass), which whole held-out passes could never predict.
+
+    Example
+    -------
+    >>> from types import SimpleNamespace
+    >>> obs = SimpleNamespace(pass_indices=lambda: [np.arange(16), np.arange(16, 32), np.arange(32, 48)])
+    >>> folds = segment_folds(obs)
+    >>> len(folds), folds[0][:4].tolist()
+    (4, [0, 1, 8, 9])
+    """
+    return make_folds(obs, n_blocks=n_blocks, min_passes=np.iinfo(np.int64).max)
 
 
 def make_folds(obs, n_blocks: int = 8, max_folds: int = 5, min_passes: int = 3) -> list[np.ndarray]:

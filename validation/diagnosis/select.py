@@ -60,6 +60,7 @@ from electrosense.validation.diagnosis.fitting import (
     cross_validate,
     fit,
     object_starts,
+    segment_folds,
     predict,
     subspace_angle_deg,
 )
@@ -146,6 +147,8 @@ def _evaluate(problem, effects, folds, noise, starts, region_mask) -> CandidateS
         f = fit(problem, effects, everything, theta0=s, noise=noise)
         if best is None or f.train_rms < best.train_rms:
             best = f
+    if any(e.local for e in effects):   # what one pass alone sees cannot be predicted from the other passes
+        folds = segment_folds(problem.obs)
     weighted, thetas = cross_validate(problem, effects, folds, full=best, noise=noise)
     heldout = weighted / problem.weight
     return CandidateScore(

@@ -56,6 +56,7 @@ __all__ = [
     "calibration_layout",
     "psm_cache_dir",
     "code_version",
+    "model_source_files",
     "poses_array",
 ]
 
@@ -106,12 +107,27 @@ def _code_version() -> str:
     except Exception:  # not installed: running from a checkout
         package_version = "unknown"
     digest = hashlib.sha256()
-    root = Path(__file__).resolve().parent.parent
-    for package in ("meshes", "bem", "psm"):
-        for path in sorted((root / package).rglob("*.py")):
-            digest.update(str(path.relative_to(root)).encode())
-            digest.update(path.read_bytes())
+    for name, path in model_source_files():
+        digest.update(name.encode())
+        digest.update(path.read_bytes())
     return f"electrosense {package_version} src {digest.hexdigest()[:12]}"
+
+
+def model_source_files() -> list[tuple[str, Path]]:
+    """``(name, path)`` of every ``.py`` file of the model packages (meshes, bem, psm), wherever they are installed,
+    named from the package down (``"bem/sweep.py"``).
+
+    >>> names = [name for name, _ in model_source_files()]
+    >>> "bem/sweep.py" in names and "psm/kernels.py" in names and "meshes/tank.py" in names
+    True
+    """
+    import importlib
+
+    out = []
+    for package in ("meshes", "bem", "psm"):
+        root = Path(importlib.import_module(f"electrosense.{package}").__path__[0])
+        out += [(f"{package}/{p.relative_to(root).as_posix()}", p) for p in sorted(root.rglob("*.py"))]
+    return out
 
 
 # ------------------------------------------------------------------------------- PSM
