@@ -60,8 +60,8 @@ from electrosense.validation.diagnosis.fitting import (
     cross_validate,
     fit,
     object_starts,
-    segment_folds,
     predict,
+    segment_folds,
     subspace_angle_deg,
 )
 
