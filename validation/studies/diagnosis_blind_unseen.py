@@ -6,7 +6,8 @@ bench data with the BEM (a finer tank mesh than the diagnosis uses, and the
 *true* scene: the effect in the BEM's physics), writes a bench log and runs
 ``esense diagnose LOG -o DIR`` with its defaults. Printed: per case, the
 injected effect, what was chosen, the verdict, the held-out gap before and
-after, the noise and the baseline's own error budget, the wall and CPU time;
+after, the noise and the baseline's own error budget, whether the BEM
+confirms the chosen effect's fitted scene, the wall and CPU time;
 then the rates of the done-when criteria. A second log of the same set-up
 (new noise) is diagnosed again, to time the cached path.
 
@@ -165,7 +166,8 @@ def main(argv=None):
             budget = d.get("model_error", {})
             row = {"seed": seed, "case": case, "n_el": setup.sensor.n_electrodes, "chosen": d["chosen"],
                    "verdict": d["verdict"], "gap_before": d["gap_before"], "gap_after": d["gap_after"],
-                   "noise": d["noise"], "baseline_error": budget.get("baseline_rms"), "wall_s": wall, "cpu_s": cpu,
+                   "noise": d["noise"], "baseline_error": budget.get("baseline_rms"),
+                   "bem_confirms": (d.get("bem_check") or {}).get("confirmed"), "wall_s": wall, "cpu_s": cpu,
                    "data_s": t_data, **j}
             if args.second:
                 log2, _, _ = make_log(case, seed, folder, args.per_pass, args.electrodes, noise_seed=1)
