@@ -362,6 +362,9 @@ def object_sphere(theta, sigma_S_per_m: float) -> Sphere | None:
 def _object(theta, sc, pb, idx):
     sphere = object_sphere(theta, pb.obs.sigma_S_per_m)
     if sphere is not None:
+        if sc.tank is not None and sc.tank.distance_to_boundary_m(np.asarray(sphere.centre_m)[None]).min() \
+                < sphere.radius_m:
+            raise ValueError("the object would reach out of the water")  # the fit is refused there
         sc.objects = tuple(sc.objects) + (sphere,)
     sc.geometry_changed = True
     return sc
