@@ -363,6 +363,10 @@ def diagnose(
                               n_poses=bem_check_poses, progress=say)
         except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
             notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
+        if check is not None and "params_bem" in check and check["gap_bem_refined"] < check["gap_bem"]:
+            params = ", ".join(f"{k} = {v:.4g}" for k, v in check["params_bem"].items())
+            notes.append(f"{check['effect']} refined on the BEM at its {len(check['poses'])} poses: {params}; the BEM "
+                         f"then leaves {100 * check['gap_bem_refined']:.3f} % there (noise floor {100 * floor:.3f} %)")
         if check is not None and not check["confirmed"]:
             notes.append(f"the BEM does not confirm {check['effect']}: with its fitted parameters the BEM leaves "
                          f"{100 * check['gap_bem']:.3f} % at {len(check['poses'])} BEM poses where the effect model "

@@ -214,7 +214,9 @@ def _bem_check_text(check: dict | None) -> str:
     verdict = "confirms" if check["confirmed"] else "does NOT confirm"
     return (f"The BEM {verdict} {check['effect']}: at {len(check['poses'])} of the baseline's BEM poses the gap is "
             f"{100 * check['gap_before']:.3g} % before, {100 * check['gap_effect_model']:.3g} % with the effect model's "
-            f"prediction and {100 * check['gap_bem']:.3g} % with the BEM's. {check['how']}.")
+            f"prediction and {100 * check['gap_bem']:.3g} % with the BEM's"
+            + (f"; with the parameters refined on the BEM ({', '.join(f'{k} = {v:.4g}' for k, v in check['params_bem'].items())}) "
+               f"{100 * check['gap_bem_refined']:.3g} %" if "params_bem" in check else "") + f". {check['how']}.")
 
 
 def write_json(d: Diagnosis, path) -> Path:
