@@ -107,12 +107,12 @@ def test_an_elongated_object_is_never_a_confident_wrong_name():
     assert d.selection.verdict == "unexplained" or d.chosen[0] in ("unmodelled_object", "none"), d.chosen
 
 
-def test_a_null_effect_solved_by_the_bem_is_the_baseline(small):
+def test_a_null_effect_solved_by_the_bem_is_the_baseline(small, tmp_path):
     """The BEM check of an explanation at zero (the walls where they were believed) reproduces the baseline at
     its BEM poses: the check compares models, not meshes."""
     from types import SimpleNamespace
 
-    from electrosense.validation.diagnosis.anchored import anchored_baseline
+    from electrosense.validation.diagnosis.anchored import AnchorStore, anchored_baseline, default_bem_options
     from electrosense.validation.diagnosis.bem_check import bem_check
     from electrosense.validation.diagnosis.effects import Problem, library
     from electrosense.validation.diagnosis.pipeline import default_effect_model
@@ -120,7 +120,8 @@ def test_a_null_effect_solved_by_the_bem_is_the_baseline(small):
     setup, poses, t, passes, I = small
     obs = assemble(setup, poses, t, passes, I, np.random.default_rng(4), conductivity=-0.02)
     options = {"tank_edge_length_m": TANK_EDGE_FACTOR * default_tank_edge_length_m(setup.sensor)}
-    base = anchored_baseline(obs, 5e-4, bem_options=options, check_discretisation=False)
+    store = AnchorStore(setup.sensor, setup.tank, (), default_bem_options(setup.sensor, options), folder=tmp_path)
+    base = anchored_baseline(obs, 5e-4, bem_options=options, store=store, check_discretisation=False)  # its own BEM
     problem = Problem(obs, base.K, default_effect_model(obs)[0])
     walls = SimpleNamespace(effects=(library(obs)["tank_size"][0],), fit=SimpleNamespace(theta=np.zeros(2)),
                             name="tank_size")
