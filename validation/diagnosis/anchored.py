@@ -386,9 +386,9 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
     # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
     # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
-    extra = np.zeros(len(cached_poses), bool)
-    if len(cached_poses):
-        extra = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0]) & psm_usable(model, cached_poses, tank)
+    cached_usable = psm_usable(model, cached_poses, tank) if len(cached_poses) else np.zeros(0, bool)
+    off_log = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0])  # cached anchors off this log's poses
+    extra = off_log & cached_usable
     K_psm = np.full((P, n, n), np.nan)
     psm_poses = np.vstack([obs.poses[ok], cached_poses[extra]])
     K_psm_all = np.zeros((0, n, n))
@@ -431,7 +431,6 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     tank_effect = np.ones(P)  # where the tank matters most: the PSM's own tank effect (unit where it refuses)
     if ok.any():
         tank_effect[ok] = np.max(np.abs(receiver_currents(K_psm[ok], obs.emitter) / free - 1), axis=1)
-    off_log = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0])  # cached anchors off this log's poses
     # the bases, K_ref: what the BEM's ratio is interpolated against, at the samples, the samples it serves, the
     # cached anchors it uses and K_ref there
     K_psm_cached = np.full((len(cached_poses), n, n), np.nan)
@@ -439,7 +438,6 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     bases = {"psm": (K_psm, ok, extra, K_psm_cached),
              "free": (np.broadcast_to(K_free, (P, n, n)), np.ones(P, bool), off_log,
                       np.broadcast_to(K_free, (len(cached_poses), n, n)))}
-    cached_usable = psm_usable(model, cached_poses, tank) if len(cached_poses) else np.zeros(0, bool)
     rounds = []
     stopped = ""
     labels = place_labels(obs)
