@@ -14,6 +14,8 @@ Modules, one idea each:
 * :mod:`.where`: the residual broken down by receiver, place, time, heading;
 * :mod:`.fitting`: noise level, held-out folds, fits with uncertainties;
 * :mod:`.select`: ranking, forward selection, confusable pairs;
+* :mod:`.bem_check`: the chosen effect's fitted scene solved by the BEM, its
+  parameters refined there;
 * :mod:`.pipeline`: :func:`diagnose`, the whole chain;
 * :mod:`.report`: ``diagnosis.json`` and ``index.html``;
 * :mod:`.blind`: worlds with withheld effects, for tests and studies;
