@@ -216,7 +216,7 @@ def _bem_check_text(check: dict | None) -> str:
             f"{100 * check['gap_before']:.3g} % before, {100 * check['gap_effect_model']:.3g} % with the effect model's "
             f"prediction and {100 * check['gap_bem']:.3g} % with the BEM's"
             + (f"; with the parameters refined on the BEM ({', '.join(f'{k} = {v:.4g}' for k, v in check['params_bem'].items())}) "
-               f"{100 * check['gap_bem_refined']:.3g} %" if "params_bem" in check else "") + f". {check['how']}.")
+               f"{100 * check['gap_bem_refined']:.3g} %" if "params_bem" in check else "") + f". {check['how'][:1].upper()}{check['how'][1:]}.")
 
 
 def write_json(d: Diagnosis, path) -> Path:
