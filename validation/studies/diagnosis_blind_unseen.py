@@ -54,6 +54,8 @@ def world_scene(setup, poses, effect, args, rng):
         z = args["z_c_ohm_m2"]
     elif effect == "tank_size":
         tank = Tank((lx + args["dLx_m"], ly, lz), tank.water_depth_m)
+        if not _poses_fit(setup.sensor, poses, tank):  # the walls came in onto the path's ends: move them out
+            tank = Tank((lx - args["dLx_m"], ly, lz), setup.tank.water_depth_m)
     elif effect == "water_depth":
         tank = Tank((lx, ly, lz), tank.water_depth_m + args["d_m"])
     elif effect in ("object", "elongated", "two_objects"):
@@ -71,6 +73,15 @@ def world_scene(setup, poses, effect, args, rng):
             objects = (Sphere((x, side * (r + 0.05), zc), conductivity_S_per_m=np.inf, radius_m=0.02),
                        Sphere((-x, -side * (r + 0.05), zc), conductivity_S_per_m=0.0, radius_m=0.025))
     return tank, objects, z
+
+
+def _poses_fit(sensor, poses, tank, clearance_m: float = 0.002) -> bool:
+    """Whether the sensor's tips stay ``clearance_m`` inside the water of ``tank`` at every pose."""
+    from electrosense.meshes.pose import sensor_to_tank
+
+    tips = np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]])
+    ends = sensor_to_tank(tips, np.asarray(poses, float))
+    return bool(np.all(tank.distance_to_boundary_m(ends) >= sensor.radius_m + clearance_m))
 
 
 def world_K(setup, poses, effect, args, rng, cache: Path):
