@@ -72,7 +72,30 @@ def world_scene(setup, poses, effect, args, rng):
         else:
             objects = (Sphere((x, side * (r + 0.05), zc), conductivity_S_per_m=np.inf, radius_m=0.02),
                        Sphere((-x, -side * (r + 0.05), zc), conductivity_S_per_m=0.0, radius_m=0.025))
+        # an object on another pass's path (the robot would have hit it) is moved up, above every pass
+        objects = tuple(o if _clear(setup.sensor, poses, o) else
+                        _replace_centre(o, (o.centre_m[0], o.centre_m[1], float(np.max(poses[:, 2])) + r + 0.045))
+                        for o in objects)
     return tank, objects, z
+
+
+def _replace_centre(obj, centre_m):
+    from dataclasses import replace
+
+    return replace(obj, centre_m=tuple(centre_m))
+
+
+def _clear(sensor, poses, sphere, clearance_m: float = 0.005) -> bool:
+    """Whether ``sphere`` stays ``clearance_m`` off the sensor (its axis segment, widened by its radius) at every
+    pose."""
+    from electrosense.meshes.pose import sensor_to_tank
+
+    tips = sensor_to_tank(np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]]),
+                          np.asarray(poses, float))  # (P, 2, 3)
+    a, b, c = tips[:, 0], tips[:, 1], np.asarray(sphere.centre_m, float)
+    t = np.clip(np.einsum("pk,pk->p", c - a, b - a) / np.einsum("pk,pk->p", b - a, b - a), 0.0, 1.0)
+    d = np.linalg.norm(a + t[:, None] * (b - a) - c, axis=1)
+    return bool(np.all(d >= sphere.radius_m + sensor.radius_m + clearance_m))
 
 
 def _poses_fit(sensor, poses, tank, clearance_m: float = 0.002) -> bool:
