@@ -85,26 +85,26 @@ def _replace_centre(obj, centre_m):
     return replace(obj, centre_m=tuple(centre_m))
 
 
-def _clear(sensor, poses, sphere, clearance_m: float = 0.005) -> bool:
-    """Whether ``sphere`` stays ``clearance_m`` off the sensor (its axis segment, widened by its radius) at every
-    pose."""
-    from electrosense.meshes.pose import sensor_to_tank
+def _scene_ok(sensor, poses, tank=None, objects=()) -> bool:
+    """Whether the scene checker accepts the sensor at every pose in ``tank`` beside ``objects``."""
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.scene_mesh import SceneError, check_scene
 
-    tips = sensor_to_tank(np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]]),
-                          np.asarray(poses, float))  # (P, 2, 3)
-    a, b, c = tips[:, 0], tips[:, 1], np.asarray(sphere.centre_m, float)
-    t = np.clip(np.einsum("pk,pk->p", c - a, b - a) / np.einsum("pk,pk->p", b - a, b - a), 0.0, 1.0)
-    d = np.linalg.norm(a + t[:, None] * (b - a) - c, axis=1)
-    return bool(np.all(d >= sphere.radius_m + sensor.radius_m + clearance_m))
+    try:
+        for p in np.asarray(poses, float):
+            check_scene(Scene(sensor, Pose.from_array(p), tank, tuple(objects)))
+    except SceneError:
+        return False
+    return True
 
 
-def _poses_fit(sensor, poses, tank, clearance_m: float = 0.002) -> bool:
-    """Whether the sensor's tips stay ``clearance_m`` inside the water of ``tank`` at every pose."""
-    from electrosense.meshes.pose import sensor_to_tank
+def _poses_fit(sensor, poses, tank) -> bool:
+    return _scene_ok(sensor, poses, tank)
 
-    tips = np.array([[0.5 * sensor.length_m, 0.0, 0.0], [-0.5 * sensor.length_m, 0.0, 0.0]])
-    ends = sensor_to_tank(tips, np.asarray(poses, float))
-    return bool(np.all(tank.distance_to_boundary_m(ends) >= sensor.radius_m + clearance_m))
+
+def _clear(sensor, poses, obj) -> bool:
+    return _scene_ok(sensor, poses, None, (obj,))
 
 
 def world_K(setup, poses, effect, args, rng, cache: Path):
