@@ -75,7 +75,8 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import default_bem_options
-    from electrosense.validation.diagnosis.fitting import predict
+    from electrosense.validation.diagnosis.effects import combined_bounds, combined_scales
+    from electrosense.validation.diagnosis.fitting import predict, scenario
     from electrosense.validation.simulation.models import pose_evaluator
 
     effects = candidate.effects
@@ -88,15 +89,8 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     rows = np.arange(obs.n_poses)
     options = default_bem_options(obs.sensor, bem_options)
 
-    def scenario(theta):
-        sc = problem.nominal(rows)
-        parts = _split(effects, theta)
-        for k in sorted(range(len(effects)), key=lambda j: effects[j].order):
-            sc = effects[k].apply(parts[k], sc, problem, rows)
-        return sc
-
     def by_bem(theta):
-        sc = scenario(theta)
+        sc = scenario(problem, effects, theta, rows)
         z = None if sc.contact_ohm_m2 is None else np.asarray(sc.contact_ohm_m2, float)
         opts = dict(options)
         if sc.tank is not None:
@@ -117,9 +111,8 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
            "how": "the fitted scene solved by the BEM (a new tank, the object meshed, the contact impedance as its "
                   "boundary condition) at the baseline's BEM poses; gaps are RMS relative residuals there, in-sample; "
                   "the parameters then refined on the BEM (Gauss-Newton with the effect model's Jacobian)"}
-    scales = np.concatenate([np.asarray(e.scales, float) for e in effects])
-    lower = np.concatenate([np.asarray(e.lower, float) for e in effects])
-    upper = np.concatenate([np.asarray(e.upper, float) for e in effects])
+    scales = combined_scales(effects)
+    lower, upper = combined_bounds(effects)
     best, best_gap = theta, gap_bem
     r = residual(I_bem).ravel()
     for step in range(refine_steps):
@@ -139,9 +132,10 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
         except (ValueError, np.linalg.LinAlgError) as exc:  # the BEM refuses the scene (a pose out of the water)
             out["refinement_stopped"] = f"{type(exc).__name__}: {exc}"
             break
-        if rms(I_trial) >= best_gap:
+        gap_trial = rms(I_trial)
+        if gap_trial >= best_gap:
             break
-        best, best_gap, r = trial, rms(I_trial), residual(I_trial).ravel()
+        best, best_gap, r = trial, gap_trial, residual(I_trial).ravel()
     out["params_bem"] = {f"{e.name}.{p}" if len(effects) > 1 else p: float(v) for e, ps in zip(effects, _split(
         effects, best)) for p, v in zip(e.param_names, ps)}
     out["gap_bem_refined"] = best_gap

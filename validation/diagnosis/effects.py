@@ -51,7 +51,8 @@ from electrosense.validation.bench.virtual.effects import EFFECT_NAMES as BENCH_
 from electrosense.validation.diagnosis.forward import electrode_areas_m2, receiver_currents, series_contact
 from electrosense.validation.diagnosis.observations import Observations
 
-__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "model_trust_weights"]
+__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "combined_bounds",
+           "model_trust_weights"]
 
 #: Candidate names, in the order they are reported: the virtual bench's effects (defined once, in
 #: :mod:`electrosense.validation.bench.virtual.effects`) and ``none``.
@@ -269,6 +270,14 @@ class Effect:
 
 def combined_scales(effects) -> np.ndarray:
     return np.concatenate([np.asarray(e.scales, float) for e in effects]) if effects else np.zeros(0)
+
+
+def combined_bounds(effects) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) physical bounds of the concatenated parameters of ``effects``."""
+    if not effects:
+        return np.zeros(0), np.zeros(0)
+    return (np.concatenate([np.asarray(e.lower, float) for e in effects]),
+            np.concatenate([np.asarray(e.upper, float) for e in effects]))
 
 
 def _conductivity(theta, sc, pb, idx):

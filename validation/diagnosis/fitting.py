@@ -36,7 +36,7 @@ from scipy.optimize import lsq_linear
 
 from electrosense.meshes.pose import sensor_to_tank
 from electrosense.validation.comparison.metrics import noise_level
-from electrosense.validation.diagnosis.effects import Problem, combined_scales
+from electrosense.validation.diagnosis.effects import Problem, combined_bounds, combined_scales
 
 __all__ = [
     "FitResult",
@@ -44,6 +44,7 @@ __all__ = [
     "make_folds",
     "segment_folds",
     "predict",
+    "scenario",
     "fit",
     "cross_validate",
     "object_starts",
@@ -109,11 +110,17 @@ def predict(problem: Problem, effects, theta, idx) -> np.ndarray:
     """
     idx = np.asarray(idx)
     rows = np.arange(problem.obs.n_poses) if any(e.geometric for e in effects) else idx
+    return problem.predict(scenario(problem, effects, theta, rows), idx)
+
+
+def scenario(problem: Problem, effects, theta, rows):
+    """The :class:`Scenario` of the samples ``rows`` with ``effects`` at physical parameters ``theta``, applied in
+    the order of the physics (each effect's ``order``)."""
     sc = problem.nominal(rows)
     parts = _split(effects, theta)
     for k in sorted(range(len(effects)), key=lambda j: effects[j].order):
         sc = effects[k].apply(parts[k], sc, problem, rows)
-    return problem.predict(sc, idx)
+    return sc
 
 
 def _residual(problem, effects, theta, idx) -> np.ndarray:
@@ -205,8 +212,7 @@ def fit(problem: Problem, effects, idx, theta0=None, noise: float | None = None,
         r = _residual(problem, effects, np.zeros(0), idx)
         return FitResult(effects, np.zeros(0), np.zeros((0, 0)), float(np.sqrt(np.mean(r**2))), r.size, np.zeros((r.size, 0)))
     scales = combined_scales(effects)
-    lower = np.concatenate([np.asarray(e.lower, float) for e in effects]) / scales
-    upper = np.concatenate([np.asarray(e.upper, float) for e in effects]) / scales
+    lower, upper = (b / scales for b in combined_bounds(effects))
     u = np.zeros(k) if theta0 is None else np.asarray(theta0, float) / scales
     u = np.clip(u, lower, upper)
 

@@ -54,7 +54,7 @@ def world_scene(setup, poses, effect, args, rng):
         z = args["z_c_ohm_m2"]
     elif effect == "tank_size":
         tank = Tank((lx + args["dLx_m"], ly, lz), tank.water_depth_m)
-        if not _poses_fit(setup.sensor, poses, tank):  # the walls came in onto the path's ends: move them out
+        if not _scene_ok(setup.sensor, poses, tank):  # the walls came in onto the path's ends: move them out
             tank = Tank((lx - args["dLx_m"], ly, lz), setup.tank.water_depth_m)
     elif effect == "water_depth":
         tank = Tank((lx, ly, lz), tank.water_depth_m + args["d_m"])
@@ -73,7 +73,7 @@ def world_scene(setup, poses, effect, args, rng):
             objects = (Sphere((x, side * (r + 0.05), zc), conductivity_S_per_m=np.inf, radius_m=0.02),
                        Sphere((-x, -side * (r + 0.05), zc), conductivity_S_per_m=0.0, radius_m=0.025))
         # an object on another pass's path (the robot would have hit it) is moved up, above every pass
-        objects = tuple(o if _clear(setup.sensor, poses, o) else
+        objects = tuple(o if _scene_ok(setup.sensor, poses, None, (o,)) else
                         _replace_centre(o, (o.centre_m[0], o.centre_m[1], float(np.max(poses[:, 2])) + r + 0.045))
                         for o in objects)
     return tank, objects, z
@@ -97,14 +97,6 @@ def _scene_ok(sensor, poses, tank=None, objects=()) -> bool:
     except SceneError:
         return False
     return True
-
-
-def _poses_fit(sensor, poses, tank) -> bool:
-    return _scene_ok(sensor, poses, tank)
-
-
-def _clear(sensor, poses, obj) -> bool:
-    return _scene_ok(sensor, poses, None, (obj,))
 
 
 def world_K(setup, poses, effect, args, rng, cache: Path):
