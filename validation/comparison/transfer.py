@@ -7,7 +7,9 @@ matrix K of all its electrodes gives every transfer impedance
 (:mod:`electrosense.bem.protocol`).
 
 * Noise floor (:func:`reciprocity_rel`): drive (a, b) / measure (c, d)
-  against drive (c, d) / measure (a, b) of the reference set-up.
+  against drive (c, d) / measure (a, b) of the reference set-up; whether a
+  gain per pair of the measurement system (driving, measuring) explains it
+  (:func:`reciprocity_after_pair_gains`).
 * Empty tank (:func:`compare_empty_tank`): what a user cannot know (the
   saline's conductivity times the system's gain: one scale) is fitted on the
   even drive patterns and scored on the odd ones (:func:`drive_folds`,
@@ -60,6 +62,8 @@ __all__ = [
     "mean_by_offset",
     "model_transfer_ohm",
     "noise_floor",
+    "reciprocal_pairs",
+    "reciprocity_after_pair_gains",
     "reciprocity_rel",
     "ring_offsets",
     "score_fit",
@@ -117,6 +121,24 @@ def solved_transfer_ohm(scene, sigma_S_per_m: float, bem_options: dict, drive, m
     return np.abs(model_transfer_ohm(K, drive, measure))
 
 
+def reciprocal_pairs(drive, measure) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices ``(i, j)`` of the reciprocal pairs (drive and measurement swapped, signs followed), each once.
+
+    >>> d = np.array([[1, 2], [4, 3], [1, 2]]); m = np.array([[4, 3], [1, 2], [5, 6]])
+    >>> [x.tolist() for x in reciprocal_pairs(d, m)]
+    [[0], [1]]
+    """
+    row = {(tuple(d), tuple(m)): r for r, (d, m) in enumerate(zip(drive.tolist(), measure.tolist()))}
+    i, j = [], []
+    for (d, m), r in row.items():
+        # reciprocal: drive m (current from m's plus) measured on d; signs follow the pair orders
+        for other in ((m, d), ((m[1], m[0]), (d[1], d[0]))):
+            if other in row and (d, m) < other:
+                i.append(r)
+                j.append(row[other])
+    return np.array(i, dtype=np.int64), np.array(j, dtype=np.int64)
+
+
 def reciprocity_rel(drive, measure, Z_ohm) -> np.ndarray:
     """Relative differences ``(z - z') / mean`` of reciprocal pairs (drive and measurement swapped), each pair once.
 
@@ -124,15 +146,39 @@ def reciprocity_rel(drive, measure, Z_ohm) -> np.ndarray:
     >>> reciprocity_rel(d, m, np.array([1.02, 0.98])).round(4).tolist()
     [0.04]
     """
-    key = {(tuple(d), tuple(m)): z for d, m, z in zip(drive.tolist(), measure.tolist(), Z_ohm)}
-    out = []
-    for (d, m), z in key.items():
-        # reciprocal: drive m (current from m's plus) measured on d; signs follow the pair orders
-        for r in ((m, d), ((m[1], m[0]), (d[1], d[0]))):
-            if r in key and (d, m) < r:
-                z2 = key[r]
-                out.append((z - z2) / (0.5 * (z + z2)))
-    return np.array(out)
+    i, j = reciprocal_pairs(drive, measure)
+    z, z2 = np.asarray(Z_ohm, float)[i], np.asarray(Z_ohm, float)[j]
+    return (z - z2) / (0.5 * (z + z2))
+
+
+def reciprocity_after_pair_gains(drive, measure, Z_ohm) -> dict:
+    """Does a gain per electrode pair, one when it drives and another when it measures, explain the reciprocity error?
+
+    A measurement system whose pair ``p`` has gain ``g_d(p)`` driving and
+    ``g_m(p)`` measuring gives ``log z - log z' = h(a, b) - h(c, d)`` on the
+    reciprocal pairs, ``h = log(g_d / g_m)``: one number per pair, fitted by
+    least squares. ``rms_rel_after`` near 0 says the channels are what
+    breaks reciprocity (and modelling them restores it); near
+    ``rms_rel_before`` says they are not.
+
+    >>> d = np.array([[1, 2], [3, 4], [1, 2]]); m = np.array([[3, 4], [1, 2], [5, 6]])
+    >>> out = reciprocity_after_pair_gains(d, m, np.array([1.05, 0.95, 1.0]))
+    >>> round(out["rms_rel_before"], 3), out["rms_rel_after"] < 1e-12
+    (0.105, True)
+    """
+    i, j = reciprocal_pairs(drive, measure)
+    Z = np.abs(np.asarray(Z_ohm, float))
+    y = np.log(Z[i] / Z[j])
+    key = [tuple(sorted(p)) for p in np.asarray(drive).tolist() + np.asarray(measure).tolist()]
+    pairs = sorted(set(key))
+    col = {p: k for k, p in enumerate(pairs)}
+    n = len(drive)
+    A = np.zeros((len(y), len(pairs)))
+    np.add.at(A, (np.arange(len(y)), [col[key[r]] for r in i]), 1.0)        # drive of row i
+    np.add.at(A, (np.arange(len(y)), [col[key[n + r]] for r in i]), -1.0)   # its measurement
+    h = np.linalg.lstsq(A, y, rcond=None)[0]
+    return {"rms_rel_before": _rms(np.expm1(y)), "rms_rel_after": _rms(np.expm1(y - A @ h)),
+            "pairs": len(y), "parameters": int(np.linalg.matrix_rank(A)) if len(y) else 0}
 
 
 def noise_floor(rec) -> dict:
@@ -343,7 +389,8 @@ def compare_empty_tank(table: SetupTable, solution, sigma_S_per_m: float, ring=(
     sign to the BEM's (electrode numbering or sign convention).
     """
     rec = reciprocity_rel(table.drive, table.measure, table.Z_ohm)
-    metrics: dict = {"noise_floor": noise_floor(rec)}
+    metrics: dict = {"noise_floor": {**noise_floor(rec),
+                                     "pair_gains": reciprocity_after_pair_gains(table.drive, table.measure, table.Z_ohm)}}
     Zm = model_transfer_ohm(solution.conductance.K_S, table.drive, table.measure)
     Zd = table.Z_ohm
     if np.any(np.sign(Zm) != np.sign(Zd)):

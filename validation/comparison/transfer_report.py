@@ -116,7 +116,8 @@ def report_markdown(m: dict) -> str:
              (f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
               f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s."), "",
              (f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
-              f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement."),
+              f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement; with a gain per electrode pair "
+              f"driving and another measuring fitted to it: {m['noise_floor']['pair_gains']['rms_rel_after']:.4f}."),
              f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= 0.045).",
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
              f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
@@ -130,7 +131,7 @@ def report_markdown(m: dict) -> str:
                    f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
                     f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
-                  f"  - remaining: {d['remaining']}"]
+                  f"  - where the rest lies: {d['remaining']['text']}."]
         if "one_geometry" in d:
             g = d["one_geometry"]
             lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "

@@ -1,22 +1,25 @@
 """The diagnosis of a transfer log's gap to the BEM: candidate effects, each linear about the one solve.
 
-Each candidate is a set of columns beside the BEM's Z (whose coefficient is
-the fitted scale), fitted on the even drive patterns and scored on the odd
+Each candidate is a sum of column blocks beside the BEM's Z (whose
+coefficient is the fitted scale), named ``block+block+...``, fitted on the even drive patterns and scored on the odd
 ones (:func:`electrosense.validation.comparison.transfer.score_fit`):
 
 * ``channel_gains`` / ``channel_offsets`` / ``common_offset``: the
   measurement system, per measurement pair;
 * ``current_to_electrode_G``: part of the drive current returning through an
   electrode off the ring (a ground);
-* ``electrode_angles``: each ring electrode moved along the wall, from the
-  one solve's sensitivities (reciprocity, :mod:`electrosense.bem.sensitivity`), with the
-  rigid rotation of the ring as gauge;
+* ``electrode_angles`` / ``electrode_heights``: each ring electrode moved
+  along the ring / up the wall, from the one solve's sensitivities
+  (reciprocity, :mod:`electrosense.bem.sensitivity`), with the rigid rotation
+  of the ring as gauge;
 * ``water_depth``, ``ring_radius``, ``wall_taper``: one more solve each
   (finite differences), and combinations of these.
 
-``chosen`` is the candidate with the smallest held-out gap. Contact
-impedances come from the drive pairs' own voltages (they cannot change a
-four-electrode transfer impedance). :func:`one_geometry` asks whether one
+``chosen`` is the candidate with the smallest held-out gap; what it leaves
+is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
+(the tank's symmetric shape, scatter that reciprocal pairs share, the part
+that breaks reciprocity). Contact impedances come from the drive pairs' own
+voltages (they cannot change a four-electrode transfer impedance). :func:`one_geometry` asks whether one
 tank shape explains both the empty tank and the balls.
 
 Example
@@ -26,9 +29,8 @@ Per-channel gains found on synthetic data (two measurement pairs, 1 % and
 
 >>> drive = np.array([[1, 2], [2, 3], [3, 4], [4, 1]] * 2); meas = np.array([[5, 6]] * 4 + [[6, 7]] * 4)
 >>> Zm = np.linspace(1.0, 2.0, 8); Zd = Zm * np.r_[[1.01] * 4, [0.99] * 4]
->>> cols = channel_columns(Zm, meas)
 >>> from electrosense.validation.comparison.transfer import drive_folds
->>> cands, _ = score_candidates({"channel_gains": cols["channel_gains"]}, Zd, drive_folds(drive)[2])
+>>> cands, _ = score_candidates(channel_blocks(Zm, meas), ["channel_gains"], Zd, drive_folds(drive)[2])
 >>> cands["channel_gains"]["gains_rel"], cands["channel_gains"]["heldout_rms_rel"] < 1e-5
 ([1.01, 0.99], True)
 """
@@ -36,11 +38,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
 from electrosense.bem.protocol import drive_impedances_ohm
 from electrosense.bem.sensitivity import shift_sensitivities_ohm_per_m
+from electrosense.bem.solve import solve_scene
 from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
@@ -48,37 +52,52 @@ from electrosense.validation.comparison.transfer import (
     score_fit,
     solved_transfer_ohm,
 )
+from electrosense.validation.diagnosis.transfer_remainder import where_the_rest_lies
 
 __all__ = [
-    "REMAINING",
-    "candidate_parameters",
-    "channel_columns",
+    "WallDisc",
+    "block_parameters",
+    "candidate_blocks",
+    "channel_blocks",
     "contact_impedances",
     "diagnose_transfer",
+    "moved_electrodes",
+    "position_blocks",
+    "refine_positions",
     "one_geometry",
     "reshaped_tank",
     "score_candidates",
     "wall_discs",
 ]
 
-#: what the candidates leave, in words (written beside the numbers)
-REMAINING = ("measurement-specific scatter that no smooth physical effect (depth, electrode angles, ground "
-             "current) nor per-channel gain/offset predicts on held-out drives; reciprocal pairs agree on "
-             "much of it (see noise_floor)")
-
 
 def _on_wall(tank, centre_m) -> bool:
     return abs(np.hypot(*centre_m[:2]) - tank.radius_at(centre_m[2])) < 1e-9
 
 
-def wall_discs(scene) -> list[tuple]:
-    """(index, centre, outward normal, azimuthal tangent, radius) of the discs on a cylindrical tank's wall.
+class WallDisc(NamedTuple):
+    """A disc electrode on a cylindrical tank's wall: its index in the scene, centre (m), unit vectors, radius (m).
+
+    ``azimuthal`` moves it along the ring (counter-clockwise seen from
+    above), ``upward`` up the wall's generator (it follows a taper).
+    """
+
+    index: int
+    centre_m: np.ndarray
+    normal_out: np.ndarray
+    azimuthal: np.ndarray
+    upward: np.ndarray
+    radius_m: float
+
+
+def wall_discs(scene) -> list[WallDisc]:
+    """The :class:`WallDisc` of every disc electrode on a cylindrical tank's wall (none on a box tank).
 
     >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.0, 0.1, 0.0), 0.005)])
-    >>> i, c, n, t, a = wall_discs(s)[0]
-    >>> i, n.round(6).tolist(), t.round(6).tolist()
-    (0, [0.0, 1.0, -0.0], [-1.0, 0.0, 0.0])
+    >>> w = wall_discs(s)[0]
+    >>> w.index, w.normal_out.round(6).tolist(), w.azimuthal.round(6).tolist(), w.upward.round(6).tolist()
+    (0, [0.0, 1.0, -0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0])
     """
     tank = scene.tank
     if not hasattr(tank, "radius_at"):
@@ -90,7 +109,9 @@ def wall_discs(scene) -> list[tuple]:
             continue
         phi = np.arctan2(e.centre_m[1], e.centre_m[0])
         normal = np.array([np.cos(phi), np.sin(phi), -slope]) / np.hypot(1.0, slope)   # out of the water
-        out.append((i, np.array(e.centre_m), normal, np.array([-np.sin(phi), np.cos(phi), 0.0]), e.radius_m))
+        upward = np.array([slope * np.cos(phi), slope * np.sin(phi), 1.0]) / np.hypot(1.0, slope)
+        out.append(WallDisc(i, np.array(e.centre_m), normal, np.array([-np.sin(phi), np.cos(phi), 0.0]), upward,
+                            e.radius_m))
     return out
 
 
@@ -114,71 +135,160 @@ def reshaped_tank(scene, radius_m=None, floor_radius_m=None):
     return replace(scene, tank=new, electrodes=tuple(moved))
 
 
-def channel_columns(Z_model, measure) -> dict:
-    """The measurement system's candidates: per-pair gains, per-pair offsets, one common offset.
+def channel_blocks(Z_model, measure) -> dict:
+    """The measurement system's column blocks: per-pair gains (they replace the scale), per-pair offsets, one offset.
 
-    >>> cols = channel_columns(np.array([1.0, 2.0, 3.0]), np.array([[1, 2], [2, 3], [1, 2]]))
-    >>> [len(c) for c in cols.values()]
-    [2, 3, 2]
+    >>> b = channel_blocks(np.array([1.0, 2.0, 3.0]), np.array([[1, 2], [2, 3], [1, 2]]))
+    >>> {k: len(v) for k, v in b.items()}
+    {'channel_gains': 2, 'channel_offsets': 2, 'common_offset': 1}
     """
-    mpairs = np.unique(measure, axis=0)
-    mindex = np.array([np.flatnonzero(np.all(mpairs == m, axis=1))[0] for m in measure])
-    chan = [(mindex == j).astype(float) for j in range(len(mpairs))]
-    return {"channel_gains": [Z_model * c for c in chan], "channel_offsets": [Z_model] + chan,
-            "common_offset": [Z_model, np.ones(len(Z_model))]}
+    mpairs, mindex = np.unique(measure, axis=0, return_inverse=True)
+    chan = [(mindex.ravel() == j).astype(float) for j in range(len(mpairs))]
+    return {"channel_gains": [Z_model * c for c in chan], "channel_offsets": chan,
+            "common_offset": [np.ones(len(Z_model))]}
 
 
-def _angles_start(name: str) -> int:
-    """Index of the first electrode-angle column of a candidate."""
-    return 2 if name.startswith("water_depth") else 1
+def candidate_blocks(name: str) -> list[str]:
+    """The column blocks of a candidate named ``a+b+...``: the scale (BEM's Z) first, unless gains replace it.
+
+    >>> candidate_blocks("water_depth+electrode_angles"), candidate_blocks("channel_gains")
+    (['scale', 'water_depth', 'electrode_angles'], ['channel_gains'])
+    """
+    return (["scale"] if name != "channel_gains" else []) + name.split("+")
 
 
-def candidate_parameters(name: str, c, n_angles: int = 0, R_ring_m: float | None = None) -> dict:
-    """The physical parameters of a fitted candidate from its coefficients ``c`` (``c[0]``: the scale).
+def block_parameters(block: str, c, scale: float, R_ring_m: float | None = None) -> dict:
+    """The physical parameters of one fitted block (coefficients ``c``; ``scale``: the fitted scale).
 
-    >>> candidate_parameters("water_depth", np.array([2.0, -0.01]))
+    >>> block_parameters("water_depth", np.array([-0.01]), 2.0)
     {'depth_change_m': -0.005}
-    >>> candidate_parameters("ring_radius", np.array([2.0, 0.02]), R_ring_m=0.15)
+    >>> block_parameters("ring_radius", np.array([0.02]), 2.0, R_ring_m=0.15)
     {'ring_radius_change_m': 0.01, 'ring_radius_m': 0.16}
+    >>> block_parameters("electrode_heights", np.array([0.002, -0.004]), 2.0)
+    {'height_offsets_mm': [1.0, -2.0]}
     """
-    out = {}
-    if name == "water_depth" or name.startswith("water_depth+"):
-        out["depth_change_m"] = float(c[1] / c[0])
-    if name.startswith("ring_radius"):
-        out["ring_radius_change_m"] = float(c[1] / c[0])
-        out["ring_radius_m"] = R_ring_m + float(c[1] / c[0])
-    if name.endswith("water_depth") and name != "water_depth":
-        out["depth_change_m"] = float(c[-1] / c[0])
-    if "wall_taper" in name:
-        out["floor_radius_change_m"] = float(c[1 if name == "wall_taper" else 2] / c[0])
-    if "electrode_angles" in name:
-        k0 = _angles_start(name)
-        out["arc_offsets_mm"] = np.round(1e3 * c[k0:k0 + n_angles] / c[0], 2).tolist()
-    if name.startswith("current_to_electrode"):
-        out["fraction"] = float(c[1] / c[0])
-    if name == "channel_gains":
-        out["gains_rel"] = np.round(c / np.mean(c), 4).tolist()
-    return out
+    c = np.asarray(c, float)
+    if block == "water_depth":
+        return {"depth_change_m": float(c[0] / scale)}
+    if block == "ring_radius":
+        return {"ring_radius_change_m": float(c[0] / scale), "ring_radius_m": R_ring_m + float(c[0] / scale)}
+    if block == "wall_taper":
+        return {"floor_radius_change_m": float(c[0] / scale)}
+    if block == "electrode_angles":
+        return {"arc_offsets_mm": np.round(1e3 * c / scale, 2).tolist()}
+    if block == "electrode_heights":
+        return {"height_offsets_mm": np.round(1e3 * c / scale, 2).tolist()}
+    if block.startswith("current_to_electrode"):
+        return {"fraction": float(c[0] / scale)}
+    if block == "channel_gains":
+        return {"gains_rel": np.round(c / np.mean(c), 4).tolist()}
+    return {}
 
 
-def score_candidates(columns: dict, Z_measured, folds, n_angles: int = 0, R_ring_m=None) -> tuple[dict, dict]:
-    """Fit and score every candidate; returns {name: scores and parameters} and {name: 2-fold residuals}.
+def score_candidates(blocks: dict, candidates, Z_measured, folds, R_ring_m=None) -> tuple[dict, dict]:
+    """Fit and score every candidate (a name ``a+b+...`` of ``blocks``); returns {name: scores and parameters}
+    and {name: 2-fold residuals}.
 
-    Candidates with ``electrode_angles`` get the rigid rotation of the ring
-    (the sum of the arc offsets) as gauge: it changes nothing.
+    ``blocks``: {name: list of (R,) columns}, with ``"scale"`` the BEM's Z.
+    The ``electrode_angles`` block gets the rigid rotation of the ring (the
+    sum of the arc offsets) as gauge: it changes nothing. The
+    ``electrode_heights`` block keeps the ring's mean height: moving the whole
+    ring up is nearly a change of scale (left to ``water_depth``). Parameters are
+    those of the fit that holds the odd drives out.
     """
     cands, resid = {}, {}
-    for name, cs in columns.items():
-        g = None
-        if "electrode_angles" in name:
-            g = np.zeros((1, len(cs)))
-            k0 = _angles_start(name)
-            g[0, k0:k0 + n_angles] = 1.0
-        sc, res, coefs = score_fit(Z_measured, cs, folds, g)
-        sc.update(candidate_parameters(name, coefs[1], n_angles, R_ring_m))
+    for name in candidates:
+        names = candidate_blocks(name)
+        cols = [c for b in names for c in blocks[b]]
+        start = np.cumsum([0] + [len(blocks[b]) for b in names])
+        gauged = [names.index(b) for b in ("electrode_angles", "electrode_heights") if b in names]
+        g = np.zeros((len(gauged), len(cols))) if gauged else None
+        for row, k in enumerate(gauged):
+            g[row, start[k]:start[k + 1]] = 1.0
+        sc, res, coefs = score_fit(Z_measured, cols, folds, g)
+        c = coefs[1]
+        scale = c[0] if names[0] == "scale" else 1.0
+        for k, b in enumerate(names):
+            sc.update(block_parameters(b, c[start[k]:start[k + 1]], scale, R_ring_m))
         cands[name] = sc
         resid[name] = res
     return cands, resid
+
+
+def position_blocks(solution, wall, comparison) -> dict:
+    """The ``electrode_angles`` and ``electrode_heights`` blocks: d|Z|/ds (ohm/m) of each row for each wall disc
+    moved along the ring / up the wall, from one solve's fields (reciprocity; both directions sampled at once).
+
+    ``wall``: the :class:`WallDisc` of the moving electrodes; ``comparison``
+    gives the rows (drive pairs and index, measurement pairs, signs).
+    """
+    t = comparison.table
+    mpairs, mindex = np.unique(t.measure, axis=0, return_inverse=True)
+    Jall = shift_sensitivities_ohm_per_m(
+        solution, comparison.drive_pairs, mpairs, np.array([w.index + 1 for w in wall] * 2),
+        [w.centre_m for w in wall] * 2, [w.normal_out for w in wall] * 2,
+        [w.azimuthal for w in wall] + [w.upward for w in wall], [w.radius_m for w in wall] * 2)
+    J = comparison.sign[:, None] * Jall[comparison.drive_index, mindex.ravel()]     # (R, 2E)
+    return {"electrode_angles": list(J[:, :len(wall)].T), "electrode_heights": list(J[:, len(wall):].T)}
+
+
+def moved_electrodes(scene, wall, arc_m=None, up_m=None):
+    """The scene with each wall disc ``wall[k]`` moved by ``arc_m[k]`` along the ring and ``up_m[k]`` up the wall.
+
+    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005)])
+    >>> c = moved_electrodes(s, wall_discs(s), [0.1 * np.pi / 2], [0.01]).electrodes[0].centre_m
+    >>> np.round(c, 6).tolist()
+    [0.0, 0.1, 0.01]
+    """
+    tank = scene.tank
+    es = list(scene.electrodes)
+    for k, w in enumerate(wall):
+        c = np.asarray(w.centre_m, float) + (0.0 if up_m is None else up_m[k]) * w.upward
+        r = float(tank.radius_at(c[2]))
+        phi = np.arctan2(c[1], c[0]) + (0.0 if arc_m is None else arc_m[k]) / r
+        es[w.index] = replace(es[w.index], centre_m=(r * np.cos(phi), r * np.sin(phi), float(c[2])))
+    return replace(scene, electrodes=tuple(es))
+
+
+def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_per_m: float, bem_options: dict,
+                     steps: int = 3) -> tuple[dict, np.ndarray]:
+    """Gauss-Newton on the BEM for an electrode-position candidate: move the electrodes as fitted, solve, fit again.
+
+    The linear fit about the stated scene is only as good as one solve's
+    sensitivities and a first-order step; each step here solves the scene
+    with the electrodes where the last fit put them and fits the remaining
+    offsets about it (the even drives, as always; the odd ones scored).
+    ``fitted``: the candidate's scores and parameters from
+    :func:`score_candidates`. Returns its refined scores and parameters and
+    the 2-fold residuals.
+    """
+    from electrosense.validation.comparison.transfer import compare_empty_tank
+
+    n = len(wall)
+    arc = 1e-3 * np.asarray(fitted.get("arc_offsets_mm", np.zeros(n)))
+    up = 1e-3 * np.asarray(fitted.get("height_offsets_mm", np.zeros(n)))
+    t = comparison.table
+    best, res = fitted, None
+    for _ in range(steps):
+        moved = moved_electrodes(scene, wall, arc, up)
+        sol = solve_scene(moved, sigma_S_per_m, **bem_options)
+        comp = compare_empty_tank(t, sol, sigma_S_per_m)
+        blocks = {"scale": [comp.Z_model_ohm],
+                  **position_blocks(sol, [w for w in wall_discs(moved) if w.index in {v.index for v in wall}], comp)}
+        cands, resid = score_candidates(blocks, [name], comp.Z_measured_ohm, comp.folds)
+        c = cands[name]
+        arc = arc + 1e-3 * np.asarray(c.get("arc_offsets_mm", np.zeros(n)))
+        up = up + 1e-3 * np.asarray(c.get("height_offsets_mm", np.zeros(n)))
+        c = {**c, "steps": _ + 1}
+        if "arc_offsets_mm" in fitted:
+            c["arc_offsets_mm"] = np.round(1e3 * arc, 2).tolist()
+        if "height_offsets_mm" in fitted:
+            c["height_offsets_mm"] = np.round(1e3 * up, 2).tolist()
+        if c["heldout_rms_rel"] >= best["heldout_rms_rel"]:
+            break
+        best, res = c, resid[name]
+    return best, res
 
 
 def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
@@ -229,38 +339,34 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     ring = [int(e) for e in protocol.get("ring", [])]
     floating = {int(e) for e in protocol.get("floating", [])}   # electrodes in the water that no cable touches
     seconds = {}
-    cols = channel_columns(Zm, meas)
-    chan = cols["channel_offsets"][1:]
+    blocks = {"scale": [Zm], **channel_blocks(Zm, meas)}
+    candidates = ["channel_gains", "channel_offsets", "common_offset"]
     # ground electrode(s) off the ring carrying part of the drive current (sink shared with it)
     for g in [e for e in range(1, K0.shape[0] + 1) if e not in ring and e not in floating]:
         alt = np.abs(model_transfer_ohm(K0, np.c_[drive[:, 0], np.full(len(drive), g)], meas))
-        cols[f"current_to_electrode_{g}"] = [Zm, alt - Zm]
-    # electrode positions along the wall: sensitivities from the one solve (reciprocity)
+        blocks[f"current_to_electrode_{g}"] = [alt - Zm]
+        candidates.append(f"current_to_electrode_{g}")
+    # electrode positions on the wall, along the ring and up the wall: sensitivities from the one solve
+    # (reciprocity), both directions sampled at once
     t0 = time.perf_counter()
-    wall = [w for w in wall_discs(scene) if w[0] + 1 in ring]      # the measured electrodes
-    J = None
+    wall = [w for w in wall_discs(scene) if w.index + 1 in ring]      # the measured electrodes
     if wall:
-        mpairs = np.unique(meas, axis=0)
-        mindex = np.array([np.flatnonzero(np.all(mpairs == m, axis=1))[0] for m in meas])
-        Jall = shift_sensitivities_ohm_per_m(sol0, comparison.drive_pairs, mpairs, np.array([w[0] + 1 for w in wall]),
-                                             [w[1] for w in wall], [w[2] for w in wall], [w[3] for w in wall],
-                                             [w[4] for w in wall])
-        J = comparison.sign[:, None] * Jall[comparison.drive_index, mindex]   # (R, E) d|Z|/ds, ohm per metre of arc
-        cols["electrode_angles"] = [Zm] + list(J.T)
+        blocks.update(position_blocks(sol0, wall, comparison))
+        candidates += ["electrode_angles", "electrode_heights", "electrode_angles+electrode_heights"]
     seconds["position_sensitivity_s"] = time.perf_counter() - t0
 
     def derivative(changed_scene, step):
         return (Zm - solved_transfer_ohm(changed_scene, sigma_S_per_m, bem_options, drive, meas)) / step
 
     # water depth: one more solve (finite difference of a sixth of the depth)
-    dZdH = None
     tank = scene.tank
     if hasattr(tank, "water_depth_m"):
         dH = tank.water_depth_m / 6
         t0 = time.perf_counter()
-        dZdH = derivative(replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)), dH)
+        blocks["water_depth"] = [derivative(replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)),
+                                            dH)]
         seconds["depth_solve_s"] = time.perf_counter() - t0
-        cols["water_depth"] = [Zm, dZdH]
+        candidates.append("water_depth")
     # the tank's shape at the ring: radius (both radii scaled) and taper (floor radius alone), one solve each;
     # columns per metre of the RING's radius (taper: per metre of the floor's radius)
     shape, R_ring = None, None
@@ -270,20 +376,26 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         f = 0.9
         scaled = reshaped_tank(scene, f * tank.radius_m, f * tank.floor_radius_m)
         Z_scaled = solved_transfer_ohm(scaled, sigma_S_per_m, bem_options, drive, meas)
-        dZdR = (Zm - Z_scaled) / ((1 - f) * R_ring)
+        blocks["ring_radius"] = [(Zm - Z_scaled) / ((1 - f) * R_ring)]
         dF = 0.1 * tank.floor_radius_m
-        dZdF = derivative(reshaped_tank(scene, floor_radius_m=tank.floor_radius_m - dF), dF)
+        blocks["wall_taper"] = [derivative(reshaped_tank(scene, floor_radius_m=tank.floor_radius_m - dF), dF)]
         seconds["shape_solves_s"] = time.perf_counter() - t0
-        cols["ring_radius"] = [Zm, dZdR]
         shape = {"scene": scaled, "R_ring_m": R_ring, "R_ring_scaled_m": f * R_ring, "Z": Z_scaled}
-        cols["wall_taper"] = [Zm, dZdF]
-        cols["ring_radius+wall_taper"] = [Zm, dZdR, dZdF]
-        if dZdH is not None:
-            cols["ring_radius+water_depth"] = [Zm, dZdR, dZdH]
-    if J is not None and dZdH is not None:
-        cols["water_depth+electrode_angles"] = [Zm, dZdH] + list(J.T)
-        cols["water_depth+electrode_angles+channel_offsets"] = [Zm, dZdH] + list(J.T) + chan
-    cands, resid = score_candidates(cols, Zd, folds, 0 if J is None else J.shape[1], R_ring)
+        candidates += ["ring_radius", "wall_taper", "ring_radius+wall_taper"]
+        if "water_depth" in blocks:
+            candidates.append("ring_radius+water_depth")
+    if wall and "water_depth" in blocks:
+        candidates += ["water_depth+electrode_angles", "water_depth+electrode_angles+electrode_heights",
+                       "water_depth+electrode_angles+channel_offsets"]
+    cands, resid = score_candidates(blocks, candidates, Zd, folds, R_ring)
+    if wall:        # the best electrode-position candidate, refined on the BEM
+        t0 = time.perf_counter()
+        name = min(("electrode_angles", "electrode_heights", "electrode_angles+electrode_heights"),
+                   key=lambda k: cands[k]["heldout_rms_rel"])
+        refined, res = refine_positions(comparison, scene, wall, name, cands[name], sigma_S_per_m, bem_options)
+        if res is not None:
+            cands[f"{name}, refined on the BEM"], resid[f"{name}, refined on the BEM"] = refined, res
+        seconds["position_refinement_s"] = time.perf_counter() - t0
     resid = {"stated geometry": comparison.residual, **resid}
     chosen = min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
     gap_before = comparison.metrics["empty_heldout_rms_rel"]
@@ -296,7 +408,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
                                     "rel": float(r0[i])} for i in worst],
-        "remaining": REMAINING}
+        "remaining": where_the_rest_lies(drive, meas, comparison.offsets, resid[chosen])}
     return diagnosis, resid, shape, seconds
 
 
