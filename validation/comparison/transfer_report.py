@@ -131,7 +131,8 @@ def report_markdown(m: dict) -> str:
                    f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
                     f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
-                  f"  - where the rest lies: {d['remaining']['text']}."]
+                  f"  - where the gap lies before any effect (stated geometry): {d['gap_before_split']['text']}.",
+                  f"  - where the rest lies (after {d['chosen']}): {d['remaining']['text']}."]
         if "one_geometry" in d:
             g = d["one_geometry"]
             lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "

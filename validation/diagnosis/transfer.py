@@ -408,7 +408,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
                                     "rel": float(r0[i])} for i in worst],
-        "remaining": where_the_rest_lies(drive, meas, comparison.offsets, resid[chosen])}
+        "gap_before_split": where_the_rest_lies(drive, meas, comparison.offsets, comparison.residual, ring=ring),
+        "remaining": where_the_rest_lies(drive, meas, comparison.offsets, resid[chosen], ring=ring)}
     return diagnosis, resid, shape, seconds
 
 

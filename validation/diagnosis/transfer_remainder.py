@@ -21,7 +21,13 @@ chosen candidate leaves are split into parts whose squares add up:
 ``shares`` are fractions of the total sum of squares; ``largest`` lists the
 rows that hold most of it, with their reciprocal partner's residual (a large
 pair that agrees is a property of the scene, one that does not is the
-instrument's).
+instrument's). On a ring with an even number of electrodes,
+``by_pair_parity`` gives the mean of ``r`` (less its offset mean) over the
+four classes of (drive pair, measurement pair) parity along the ring: a
+system wired or multiplexed by parity shows there, and no tank geometry or
+product of per-pair gains makes one class stand apart from the other three.
+Drive-parity folds (even drives fitted, odd ones scored) never fit the
+odd-odd class, so no candidate can learn such an effect on them.
 
 Example
 -------
@@ -39,7 +45,7 @@ import numpy as np
 
 from electrosense.validation.comparison.transfer import reciprocal_pairs
 
-__all__ = ["where_the_rest_lies"]
+__all__ = ["pair_parity_classes", "where_the_rest_lies"]
 
 _MEANING = {
     "by_ring_offset": "the tank's symmetric shape (mean by ring offset): a smooth geometric effect could remove it",
@@ -50,7 +56,32 @@ _MEANING = {
 }
 
 
-def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4) -> dict:
+def pair_parity_classes(drive, measure, ring) -> np.ndarray | None:
+    """(R,) class 0..3 = 2 * parity(drive pair) + parity(measurement pair) along ``ring`` (None: no even ring).
+
+    A pair's parity is that of its first electrode's place in the ring
+    (cyclic neighbours; the wrap-round pair is the last).
+
+    >>> pair_parity_classes(np.array([[1, 2], [2, 3]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
+    [0, 3]
+    """
+    ring = [int(e) for e in ring]
+    if not ring or len(ring) % 2:
+        return None
+    pos, n = {e: i for i, e in enumerate(ring)}, len(ring)
+
+    def parity(pair):
+        i, j = pos[pair[0]], pos[pair[1]]
+        return (i if (j - i) % n == 1 else j if (i - j) % n == 1 else min(i, j)) % 2
+
+    try:
+        return np.array([2 * parity(d) + parity(m) for d, m in zip(np.asarray(drive).tolist(),
+                                                                     np.asarray(measure).tolist())])
+    except KeyError:
+        return None
+
+
+def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, ring=()) -> dict:
     """Split the residuals ``residual`` (R,) of a transfer log's rows into the parts of the module docstring.
 
     Parameters
@@ -59,6 +90,7 @@ def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4) -
     offsets : (R,) ring offset of each row, or None (no ring: no symmetric part).
     residual : (R,) model / measured - 1, each row held out.
     n_largest : how many of the largest rows to list.
+    ring : the ring's electrodes in order (for ``by_pair_parity``).
 
     Returns
     -------
@@ -90,11 +122,19 @@ def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4) -
                 "share": float(r[k] ** 2 / total)} for k in top]
     shares = {k: v / total for k, v in ss.items()}
     n = len(r)
+    parity = None
+    classes = pair_parity_classes(drive, measure, ring)
+    if classes is not None:
+        parity = {f"{'eo'[c // 2]}{'eo'[c % 2]}": float(s[classes == c].mean()) for c in range(4)
+                  if np.any(classes == c)}
     main = max(shares, key=shares.get)
-    text = (f"of the remaining gap (RMS {np.sqrt(total / n):.4f}), " +
+    text = (f"of the gap (RMS {np.sqrt(total / n):.4f}, each half held out in turn), " +
             ", ".join(f"{100 * v:.0f} % {k.replace('_', ' ')}" for k, v in shares.items() if v > 0.005) +
             f"; most of it: {_MEANING[main]}; the {n_largest} largest rows hold "
             f"{100 * sum(x['share'] for x in largest):.0f} %")
+    if parity:
+        text += ("; mean by (drive, measurement) pair parity, offset mean removed: " +
+                 ", ".join(f"{k} {100 * v:+.1f} %" for k, v in parity.items()))
     return {"rms_rel": float(np.sqrt(total / n)), "shares": shares,
             "rms_rel_by_part": {k: float(np.sqrt(v / n)) for k, v in ss.items()},
-            "meaning": _MEANING, "largest": largest, "text": text}
+            "meaning": _MEANING, "largest": largest, "by_pair_parity": parity, "text": text}
