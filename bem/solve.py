@@ -65,8 +65,8 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
         sm = mesh_scene(scene, edge_length_m, **mesh_options)
         emitter = scene.sensor.emitter if scene.sensor is not None else 1
         boundary = WaterBoundary.from_meshes(
-            sm.sensor_in_tank, sm.tank, sm.objects, tuple(o.is_conducting for o in scene.objects),
-            emitter=emitter)
+            sm.sensor_in_tank, sm.tank, sm.objects + sm.electrode_bodies,
+            tuple(o.is_conducting for o in scene.objects), emitter=emitter)
         t_mesh = time.perf_counter() - t0
         if scene.sensor is None:  # electrodes on the tank only: the plain surface solve
             solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)

@@ -52,8 +52,8 @@ allowed when it has electrodes)::
     radius_m = 0.004
     first_angle_rad = 0.0
 
-    [[electrodes]]              # more electrodes: disc (centre on a boundary) or plate (a whole region)
-    shape = "disc"
+    [[electrodes]]              # more electrodes: disc (centre on a boundary), plate (a whole region)
+    shape = "disc"              # or sphere (a metal ball in the water, centre and radius)
     centre_m = [0.0, 0.0, -0.15]
     radius_m = 0.005
 
@@ -86,7 +86,7 @@ from electrosense.meshes.objects import Box, Cylinder, Sphere, parse_material
 from electrosense.meshes.pose import Pose
 from electrosense.meshes.scene import Scene
 from electrosense.meshes.sensor import load_sensor
-from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode
+from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode, SphereElectrode
 from electrosense.meshes.tank import Tank
 
 __all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
@@ -219,12 +219,17 @@ def _scene_electrodes(path, data, tank) -> list:
                 raise SceneFileError(f"{path}: {where} (disc) needs centre_m and radius_m")
             out.append(DiscElectrode(_floats(path, f"{where} centre_m", e["centre_m"], 3),
                                      _floats(path, f"{where} radius_m", e["radius_m"], 1)[0], str(e.get("name", ""))))
+        elif shape == "sphere":
+            if "centre_m" not in e or "radius_m" not in e:
+                raise SceneFileError(f"{path}: {where} (sphere) needs centre_m and radius_m")
+            out.append(SphereElectrode(_floats(path, f"{where} centre_m", e["centre_m"], 3),
+                                       _floats(path, f"{where} radius_m", e["radius_m"], 1)[0], str(e.get("name", ""))))
         elif shape == "plate":
             if "region" not in e:
                 raise SceneFileError(f"{path}: {where} (plate) needs region = \"floor\" (a tank region)")
             out.append(PlateElectrode(str(e["region"]), str(e.get("name", ""))))
         else:
-            raise SceneFileError(f"{path}: {where} has shape {shape!r}; expected disc or plate")
+            raise SceneFileError(f"{path}: {where} has shape {shape!r}; expected disc, plate or sphere")
     return out
 
 

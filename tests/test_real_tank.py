@@ -11,7 +11,7 @@ from electrosense.meshes import Scene
 from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
 from electrosense.meshes.quality import check_mesh
-from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode
+from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode, SphereElectrode
 from electrosense.validation.bench.log.errors import BenchLogError
 from electrosense.validation.bench.transfer import read_transfer_log, write_transfer_log
 from electrosense.validation.bench.transfer.eit_mat import read_eit_mat
@@ -34,6 +34,38 @@ def test_random_cylinder_tank_mesh_is_closed_and_electrodes_have_their_area():
     assert m.to_trimesh().is_watertight
     assert m.electrodes == tuple(range(1, n + 3))
     np.testing.assert_allclose(m.electrode_areas_m2()[:n + 1], np.pi * (0.05 * R) ** 2, rtol=2e-3)  # the rim polygon: the true area
+
+
+@pytest.mark.parametrize("tank", ['shape = "cylinder"\nradius_m = 1.0\nheight_m = 1.0', "size_m = [2.0, 2.0, 1.0]"])
+def test_two_sphere_electrodes_against_the_closed_form_and_a_sphere_through_the_wall_is_refused(tmp_path, tank):
+    """Two metal spheres (random radius, 20 radii apart) in a large insulating tank (cylinder or box): R = (1/a - 1/d)
+    / (2 pi sigma) to 1 % (the walls add about 1e-3); from a scene file; one crossing the wall is refused, named."""
+    from electrosense.meshes.scene_file import load_scene
+    from electrosense.meshes.scene_mesh import SceneError
+
+    rng = np.random.default_rng(3)
+    a, sigma = rng.uniform(0.005, 0.015), rng.uniform(0.1, 2.0)
+    d = 20 * a
+    (tmp_path / "s.toml").write_text(f"""[tank]
+{tank}
+[[electrodes]]
+shape = "sphere"
+centre_m = [{-d / 2}, 0.0, 0.0]
+radius_m = {a}
+[[electrodes]]
+shape = "sphere"
+centre_m = [{d / 2}, 0.0, 0.0]
+radius_m = {a}
+""")
+    scene = load_scene(tmp_path / "s.toml")
+    K = solve_scene(scene, sigma, tank_edge_length_m=0.15).conductance.K_S
+    R = drive_impedances_ohm(K, np.array([[1, 2]]))[0]
+    assert abs(R / ((1 / a - 1 / d) / (2 * np.pi * sigma)) - 1) < 0.01
+    from dataclasses import replace
+
+    out = replace(scene, electrodes=(scene.electrodes[0], SphereElectrode((0.995, 0.0, 0.0), 0.01)))
+    with pytest.raises(SceneError, match="electrode 2 \\(sphere\\) is out of the water across the wall"):
+        solve_scene(out, sigma)
 
 
 def test_electrode_off_the_boundary_is_refused():
