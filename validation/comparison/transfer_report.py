@@ -6,6 +6,9 @@
 * ``geometry.png``: model / measured - 1 by ring offset for the stated tank
   and the shape candidates, and the ring radius the empty tank and each ball
   want (:func:`electrosense.validation.diagnosis.transfer.one_geometry`);
+* ``remainder.png``: where the gap lies before any effect and after the
+  chosen one (:func:`electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`):
+  the shares of its parts and the mean by pair parity class;
 * ``report.md``: the numbers beside the goals, and the figures.
 
 Figures use the shared look of :mod:`electrosense.validation.report.style` (a PDF beside
@@ -35,6 +38,7 @@ __all__ = [
     "difference_signals_figure",
     "empty_tank_figure",
     "geometry_figure",
+    "remainder_figure",
     "report_markdown",
     "summary_text",
     "write_transfer_report",
@@ -110,6 +114,42 @@ def geometry_figure(folder, offsets, resid: dict, one: dict | None) -> Path:
     return save(fig, Path(folder) / "geometry.png")
 
 
+def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
+    """Where the gap lies, before any effect and after ``chosen``: shares of the parts (stacked, of the squared gap)
+    and, on an even ring, the mean by (drive, measurement) pair parity class."""
+    parity = before.get("by_pair_parity") and after.get("by_pair_parity")
+    fig, ax = new_figure(1, 2 if parity else 1, panel_size_in=(5.2, 3.8))
+    a = ax[0, 0]
+    labels = ["stated geometry", chosen.replace("+", "+\n")]
+    colours = {"by_ring_offset": "tab:blue", "shared_by_reciprocal_pairs": "tab:orange",
+               "breaks_reciprocity": "tab:gray", "unpaired": "0.85"}
+    for i, split in enumerate((before, after)):
+        bottom = 0.0
+        for part, c in colours.items():
+            v = 100 * split["shares"][part] * split["rms_rel"] ** 2 / before["rms_rel"] ** 2
+            a.bar(i, v, bottom=bottom, color=c, width=0.6, label=part.replace("_", " ") if i == 0 else None)
+            bottom += v
+        a.annotate(f"RMS {100 * split['rms_rel']:.1f} %", (i, bottom), textcoords="offset points", xytext=(0, 3),
+                   ha="center", fontsize=9)
+    a.set_xticks([0, 1], labels, fontsize=8)
+    a.set_xlim(-0.6, 2.9)
+    a.set_ylim(0, 115)
+    a.set(ylabel="share of the stated geometry's squared gap (%)", title="where the gap lies (2-fold residuals)")
+    a.legend(fontsize=8, loc="upper right")
+    if parity:
+        b = ax[0, 1]
+        keys = list(before["by_pair_parity"])
+        x = np.arange(len(keys))
+        b.bar(x - 0.2, [100 * before["by_pair_parity"][k] for k in keys], 0.4, color="k", label="stated geometry")
+        b.bar(x + 0.2, [100 * after["by_pair_parity"][k] for k in keys], 0.4, color="tab:red", label=chosen)
+        b.axhline(0, color="k", lw=0.5)
+        b.set_xticks(x, [f"drive {k[0]}\nmeasure {k[1]}" for k in keys], fontsize=8)
+        b.set(ylabel="mean of model / measured - 1 (%)\n(each offset's mean removed)",
+              title="by pair parity along the ring (e even, o odd)")
+        b.legend(fontsize=8)
+    return save(fig, Path(folder) / "remainder.png")
+
+
 def report_markdown(m: dict) -> str:
     """The report (markdown) of a metrics dict written by the transfer comparison."""
     lines = ["# Real tank: BEM against the measured phantom", "",
@@ -143,6 +183,7 @@ def report_markdown(m: dict) -> str:
     else:
         lines += ["- Diagnosis: not run (--no-diagnosis)."]
     lines += ["", "![empty tank](empty_tank.png)", "", "![tank shape](geometry.png)", "",
+              *(["![where the gap lies](remainder.png)", ""] if "diagnosis" in m else []),
               "![difference signals](difference_signals.png)", ""]
     return "\n".join(lines)
 
@@ -168,6 +209,9 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
     if c.offsets is not None:
         geometry_figure(folder, c.offsets, resid or {"stated geometry": c.residual},
                         metrics.get("diagnosis", {}).get("one_geometry"))
+    if "diagnosis" in metrics:
+        d = metrics["diagnosis"]
+        remainder_figure(folder, d["gap_before_split"], d["remaining"], d["chosen"])
     path = folder / "report.md"
     path.write_text(report_markdown(metrics))
     return path
