@@ -38,7 +38,9 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.meshes.cylinder_tank import CYLINDER_TANK_REGIONS
 from electrosense.meshes.labelled_mesh import LabelledMesh
+from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["offscreen_backend", "can_render_3d", "RenderUnavailable", "require_3d", "render_mesh", "mesh_plotter", "render_data", "data_plotter", "ELECTRODE_COLOURS", "EMITTER_COLOUR", "INSULATOR_COLOUR",
            "electrode_colour", "facing_emitter", "electrode_legend"]
@@ -53,7 +55,16 @@ FREE_SURFACE_COLOUR = "#3d85c6"
 OBJECT_COLOUR = "#c08a45"
 BACKGROUND = "white"
 
-_TANK_REGIONS = {"wall_x-", "wall_x+", "wall_y-", "wall_y+", "floor", "free_surface"}
+_TANK_REGIONS = set(TANK_REGIONS) | set(CYLINDER_TANK_REGIONS)
+
+
+def _parts(names) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks of a mesh's faces by region: tank (box or cylinder), objects, the sensor's body (neither, nor an
+    electrode in the water, region ``electrode_<k>``)."""
+    names = names.astype(str)
+    is_tank = np.isin(names, list(_TANK_REGIONS))
+    is_object = np.char.startswith(names, "object")
+    return is_tank, is_object, ~is_tank & ~is_object & ~np.char.startswith(names, "electrode_")
 
 
 #: offscreen backends in the order tried: name -> VTK render window class
@@ -157,12 +168,16 @@ def electrode_colour(k: int, emitter: int | None = None) -> str:
     return ELECTRODE_COLOURS[(k - 1) % len(ELECTRODE_COLOURS)]
 
 
-def electrode_legend(electrodes, emitter: int | None) -> list[tuple[str, str]]:
-    """Legend entries ``("electrode k (emitter)", colour)``: the emitter first, the receivers, the insulator."""
+def electrode_legend(electrodes, emitter: int | None, roles: bool = True) -> list[tuple[str, str]]:
+    """Legend entries ``("electrode k (emitter)", colour)``: the emitter first, the receivers, the insulator.
+
+    ``roles`` False (a scene without a sensor: electrodes on a tank, in the
+    water): ``"electrode k"`` in order, no emitter.
+    """
     entries = []
-    for k in sorted(electrodes, key=lambda k: (k != emitter, k)):
-        role = "emitter" if k == emitter else "receiver"
-        entries.append((f"electrode {k} ({role})", electrode_colour(k, emitter)))
+    for k in sorted(electrodes, key=lambda k: (roles and k != emitter, k)):
+        role = (" (emitter)" if k == emitter else " (receiver)") if roles else ""
+        entries.append((f"electrode {k}{role}", electrode_colour(k, emitter)))
     entries.append(("insulator", INSULATOR_COLOUR))
     return entries
 
@@ -181,15 +196,15 @@ def _add_parts(plotter, mesh: LabelledMesh, show_edges: bool, tank_opacity: floa
     without their edges, which would otherwise paint them black.
     """
     names = np.asarray(mesh.region_names)[mesh.region]
-    is_tank = np.isin(names, list(_TANK_REGIONS))
-    is_object = np.char.startswith(names.astype(str), "object")
-    is_body = ~is_tank & ~is_object
+    is_tank, is_object, is_body = _parts(names)
     small_edges = show_edges and (detail or not is_tank.any())
     edge_kw = dict(show_edges=small_edges, edge_color="#404040", line_width=0.5)
     shading = dict(specular=0.2, ambient=0.3, diffuse=0.8)
-    for k in np.unique(mesh.electrode[is_body]):
-        plotter.add_mesh(_polydata(mesh, is_body & (mesh.electrode == k)), color=electrode_colour(int(k), emitter),
+    solid = is_body if detail else ~is_object & (is_body | (mesh.electrode > 0))   # electrodes on the tank: opaque
+    for k in np.unique(mesh.electrode[solid]):
+        plotter.add_mesh(_polydata(mesh, solid & (mesh.electrode == k)), color=electrode_colour(int(k), emitter),
                          **edge_kw, **shading)
+    is_tank = is_tank & (mesh.electrode == 0)
     if is_object.any():
         plotter.add_mesh(_polydata(mesh, is_object), color=OBJECT_COLOUR, **edge_kw, **shading)
     if is_tank.any() and not detail:
@@ -247,15 +262,14 @@ def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int |
     if view_vector is None:
         view_vector = facing_emitter(mesh, emitter)
     names = np.asarray(mesh.region_names)[mesh.region]
-    has_body = np.any(~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object"))
-    has_surroundings = bool(np.any(np.isin(names, list(_TANK_REGIONS))) or np.any(np.char.startswith(names.astype(str), "object")))
+    is_tank, is_object, is_body = _parts(names)
+    has_body = bool(is_body.any())
     if close_up is None:
-        close_up = bool(electrodes) and has_body and has_surroundings
+        close_up = bool(electrodes) and has_body and bool(is_tank.any() or is_object.any())
     font = max(12, int(window_size[1] / 55))
     plotter = pv.Plotter(off_screen=off_screen, window_size=list(window_size), shape=(1, 2) if close_up else (1, 1),
                          border=False)
     plotter.set_background(BACKGROUND)
-    is_body = ~np.isin(names, list(_TANK_REGIONS)) & ~np.char.startswith(names.astype(str), "object")
     panels = [(0, False)] + ([(1, True)] if close_up else [])
     for column, detail in panels:
         plotter.subplot(0, column)
@@ -276,7 +290,7 @@ def mesh_plotter(mesh: LabelledMesh, *, title: str | None = None, emitter: int |
         if heading:
             plotter.add_text(heading, position="upper_left", font_size=font, color="black")
     if electrodes:
-        _add_legend(plotter, electrode_legend(electrodes, emitter), 1.0 if close_up else 0.7)
+        _add_legend(plotter, electrode_legend(electrodes, emitter, roles=has_body), 1.0 if close_up else 0.7)
     return plotter
 
 

@@ -53,7 +53,8 @@ allowed when it has electrodes)::
     first_angle_rad = 0.0
 
     [[electrodes]]              # more electrodes: disc (centre on a boundary), plate (a whole region)
-    shape = "disc"              # or sphere (a metal ball in the water, centre and radius)
+    shape = "disc"              # or sphere / rod (a metal ball / vertical rod in the water: centre,
+                                # radius, and the rod's length_m)
     centre_m = [0.0, 0.0, -0.15]
     radius_m = 0.005
 
@@ -86,7 +87,7 @@ from electrosense.meshes.objects import Box, Cylinder, Sphere, parse_material
 from electrosense.meshes.pose import Pose
 from electrosense.meshes.scene import Scene
 from electrosense.meshes.sensor import load_sensor
-from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode, SphereElectrode
+from electrosense.meshes.surface_electrodes import BodyElectrode, DiscElectrode, PlateElectrode
 from electrosense.meshes.tank import Tank
 
 __all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
@@ -212,24 +213,28 @@ def _scene_electrodes(path, data, tank) -> list:
         raise SceneFileError(f"{path}: electrodes must be an array of tables ([[electrodes]])")
     for i, e in enumerate(entries, start=1):
         where = f"[[electrodes]] number {i}"
-        _unknown(path, where, e, {"shape", "centre_m", "radius_m", "region", "name"})
+        _unknown(path, where, e, {"shape", "centre_m", "radius_m", "length_m", "region", "name"})
         shape = str(e.get("shape", "disc"))
         if shape == "disc":
             if "centre_m" not in e or "radius_m" not in e:
                 raise SceneFileError(f"{path}: {where} (disc) needs centre_m and radius_m")
             out.append(DiscElectrode(_floats(path, f"{where} centre_m", e["centre_m"], 3),
                                      _floats(path, f"{where} radius_m", e["radius_m"], 1)[0], str(e.get("name", ""))))
-        elif shape == "sphere":
-            if "centre_m" not in e or "radius_m" not in e:
-                raise SceneFileError(f"{path}: {where} (sphere) needs centre_m and radius_m")
-            out.append(SphereElectrode(_floats(path, f"{where} centre_m", e["centre_m"], 3),
-                                       _floats(path, f"{where} radius_m", e["radius_m"], 1)[0], str(e.get("name", ""))))
+        elif shape in ("sphere", "rod"):
+            need = ("centre_m", "radius_m") + (("length_m",) if shape == "rod" else ())
+            if any(k not in e for k in need):
+                raise SceneFileError(f"{path}: {where} ({shape}) needs {', '.join(need)}")
+            c = _floats(path, f"{where} centre_m", e["centre_m"], 3)
+            r = _floats(path, f"{where} radius_m", e["radius_m"], 1)[0]
+            body = (Sphere(c, radius_m=r) if shape == "sphere"
+                    else Cylinder(c, radius_m=r, height_m=_floats(path, f"{where} length_m", e["length_m"], 1)[0]))
+            out.append(BodyElectrode(body, str(e.get("name", ""))))
         elif shape == "plate":
             if "region" not in e:
                 raise SceneFileError(f"{path}: {where} (plate) needs region = \"floor\" (a tank region)")
             out.append(PlateElectrode(str(e["region"]), str(e.get("name", ""))))
         else:
-            raise SceneFileError(f"{path}: {where} has shape {shape!r}; expected disc, plate or sphere")
+            raise SceneFileError(f"{path}: {where} has shape {shape!r}; expected disc, plate, sphere or rod")
     return out
 
 

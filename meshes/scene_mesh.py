@@ -39,7 +39,7 @@ from electrosense.meshes.object_mesh import mesh_object
 from electrosense.meshes.objects import Box, Cylinder, Sphere
 from electrosense.meshes.pose import Pose
 from electrosense.meshes.scene import Scene
-from electrosense.meshes.surface_electrodes import SphereElectrode
+from electrosense.meshes.surface_electrodes import BodyElectrode
 from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
@@ -188,28 +188,41 @@ def scene_problems(scene: Scene) -> list[str]:
     return problems
 
 
-def _sphere_electrode_problems(scene: Scene) -> list[str]:
-    """Sphere electrodes out of the water, touching a boundary, an object, the sensor or each other."""
+def _body_gap_m(body, other) -> float:
+    """Smallest distance (m) between two bodies' surfaces (exact for a sphere, sampled otherwise); < 0: overlap."""
+    if isinstance(body, Sphere):
+        return float(distance_to_object_m(other, np.asarray(body.centre_m))) - body.radius_m
+    if isinstance(other, Sphere):
+        return float(distance_to_object_m(body, np.asarray(other.centre_m))) - other.radius_m
+    return float(min(distance_to_object_m(other, _surface_samples_m(body)).min(),
+                     distance_to_object_m(body, _surface_samples_m(other)).min()))
+
+
+def _body_electrode_problems(scene: Scene) -> list[str]:
+    """Electrodes in the water out of it, touching a boundary, an object, the sensor or each other."""
     problems = []
-    spheres = [(i, e) for i, e in enumerate(scene.electrodes, start=scene.n_sensor_electrodes + 1)
-               if isinstance(e, SphereElectrode)]
+    bodies = [(i, e) for i, e in enumerate(scene.electrodes, start=scene.n_sensor_electrodes + 1)
+              if isinstance(e, BodyElectrode)]
     names = scene.tank.region_names if hasattr(scene.tank, "region_names") else TANK_REGIONS
     core = sensor_axis_points_m(scene) if scene.sensor is not None else None
-    for k, (i, e) in enumerate(spheres):
-        name = f"electrode {i} (sphere{' ' + repr(e.name) if e.name else ''})"
-        ball = Sphere(e.centre_m, radius_m=e.radius_m)
-        crossings = _boundary_crossings(scene.tank.distance_to_boundary_m(_object_extreme_points_m(ball)).min(axis=0),
-                                        names)
+
+    def named(i, e):
+        return f"electrode {i} ({type(e.body).__name__.lower()}{' ' + repr(e.name) if e.name else ''})"
+
+    for k, (i, e) in enumerate(bodies):
+        crossings = _boundary_crossings(
+            scene.tank.distance_to_boundary_m(_object_extreme_points_m(e.body)).min(axis=0), names)
         if crossings:
-            problems.append(f"{name} {crossings}")
+            problems.append(f"{named(i, e)} {crossings}")
         for j, obj in enumerate(scene.objects, start=1):
-            if float(distance_to_object_m(obj, np.asarray(e.centre_m))) - e.radius_m <= _TOUCH_M:
-                problems.append(f"{name} and {_object_name(j, obj)} intersect or touch")
-        if core is not None and _segment_distance_to_object_m(core[0], core[1], ball) - scene.sensor.radius_m <= _TOUCH_M:
-            problems.append(f"{name} intersects or touches the sensor")
-        for i2, e2 in spheres[k + 1:]:
-            if np.linalg.norm(np.subtract(e.centre_m, e2.centre_m)) <= e.radius_m + e2.radius_m + _TOUCH_M:
-                problems.append(f"{name} and electrode {i2} (sphere) intersect or touch")
+            if _body_gap_m(e.body, obj) <= _TOUCH_M:
+                problems.append(f"{named(i, e)} and {_object_name(j, obj)} intersect or touch")
+        if core is not None and (_segment_distance_to_object_m(core[0], core[1], e.body) - scene.sensor.radius_m
+                                 <= _TOUCH_M):
+            problems.append(f"{named(i, e)} intersects or touches the sensor")
+        for i2, e2 in bodies[k + 1:]:
+            if _body_gap_m(e.body, e2.body) <= _TOUCH_M:
+                problems.append(f"{named(i, e)} and {named(i2, e2)} intersect or touch")
     return problems
 
 
@@ -253,7 +266,7 @@ def _pose_text(pose: Pose) -> str:
 
 def check_scene(scene: Scene) -> Scene:
     """Return the scene unchanged, or raise :class:`SceneError` (a ``ValueError``) naming every problem."""
-    problems = scene_problems(scene) + _sphere_electrode_problems(scene)
+    problems = scene_problems(scene) + _body_electrode_problems(scene)
     if problems:
         raise SceneError(problems)
     return scene
@@ -277,7 +290,7 @@ class SceneMesh:
         One mesh per object, tank frame, regions ``"object_1"``, ...
     electrode_bodies : tuple of LabelledMesh
         One mesh per electrode that is a body in the water (a
-        :class:`~electrosense.meshes.surface_electrodes.SphereElectrode`), all
+        :class:`~electrosense.meshes.surface_electrodes.BodyElectrode`), all
         its faces labelled with its electrode number; tank frame.
     """
 
@@ -376,8 +389,8 @@ def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_
     if tank_focus_m is None:
         focus += [_object_extreme_points_m(o) for o in scene.objects]
     first = scene.n_sensor_electrodes + 1
-    on_tank = [i for i, e in enumerate(scene.electrodes) if not isinstance(e, SphereElectrode)]
-    bodies = [i for i, e in enumerate(scene.electrodes) if isinstance(e, SphereElectrode)]
+    on_tank = [i for i, e in enumerate(scene.electrodes) if not isinstance(e, BodyElectrode)]
+    bodies = [i for i, e in enumerate(scene.electrodes) if isinstance(e, BodyElectrode)]
     focus += [np.asarray(scene.electrodes[i].centre_m, float)[None, :] for i in bodies]
     if isinstance(scene.tank, CylinderTank):
         tank = mesh_cylinder_tank(
@@ -393,13 +406,14 @@ def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_
         tank = mesh_tank(scene.tank, tank_edge_length_m, np.concatenate(focus) if focus else None, grading=tank_grading)
     else:
         raise SceneError([f"electrodes on a {type(scene.tank).__name__}'s walls are not meshed yet: use a "
-                          "cylindrical tank (spheres in the water are meshed in either)"])
+                          "cylindrical tank (electrodes in the water are meshed in either)"])
     if bodies:      # the tank's labels 1..k back to scene order (electrodes in the water come between)
         label = np.r_[0, first + np.asarray(on_tank, np.int64)]
         tank.electrode = label[tank.electrode]
     else:
         tank.electrode = np.where(tank.electrode > 0, tank.electrode + first - 1, 0)
-    electrode_bodies = tuple(_sphere_electrode_mesh(scene.electrodes[i], first + i) for i in bodies)
+    electrode_bodies = tuple(_body_electrode_mesh(scene.electrodes[i], first + i, object_edge_length_m)
+                             for i in bodies)
     objects = tuple(
         mesh_object(obj, object_edge_length_m, region_name=f"object_{i}") for i, obj in enumerate(scene.objects, start=1)
     )
@@ -412,12 +426,21 @@ def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_
 SPHERE_ELECTRODE_EDGE_FRACTION = 0.4
 
 
-def _sphere_electrode_mesh(e, label: int) -> LabelledMesh:
-    """The mesh of a sphere electrode, every face labelled ``label``, region ``electrode_<label>``."""
-    m = mesh_object(Sphere(e.centre_m, radius_m=e.radius_m), SPHERE_ELECTRODE_EDGE_FRACTION * e.radius_m,
-                    region_name=f"electrode_{label}")
-    # the inscribed polyhedron is scaled about the centre to the sphere's area: the electrode's area exact
-    c = np.asarray(e.centre_m, float)
-    scale = np.sqrt(4 * np.pi * e.radius_m ** 2 / m.to_trimesh().area)
+def _body_electrode_mesh(e, label: int, edge_length_m=None) -> LabelledMesh:
+    """The mesh of an electrode in the water, every face labelled ``label``, region ``electrode_<label>``.
+
+    A sphere is meshed at :data:`SPHERE_ELECTRODE_EDGE_FRACTION` of its radius
+    (or ``edge_length_m``) and its inscribed polyhedron scaled about the
+    centre to the sphere's area (the electrode's area exact); a rod or a
+    block as an object of its size.
+    """
+    body = e.body
+    if not isinstance(body, Sphere):
+        m = mesh_object(body, edge_length_m, region_name=f"electrode_{label}")
+        return LabelledMesh(m.vertices_m, m.faces, np.full(m.n_triangles, label, np.int64), m.region, m.region_names)
+    h = SPHERE_ELECTRODE_EDGE_FRACTION * body.radius_m if edge_length_m is None else edge_length_m
+    m = mesh_object(body, h, region_name=f"electrode_{label}")
+    c = np.asarray(body.centre_m, float)
+    scale = np.sqrt(4 * np.pi * body.radius_m ** 2 / m.to_trimesh().area)
     return LabelledMesh(c + scale * (m.vertices_m - c), m.faces, np.full(m.n_triangles, label, np.int64), m.region,
                         m.region_names)

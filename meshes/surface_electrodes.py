@@ -1,4 +1,4 @@
-"""Electrodes of a scene: discs flush with a tank's wall or floor, plates, and spheres in the water.
+"""Electrodes of a scene: discs flush with a tank's wall or floor, plates, and metal bodies in the water.
 
 A sensor carries its own electrodes (:mod:`electrosense.meshes.sensor`). A scene may also
 have electrodes of its own, on the tank (field electrodes in the walls, a
@@ -9,10 +9,10 @@ ground electrode on the floor, a plate covering a whole wall):
   button is modelled by the disc of its wetted radius.
 * :class:`PlateElectrode`: a whole boundary region of the tank (``"floor"``,
   ``"wall_x+"``, ``"free_surface"`` ...) is one electrode.
-* :class:`SphereElectrode`: a metal sphere in the water, its whole surface
-  one electrode (a reference electrode hung in the tank, a ball electrode, a
-  screw's tip standing off the wall). It has no edge: no singularity to grade
-  towards.
+* :class:`BodyElectrode`: a metal body in the water (a sphere, a vertical
+  rod, a block), its whole surface one electrode: a reference electrode hung
+  in the tank, a ball electrode, a screw's tip standing off the wall. It has
+  no electrode/insulator edge to grade towards.
 
 Scene electrodes are numbered after the sensor's: with a sensor of n
 electrodes, the scene's first electrode is n + 1 (1 without a sensor).
@@ -38,7 +38,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-__all__ = ["DiscElectrode", "PlateElectrode", "SphereElectrode", "SurfaceElectrode", "electrode_size_function",
+__all__ = ["DiscElectrode", "PlateElectrode", "BodyElectrode", "SurfaceElectrode", "electrode_size_function",
            "DEFAULT_EDGE_FRACTION", "DEFAULT_ELECTRODE_GRADING", "disc_rim_nodes", "rim_offsets",
            "RIM_GRADING_RATIO", "RIM_FIRST_ROW_EXPONENT"]
 
@@ -76,25 +76,34 @@ class PlateElectrode:
 
 
 @dataclass(frozen=True)
-class SphereElectrode:
-    """A sphere of radius ``radius_m`` centred at ``centre_m`` (tank frame) in the water, all of it one electrode."""
+class BodyElectrode:
+    """A metal body in the water, its whole surface one electrode: a ball, a vertical rod, a block.
 
-    centre_m: tuple[float, float, float]
-    radius_m: float
+    ``body`` is a :class:`~electrosense.meshes.objects.Sphere`,
+    :class:`~electrosense.meshes.objects.Cylinder` (a rod, axis vertical) or
+    :class:`~electrosense.meshes.objects.Box` (tank frame).
+
+    >>> from electrosense.meshes.objects import Sphere
+    >>> BodyElectrode(Sphere((0.0, 0.0, 0.0), radius_m=0.01), "reference").centre_m
+    (0.0, 0.0, 0.0)
+    """
+
+    body: object
     name: str = ""
 
     def __post_init__(self):
-        c = tuple(float(v) for v in self.centre_m)
-        if len(c) != 3 or not all(np.isfinite(c)):
-            raise ValueError(f"sphere electrode {self.name!r}: centre_m must be 3 finite numbers, got {self.centre_m}")
-        object.__setattr__(self, "centre_m", c)
-        r = float(self.radius_m)
-        if not (np.isfinite(r) and r > 0):
-            raise ValueError(f"sphere electrode {self.name!r}: radius_m must be positive, got {self.radius_m}")
-        object.__setattr__(self, "radius_m", r)
+        from electrosense.meshes.objects import Box, Cylinder, Sphere
+
+        if not isinstance(self.body, (Sphere, Cylinder, Box)):
+            raise ValueError(f"body electrode {self.name!r}: body must be a Sphere, Cylinder or Box, "
+                             f"got {type(self.body).__name__}")
+
+    @property
+    def centre_m(self) -> tuple[float, float, float]:
+        return self.body.centre_m
 
 
-SurfaceElectrode = DiscElectrode | PlateElectrode | SphereElectrode
+SurfaceElectrode = DiscElectrode | PlateElectrode | BodyElectrode
 
 
 def electrode_size_function(electrodes: Sequence, h_far_m: float, edge_fraction: float = DEFAULT_EDGE_FRACTION,

@@ -10,8 +10,9 @@ from electrosense.bem.solve import solve, solve_scene
 from electrosense.meshes import Scene
 from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
+from electrosense.meshes.objects import Sphere
 from electrosense.meshes.quality import check_mesh
-from electrosense.meshes.surface_electrodes import DiscElectrode, PlateElectrode, SphereElectrode
+from electrosense.meshes.surface_electrodes import BodyElectrode, DiscElectrode, PlateElectrode
 from electrosense.validation.bench.log.errors import BenchLogError
 from electrosense.validation.bench.transfer import read_transfer_log, write_transfer_log
 from electrosense.validation.bench.transfer.eit_mat import read_eit_mat
@@ -63,9 +64,38 @@ radius_m = {a}
     assert abs(R / ((1 / a - 1 / d) / (2 * np.pi * sigma)) - 1) < 0.01
     from dataclasses import replace
 
-    out = replace(scene, electrodes=(scene.electrodes[0], SphereElectrode((0.995, 0.0, 0.0), 0.01)))
+    out = replace(scene, electrodes=(scene.electrodes[0], BodyElectrode(Sphere((0.995, 0.0, 0.0), radius_m=0.01))))
     with pytest.raises(SceneError, match="electrode 2 \\(sphere\\) is out of the water across the wall"):
         solve_scene(out, sigma)
+
+
+def test_a_rod_electrode_and_a_ball_against_slender_body_theory(tmp_path):
+    """A metal rod (random length 15-25 radii) and a ball far apart in a large box tank, from a scene file: R = 1 /
+    (sigma C_rod) + 1 / (4 pi sigma b) - 1 / (2 pi sigma D), with C_rod / eps from Vainshtein's expansion of a thin
+    cylinder's capacitance in Lambda = ln(L / a) (its error is O(Lambda^-3)): to 2 %."""
+    from electrosense.meshes.scene_file import load_scene
+
+    rng = np.random.default_rng(8)
+    a, b, sigma = 0.004, 0.01, rng.uniform(0.2, 2.0)
+    L, D = a * rng.uniform(15, 25), 0.6
+    (tmp_path / "r.toml").write_text(f"""[tank]
+size_m = [3.0, 3.0, 3.0]
+[[electrodes]]
+shape = "rod"
+centre_m = [{-D / 2}, 0.0, 0.0]
+radius_m = {a}
+length_m = {L}
+name = "rod"
+[[electrodes]]
+shape = "sphere"
+centre_m = [{D / 2}, 0.0, 0.0]
+radius_m = {b}
+""")
+    K = solve_scene(load_scene(tmp_path / "r.toml"), sigma, tank_edge_length_m=0.4).conductance.K_S
+    lam = np.log(L / a)
+    c_rod = 2 * np.pi * L / lam * (1 + (1 - np.log(2)) / lam + (1 + (1 - np.log(2)) ** 2 - np.pi ** 2 / 12) / lam ** 2)
+    R = 1 / (sigma * c_rod) + 1 / (4 * np.pi * sigma * b) - 1 / (2 * np.pi * sigma * D)
+    assert abs(drive_impedances_ohm(K, np.array([[1, 2]]))[0] / R - 1) < 0.02
 
 
 def test_electrode_off_the_boundary_is_refused():

@@ -106,8 +106,29 @@ def mesh_scene_cmd(output, png, tank_edge_length_m, tank_grading, **scene_opts):
         sm = mesh_scene(scene, edge_length_m, tank_edge_length_m=tank_edge_length_m, tank_grading=tank_grading)
     except ValueError as exc:  # a refused scene names its parts
         raise click.ClickException(str(exc)) from None
-    combined = sm.combined()
-    p = scene.pose
-    title = (f"{scene.sensor.name} at ({p.x_m:g}, {p.y_m:g}, {p.z_m:g}) m, yaw {p.yaw_rad:g} rad"
-             + ("" if scene.tank is None else f" in a {'x'.join(f'{v:g}' for v in scene.tank.size_m)} m tank"))
-    _finish(combined, output, png, title, scene.sensor.emitter)
+    _finish(sm.combined(), output, png, scene_title(scene), None if scene.sensor is None else scene.sensor.emitter)
+
+
+def scene_title(scene) -> str:
+    """One line naming a scene's sensor and pose, its tank and its own electrodes (a picture's title).
+
+    >>> from electrosense.meshes import Scene
+    >>> from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes.objects import Sphere
+    >>> from electrosense.meshes.surface_electrodes import BodyElectrode
+    >>> scene_title(Scene(None, tank=CylinderTank(0.15, 0.3), electrodes=[BodyElectrode(Sphere((0, 0, 0)))]))
+    'no sensor, in a cylindrical tank (radius 0.15 m, water 0.3 m deep), 1 electrode of its own'
+    """
+    parts = ["no sensor"]
+    if scene.sensor is not None:
+        p = scene.pose
+        parts = [f"{scene.sensor.name} at ({p.x_m:g}, {p.y_m:g}, {p.z_m:g}) m, yaw {p.yaw_rad:g} rad"]
+    tank = scene.tank
+    if hasattr(tank, "size_m"):
+        parts.append(f"in a {'x'.join(f'{v:g}' for v in tank.size_m)} m tank")
+    elif tank is not None:
+        parts.append(f"in a cylindrical tank (radius {tank.radius_m:g} m, water {tank.water_depth_m:g} m deep)")
+    if scene.electrodes:
+        n = len(scene.electrodes)
+        parts.append(f"{n} electrode{'s' if n > 1 else ''} of its own")
+    return ", ".join(parts)
