@@ -1,8 +1,9 @@
 """The diagnosis of a transfer log's gap to the BEM: candidate effects, each linear about the one solve.
 
 Each candidate is a sum of column blocks beside the BEM's Z (whose
-coefficient is the fitted scale), named ``block+block+...``, fitted on the even drive patterns and scored on the odd
-ones (:func:`electrosense.validation.comparison.transfer.score_fit`):
+coefficient is the fitted scale), named ``block+block+...``, fitted on the
+even drive patterns and scored on the odd ones
+(:func:`electrosense.validation.comparison.transfer.score_fit`):
 
 * ``channel_gains`` / ``channel_offsets`` / ``common_offset``: the
   measurement system, per measurement pair;
@@ -13,14 +14,17 @@ ones (:func:`electrosense.validation.comparison.transfer.score_fit`):
   (reciprocity, :mod:`electrosense.bem.sensitivity`), with the rigid rotation
   of the ring as gauge;
 * ``water_depth``, ``ring_radius``, ``wall_taper``: one more solve each
-  (finite differences), and combinations of these.
+  (finite differences), and combinations of these;
+* the best electrode-position candidate refined on the BEM
+  (:func:`refine_positions`: the electrodes moved, the scene solved again).
 
 ``chosen`` is the candidate with the smallest held-out gap; what it leaves
 is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
 (the tank's symmetric shape, scatter that reciprocal pairs share, the part
 that breaks reciprocity). Contact impedances come from the drive pairs' own
-voltages (they cannot change a four-electrode transfer impedance). :func:`one_geometry` asks whether one
-tank shape explains both the empty tank and the balls.
+voltages (they cannot change a four-electrode transfer impedance).
+:func:`one_geometry` asks whether one tank shape explains both the empty
+tank and the balls.
 
 Example
 -------
@@ -48,6 +52,7 @@ from electrosense.bem.solve import solve_scene
 from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
+    compare_empty_tank,
     model_transfer_ohm,
     score_fit,
     solved_transfer_ohm,
@@ -263,14 +268,12 @@ def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_p
     :func:`score_candidates`. Returns its refined scores and parameters and
     the 2-fold residuals.
     """
-    from electrosense.validation.comparison.transfer import compare_empty_tank
-
     n = len(wall)
     arc = 1e-3 * np.asarray(fitted.get("arc_offsets_mm", np.zeros(n)))
     up = 1e-3 * np.asarray(fitted.get("height_offsets_mm", np.zeros(n)))
     t = comparison.table
     best, res = fitted, None
-    for _ in range(steps):
+    for step in range(1, steps + 1):
         moved = moved_electrodes(scene, wall, arc, up)
         sol = solve_scene(moved, sigma_S_per_m, **bem_options)
         comp = compare_empty_tank(t, sol, sigma_S_per_m)
@@ -280,7 +283,7 @@ def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_p
         c = cands[name]
         arc = arc + 1e-3 * np.asarray(c.get("arc_offsets_mm", np.zeros(n)))
         up = up + 1e-3 * np.asarray(c.get("height_offsets_mm", np.zeros(n)))
-        c = {**c, "steps": _ + 1}
+        c = {**c, "steps": step}
         if "arc_offsets_mm" in fitted:
             c["arc_offsets_mm"] = np.round(1e3 * arc, 2).tolist()
         if "height_offsets_mm" in fitted:
