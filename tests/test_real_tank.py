@@ -275,6 +275,7 @@ def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monk
         assert (tmp_path / cmd / "report.md").exists() and (tmp_path / cmd / "empty_tank.png").exists()
     cands = m["diagnosis"]["candidates"]
     assert "electrode_angles" in cands and "current_to_electrode_9" in cands and "current_to_electrode_10" not in cands
+    assert m["diagnosis"]["chosen"] == "none"          # the BEM's own data with noise: nothing to explain
 
 
 def test_random_tapered_tank_mesh_and_two_rings_from_a_scene_file(tmp_path):
@@ -337,6 +338,29 @@ def test_electrode_heights_found_and_the_rest_split_on_a_synthetic_phantom(tmp_p
     assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
     shares = d["remaining"]["shares"]
     assert abs(sum(shares.values()) - 1) < 1e-9
+
+
+def test_where_the_rest_lies_calls_independent_noise_noise_and_a_reciprocal_pattern_shared():
+    """Independent errors on every measurement (16-electrode adjacent protocol): the split names them noise, not
+    scatter shared by reciprocal pairs; a reciprocal pattern on top of them (a gain per pair, driving and measuring
+    alike) is found shared."""
+    from electrosense.validation.comparison.transfer import ring_offsets
+    from electrosense.validation.diagnosis.transfer_remainder import where_the_rest_lies
+
+    rng = np.random.default_rng(4)
+    ring = list(range(1, 17))
+    d, m = adjacent_protocol(ring)
+    keep = ~involves_drive(d, m)
+    drive = np.repeat(d, len(m), axis=0)[keep.ravel()]
+    meas = np.tile(m, (len(d), 1))[keep.ravel()]
+    off = ring_offsets(drive, meas, ring)
+    noise = 0.01 * rng.standard_normal(len(drive))
+    split = where_the_rest_lies(drive, meas, off, noise, ring=ring)
+    assert split["shares"]["noise"] > 0.75 and split["shares"]["shared_by_reciprocal_pairs"] < 0.2
+    g = 0.03 * rng.standard_normal(len(ring))
+    pattern = g[drive[:, 0] - 1] + g[meas[:, 0] - 1]       # a pair (k, k+1) by its first electrode
+    split = where_the_rest_lies(drive, meas, off, noise + pattern, ring=ring)
+    assert split["shares"]["shared_by_reciprocal_pairs"] > 0.6
 
 
 @pytest.mark.parametrize("module", ["electrosense.validation.comparison.transfer",

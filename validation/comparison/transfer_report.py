@@ -121,13 +121,15 @@ def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
     fig, ax = new_figure(1, 2 if parity else 1, panel_size_in=(5.2, 3.8))
     a = ax[0, 0]
     labels = ["stated geometry", chosen.replace("+", "+\n")]
-    colours = {"by_ring_offset": "tab:blue", "shared_by_reciprocal_pairs": "tab:orange",
-               "breaks_reciprocity": "tab:gray", "unpaired": "0.85"}
+    colours = {"by_ring_offset": "tab:blue", "shared_by_reciprocal_pairs": "tab:orange", "noise": "tab:gray",
+               "unpaired": "0.85"}
     for i, split in enumerate((before, after)):
         bottom = 0.0
         for part, c in colours.items():
             v = 100 * split["shares"][part] * split["rms_rel"] ** 2 / before["rms_rel"] ** 2
-            a.bar(i, v, bottom=bottom, color=c, width=0.6, label=part.replace("_", " ") if i == 0 else None)
+            label = {"shared_by_reciprocal_pairs": "shared by reciprocal pairs, beyond noise",
+                     "noise": "noise (breaks reciprocity, x2)"}.get(part, part.replace("_", " "))
+            a.bar(i, v, bottom=bottom, color=c, width=0.6, label=label if i == 0 else None)
             bottom += v
         a.annotate(f"RMS {100 * split['rms_rel']:.1f} %", (i, bottom), textcoords="offset points", xytext=(0, 3),
                    ha="center", fontsize=9)
@@ -172,7 +174,8 @@ def report_markdown(m: dict) -> str:
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
                     f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
                   f"  - where the gap lies before any effect (stated geometry): {d['gap_before_split']['text']}.",
-                  f"  - where the rest lies (after {d['chosen']}): {d['remaining']['text']}."]
+                  *([f"  - where the rest lies (after {d['chosen']}): {d['remaining']['text']}."]
+                    if d["chosen"] != "none" else [f"  - {d['rule']}."])]
         if "one_geometry" in d:
             g = d["one_geometry"]
             lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "

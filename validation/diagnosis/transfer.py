@@ -18,7 +18,8 @@ even drive patterns and scored on the odd ones
 * the best electrode-position candidate refined on the BEM
   (:func:`refine_positions`: the electrodes moved, the scene solved again).
 
-``chosen`` is the candidate with the smallest held-out gap; what it leaves
+``chosen`` is the candidate with the smallest held-out gap (``none`` when
+the empty tank is already within 1.5x the measurement's own floor); what it leaves
 is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
 (the tank's symmetric shape, scatter that reciprocal pairs share, the part
 that breaks reciprocity). Contact impedances come from the drive pairs' own
@@ -57,6 +58,7 @@ from electrosense.validation.comparison.transfer import (
     score_fit,
     solved_transfer_ohm,
 )
+from electrosense.validation.diagnosis.select import SelectionRules
 from electrosense.validation.diagnosis.transfer_remainder import where_the_rest_lies
 
 __all__ = [
@@ -400,19 +402,25 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
             cands[f"{name}, refined on the BEM"], resid[f"{name}, refined on the BEM"] = refined, res
         seconds["position_refinement_s"] = time.perf_counter() - t0
     resid = {"stated geometry": comparison.residual, **resid}
-    chosen = min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
     gap_before = comparison.metrics["empty_heldout_rms_rel"]
+    floor = comparison.metrics["noise_floor"]["per_measurement_rms_rel"]
+    at_floor = gap_before <= SelectionRules().none_ceiling * floor     # the gap is the measurement's own noise
+    chosen = "none" if at_floor else min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
+    gap_after = gap_before if at_floor else cands[chosen]["heldout_rms_rel"]
     held = comparison.held_out
     r0 = comparison.residual[held]
     worst = np.argsort(-np.abs(r0))[:4]
     diagnosis = {
-        "chosen": chosen, "gap_before": gap_before, "gap_after": cands[chosen]["heldout_rms_rel"],
-        "shrink": 1 - cands[chosen]["heldout_rms_rel"] / gap_before, "candidates": cands,
+        "chosen": chosen, "gap_before": gap_before, "gap_after": gap_after, "shrink": 1 - gap_after / gap_before,
+        "rule": (f"an effect is named unless the empty tank's held-out gap is within {SelectionRules().none_ceiling}x "
+                 "the measurement's own floor per measurement (reciprocity): then `none`, as in the pose diagnosis"),
+        "candidates": cands,
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
                                     "rel": float(r0[i])} for i in worst],
         "gap_before_split": where_the_rest_lies(drive, meas, comparison.offsets, comparison.residual, ring=ring),
-        "remaining": where_the_rest_lies(drive, meas, comparison.offsets, resid[chosen], ring=ring)}
+        "remaining": where_the_rest_lies(drive, meas, comparison.offsets,
+                                         resid["stated geometry" if at_floor else chosen], ring=ring)}
     return diagnosis, resid, shape, seconds
 
 

@@ -9,13 +9,14 @@ chosen candidate leaves are split into parts whose squares add up:
   this part is what a smooth geometric effect (depth, radius, ring height,
   electrode size) could still remove;
 * ``shared_by_reciprocal_pairs``: what is left, averaged over each
-  reciprocal pair (drive and measurement swapped). Reciprocity holds for any
-  linear passive medium, so this part is a property of the scene or of
-  single electrodes and pairs (positions, shapes, shunts between leads), not
-  of the instrument's noise;
-* ``breaks_reciprocity``: half the difference of each reciprocal pair: the
-  instrument (noise, channel imperfections), which no model of the water can
-  remove;
+  reciprocal pair (drive and measurement swapped), beyond what noise puts
+  there. Reciprocity holds for any linear passive medium, so this part is a
+  property of the scene or of single electrodes and pairs (positions,
+  shapes, shunts between leads), not of the instrument's noise;
+* ``noise``: half the difference of each reciprocal pair (what breaks
+  reciprocity: the instrument), counted twice: errors independent between
+  the two measurements of a pair put as much into their mean as into their
+  difference. No model of the water can remove it;
 * ``unpaired``: rows without a reciprocal partner.
 
 ``shares`` are fractions of the total sum of squares; ``largest`` lists the
@@ -37,7 +38,7 @@ A symmetric error of 2 % at offset 2 and 1 % of antisymmetric noise:
 >>> offsets = np.array([2, 2, 4, 4])
 >>> out = where_the_rest_lies(drive, measure, offsets, np.array([0.03, 0.01, 0.0, 0.0]))
 >>> {k: round(v, 3) for k, v in out["shares"].items()}
-{'by_ring_offset': 0.8, 'shared_by_reciprocal_pairs': 0.0, 'breaks_reciprocity': 0.2, 'unpaired': 0.0}
+{'by_ring_offset': 0.8, 'shared_by_reciprocal_pairs': 0.0, 'noise': 0.2, 'unpaired': 0.0}
 """
 from __future__ import annotations
 
@@ -49,9 +50,10 @@ __all__ = ["pair_parity_classes", "where_the_rest_lies"]
 
 _MEANING = {
     "by_ring_offset": "the tank's symmetric shape (mean by ring offset): a smooth geometric effect could remove it",
-    "shared_by_reciprocal_pairs": "scatter that reciprocal pairs share: single electrodes or pairs (positions, "
-                                  "shapes, shunts between leads), not the instrument's noise",
-    "breaks_reciprocity": "half the difference of reciprocal pairs: the instrument, beyond any model of the water",
+    "shared_by_reciprocal_pairs": "scatter that reciprocal pairs share beyond noise: single electrodes or pairs "
+                                  "(positions, shapes, shunts between leads), not the instrument's noise",
+    "noise": "what breaks reciprocity, twice (as much again hides in the pairs' mean): the instrument, beyond any "
+             "model of the water",
     "unpaired": "rows without a reciprocal partner",
 }
 
@@ -112,8 +114,9 @@ def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, r
     paired[i] = paired[j] = True
     shared = 0.5 * (s[i] + s[j])
     broken = 0.5 * (s[i] - s[j])
-    ss = {"by_ring_offset": float(np.sum(sym ** 2)), "shared_by_reciprocal_pairs": float(2 * np.sum(shared ** 2)),
-          "breaks_reciprocity": float(2 * np.sum(broken ** 2)), "unpaired": float(np.sum(s[~paired] ** 2))}
+    ss_shared, ss_broken = float(2 * np.sum(shared ** 2)), float(2 * np.sum(broken ** 2))
+    ss = {"by_ring_offset": float(np.sum(sym ** 2)), "shared_by_reciprocal_pairs": max(ss_shared - ss_broken, 0.0),
+          "noise": min(2 * ss_broken, ss_shared + ss_broken), "unpaired": float(np.sum(s[~paired] ** 2))}
     partner = np.full(len(r), np.nan)
     partner[i], partner[j] = r[j], r[i]
     top = np.argsort(-np.abs(r))[:n_largest]
