@@ -173,23 +173,22 @@ def scene_problems(scene: Scene) -> list[str]:
         d = _segment_distance_to_object_m(core[0], core[1], obj) - s.radius_m
         if d <= _TOUCH_M:
             problems.append(f"{name} {'intersects' if d < -_TOUCH_M else 'touches'} the sensor")
-    for i, a in enumerate(scene.objects, start=1):
-        for j, b in enumerate(scene.objects[i:], start=i + 1):
-            if np.linalg.norm(np.subtract(a.centre_m, b.centre_m)) > a.bounding_radius_m + b.bounding_radius_m:
-                continue
-            if isinstance(a, Sphere) or isinstance(b, Sphere):
-                sph, other = (a, b) if isinstance(a, Sphere) else (b, a)
-                d = float(distance_to_object_m(other, np.asarray(sph.centre_m))) - sph.radius_m
-            else:  # sampled: both surfaces against the other solid
-                d = min(distance_to_object_m(b, _surface_samples_m(a)).min(),
-                        distance_to_object_m(a, _surface_samples_m(b)).min())
-            if d <= _TOUCH_M:
-                problems.append(f"{_object_name(i, a)} and {_object_name(j, b)} intersect or touch")
-    return problems
+    return problems + _touching_objects(scene.objects)
+
+
+def _touching_objects(objects) -> list[str]:
+    """Every pair of objects that intersect or touch."""
+    return [f"{_object_name(i, a)} and {_object_name(j, b)} intersect or touch"
+            for i, a in enumerate(objects, start=1) for j, b in enumerate(objects[i:], start=i + 1)
+            if _body_gap_m(a, b) <= _TOUCH_M]
 
 
 def _body_gap_m(body, other) -> float:
-    """Smallest distance (m) between two bodies' surfaces (exact for a sphere, sampled otherwise); < 0: overlap."""
+    """Smallest distance (m) between two bodies' surfaces (exact for a sphere, sampled otherwise); < 0: overlap.
+    Bodies whose bounding spheres are apart are not sampled (their gap is then a lower bound, > 0)."""
+    apart = float(np.linalg.norm(np.subtract(body.centre_m, other.centre_m)))
+    if apart > body.bounding_radius_m + other.bounding_radius_m:
+        return apart - body.bounding_radius_m - other.bounding_radius_m
     if isinstance(body, Sphere):
         return float(distance_to_object_m(other, np.asarray(body.centre_m))) - body.radius_m
     if isinstance(other, Sphere):
@@ -227,7 +226,7 @@ def _body_electrode_problems(scene: Scene) -> list[str]:
 
 
 def _sensorless_problems(scene: Scene) -> list[str]:
-    """Objects out of the water or touching each other, in a scene without a sensor."""
+    """Objects out of the water or touching each other (any shapes), in a scene without a sensor."""
     problems = []
     tank = scene.tank
     names = tank.region_names if hasattr(tank, "region_names") else TANK_REGIONS
@@ -236,12 +235,7 @@ def _sensorless_problems(scene: Scene) -> list[str]:
         crossings = _boundary_crossings(gap, names)
         if crossings:
             problems.append(f"{_object_name(i, obj)} {crossings}")
-    for i, a in enumerate(scene.objects, start=1):
-        for j, b in enumerate(scene.objects[i:], start=i + 1):
-            if isinstance(a, Sphere) and isinstance(b, Sphere):
-                if np.linalg.norm(np.subtract(a.centre_m, b.centre_m)) <= a.radius_m + b.radius_m + _TOUCH_M:
-                    problems.append(f"{_object_name(i, a)} and {_object_name(j, b)} intersect or touch")
-    return problems
+    return problems + _touching_objects(scene.objects)
 
 
 #: gaps (m) below this count as contact: a solver cannot separate touching surfaces
@@ -407,11 +401,8 @@ def _mesh_electrode_scene(scene: Scene, edge_length_m, tank_edge_length_m, tank_
     else:
         raise SceneError([f"electrodes on a {type(scene.tank).__name__}'s walls are not meshed yet: use a "
                           "cylindrical tank (electrodes in the water are meshed in either)"])
-    if bodies:      # the tank's labels 1..k back to scene order (electrodes in the water come between)
-        label = np.r_[0, first + np.asarray(on_tank, np.int64)]
-        tank.electrode = label[tank.electrode]
-    else:
-        tank.electrode = np.where(tank.electrode > 0, tank.electrode + first - 1, 0)
+    # the tank's labels 1..k to scene numbers (electrodes in the water may come between)
+    tank.electrode = np.r_[0, first + np.asarray(on_tank, np.int64)][tank.electrode]
     electrode_bodies = tuple(_body_electrode_mesh(scene.electrodes[i], first + i, object_edge_length_m)
                              for i in bodies)
     objects = tuple(

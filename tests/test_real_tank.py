@@ -67,6 +67,13 @@ radius_m = {a}
     out = replace(scene, electrodes=(scene.electrodes[0], BodyElectrode(Sphere((0.995, 0.0, 0.0), radius_m=0.01))))
     with pytest.raises(SceneError, match="electrode 2 \\(sphere\\) is out of the water across the wall"):
         solve_scene(out, sigma)
+    from electrosense.meshes.objects import Box
+
+    boxes = (Box((0.3, 0.0, 0.0), size_m=(0.1, 0.1, 0.1)), Box((0.38, 0.05, 0.0), size_m=(0.1, 0.1, 0.1)))
+    with pytest.raises(SceneError, match="object_1 \\(box\\) and object_2 \\(box\\) intersect"):
+        solve_scene(replace(scene, objects=boxes), sigma)             # no sensor: any two shapes are checked
+    with pytest.raises(SceneError, match="electrode 2 \\(sphere\\) and object_1 \\(box\\) intersect"):
+        solve_scene(replace(scene, objects=(Box((d / 2 + a, 0.0, 0.0), size_m=(0.02, 0.02, 0.02)),)), sigma)
 
 
 def test_a_rod_electrode_and_a_ball_against_slender_body_theory(tmp_path):
