@@ -66,6 +66,7 @@ __all__ = [
     "reciprocity_after_pair_gains",
     "reciprocity_rel",
     "ring_offsets",
+    "ring_pair_places",
     "score_fit",
     "setup_table",
     "solved_transfer_ohm",
@@ -164,7 +165,7 @@ def reciprocity_after_pair_gains(drive, measure, Z_ohm) -> dict:
     >>> d = np.array([[1, 2], [3, 4], [1, 2]]); m = np.array([[3, 4], [1, 2], [5, 6]])
     >>> out = reciprocity_after_pair_gains(d, m, np.array([1.05, 0.95, 1.0]))
     >>> round(out["rms_rel_before"], 3), out["rms_rel_after"] < 1e-12
-    (0.105, True)
+    (0.1, True)
     """
     i, j = reciprocal_pairs(drive, measure)
     Z = np.abs(np.asarray(Z_ohm, float))
@@ -177,7 +178,8 @@ def reciprocity_after_pair_gains(drive, measure, Z_ohm) -> dict:
     np.add.at(A, (np.arange(len(y)), [col[key[r]] for r in i]), 1.0)        # drive of row i
     np.add.at(A, (np.arange(len(y)), [col[key[n + r]] for r in i]), -1.0)   # its measurement
     h = np.linalg.lstsq(A, y, rcond=None)[0]
-    return {"rms_rel_before": _rms(np.expm1(y)), "rms_rel_after": _rms(np.expm1(y - A @ h)),
+    # (z - z') / mean from log(z / z') = 2 tanh(log / 2): the measure of reciprocity_rel
+    return {"rms_rel_before": _rms(2 * np.tanh(y / 2)), "rms_rel_after": _rms(2 * np.tanh((y - A @ h) / 2)),
             "pairs": len(y), "parameters": int(np.linalg.matrix_rank(A)) if len(y) else 0}
 
 
@@ -257,25 +259,36 @@ def score_fit(Zd, columns, folds, gauge=None) -> tuple[dict, np.ndarray, dict]:
             "n_parameters": len(columns)}, res, coefs
 
 
-def ring_offsets(drive, measure, ring) -> np.ndarray | None:
-    """(R,) cyclic offset of each measurement pair from its drive pair along ``ring`` (None: no ring, or off it).
+def ring_pair_places(pairs, ring) -> np.ndarray | None:
+    """(R,) place along ``ring`` of each electrode pair's first electrode (cyclic neighbours: the wrap-round pair's
+    is the last place); None when a pair is off the ring or there is no ring.
 
-    >>> ring_offsets(np.array([[1, 2], [1, 2]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
-    [2, 3]
+    >>> ring_pair_places(np.array([[1, 2], [4, 3], [4, 1]]), [1, 2, 3, 4]).tolist()
+    [0, 2, 3]
     """
     ring = [int(e) for e in ring]
     if not ring:
         return None
     pos, n = {e: i for i, e in enumerate(ring)}, len(ring)
 
-    def first(pair):      # the pair's first electrode in ring order (cyclic neighbours: the wrap-round pair too)
+    def first(pair):
         i, j = pos[pair[0]], pos[pair[1]]
         return i if (j - i) % n == 1 else j if (i - j) % n == 1 else min(i, j)
 
     try:
-        return np.array([(first(m) - first(d)) % n for d, m in zip(drive.tolist(), measure.tolist())])
+        return np.array([first(p) for p in np.asarray(pairs).tolist()])
     except KeyError:
         return None
+
+
+def ring_offsets(drive, measure, ring) -> np.ndarray | None:
+    """(R,) cyclic offset of each measurement pair from its drive pair along ``ring`` (None: no ring, or off it).
+
+    >>> ring_offsets(np.array([[1, 2], [1, 2]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
+    [2, 3]
+    """
+    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
+    return None if d is None or m is None else (m - d) % len(ring)
 
 
 def mean_by_offset(offsets, values) -> dict:

@@ -404,7 +404,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     resid = {"stated geometry": comparison.residual, **resid}
     gap_before = comparison.metrics["empty_heldout_rms_rel"]
     floor = comparison.metrics["noise_floor"]["per_measurement_rms_rel"]
-    at_floor = gap_before <= SelectionRules().none_ceiling * floor     # the gap is the measurement's own noise
+    ceiling = SelectionRules().none_ceiling
+    at_floor = gap_before <= ceiling * floor     # the gap is the measurement's own noise
     chosen = "none" if at_floor else min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
     gap_after = gap_before if at_floor else cands[chosen]["heldout_rms_rel"]
     held = comparison.held_out
@@ -412,7 +413,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     worst = np.argsort(-np.abs(r0))[:4]
     diagnosis = {
         "chosen": chosen, "gap_before": gap_before, "gap_after": gap_after, "shrink": 1 - gap_after / gap_before,
-        "rule": (f"an effect is named unless the empty tank's held-out gap is within {SelectionRules().none_ceiling}x "
+        "rule": (f"an effect is named unless the empty tank's held-out gap is within {ceiling}x "
                  "the measurement's own floor per measurement (reciprocity): then `none`, as in the pose diagnosis"),
         "candidates": cands,
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),

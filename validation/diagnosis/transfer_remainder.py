@@ -44,7 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from electrosense.validation.comparison.transfer import reciprocal_pairs
+from electrosense.validation.comparison.transfer import reciprocal_pairs, ring_pair_places
 
 __all__ = ["pair_parity_classes", "where_the_rest_lies"]
 
@@ -61,26 +61,16 @@ _MEANING = {
 def pair_parity_classes(drive, measure, ring) -> np.ndarray | None:
     """(R,) class 0..3 = 2 * parity(drive pair) + parity(measurement pair) along ``ring`` (None: no even ring).
 
-    A pair's parity is that of its first electrode's place in the ring
-    (cyclic neighbours; the wrap-round pair is the last).
+    A pair's parity is that of its place along the ring
+    (:func:`~electrosense.validation.comparison.transfer.ring_pair_places`).
 
     >>> pair_parity_classes(np.array([[1, 2], [2, 3]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
     [0, 3]
     """
-    ring = [int(e) for e in ring]
-    if not ring or len(ring) % 2:
+    if len(ring) % 2:
         return None
-    pos, n = {e: i for i, e in enumerate(ring)}, len(ring)
-
-    def parity(pair):
-        i, j = pos[pair[0]], pos[pair[1]]
-        return (i if (j - i) % n == 1 else j if (i - j) % n == 1 else min(i, j)) % 2
-
-    try:
-        return np.array([2 * parity(d) + parity(m) for d, m in zip(np.asarray(drive).tolist(),
-                                                                     np.asarray(measure).tolist())])
-    except KeyError:
-        return None
+    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
+    return None if d is None or m is None else 2 * (d % 2) + m % 2
 
 
 def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, ring=()) -> dict:
