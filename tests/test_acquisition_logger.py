@@ -143,7 +143,7 @@ def test_kill_minus_nine_leaves_a_readable_log(tmp_path):
     thread, stop_device = serve_in_thread(device)
     log_path = tmp_path / "run.csv"
     meta = "sensor=angels-4,emitter=4,tank=1,1,1,sigma=0.0354"
-    cmd = [sys.executable, "-c", "from validation.cli import main; main()", "acquire", "--port", transport.path,
+    cmd = [sys.executable, "-c", "from electrosense.validation.cli import main; main()", "acquire", "--port", transport.path,
            "-o", str(log_path), "--meta", meta, "--quiet"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
@@ -174,7 +174,7 @@ def test_ctrl_c_on_the_command_stops_cleanly_with_a_summary(tmp_path):
     device = BenchDevice(run, transport, rate_hz=400.0, seed=5)
     thread, stop_device = serve_in_thread(device)
     log_path = tmp_path / "run.csv"
-    cmd = [sys.executable, "-c", "from validation.cli import main; main()", "acquire", "--port", transport.url,
+    cmd = [sys.executable, "-c", "from electrosense.validation.cli import main; main()", "acquire", "--port", transport.url,
            "-o", str(log_path), "--meta", "sensor=angels-4,emitter=4,tank=1,1,1,sigma=0.0354"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

@@ -182,7 +182,7 @@ def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path
     import sys
 
     out = tmp_path / "map.csv"
-    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from validation.cli import main; main()",
+    cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from electrosense.validation.cli import main; main()",
            "sweep", "--model", "psm", "--psm", str(psm_file), "--sensor", "angels-4", "--unbounded",
            "--grid", "-0.3:0.3:1200,-0.3:0.3:1200", "--workers", "2", "--quiet", "-o", str(out)]
     p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)

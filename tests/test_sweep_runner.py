@@ -170,7 +170,6 @@ def test_one_local_worker_starts_nothing():
     assert set(threading.enumerate()) <= before  # threads of earlier tests may end meanwhile; none may start
 
 
-@pytest.mark.skipif(not hasattr(__import__("bem"), "PoseSweep"), reason="electrosense.bem.PoseSweep not there yet")
 def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path):
     """The real BEM: one tank mesh for the whole grid, blocks built once and scattered; chunks on two
     worker processes give the serial sweep's numbers (to round-off)."""

@@ -100,7 +100,7 @@ class WallDisc(NamedTuple):
 def wall_discs(scene) -> list[WallDisc]:
     """The :class:`WallDisc` of every disc electrode on a cylindrical tank's wall (none on a box tank).
 
-    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.0, 0.1, 0.0), 0.005)])
     >>> w = wall_discs(s)[0]
     >>> w.index, w.normal_out.round(6).tolist(), w.azimuthal.round(6).tolist(), w.upward.round(6).tolist()
@@ -125,7 +125,7 @@ def wall_discs(scene) -> list[WallDisc]:
 def reshaped_tank(scene, radius_m=None, floor_radius_m=None):
     """The scene with its cylindrical tank's top/floor radii changed; wall discs follow the wall (same angle, height).
 
-    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005)])
     >>> reshaped_tank(s, 0.09, 0.09).electrodes[0].centre_m
     (0.09, 0.0, 0.0)
@@ -242,7 +242,7 @@ def position_blocks(solution, wall, comparison) -> dict:
 def moved_electrodes(scene, wall, arc_m=None, up_m=None):
     """The scene with each wall disc ``wall[k]`` moved by ``arc_m[k]`` along the ring and ``up_m[k]`` up the wall.
 
-    >>> from electrosense.meshes import Scene; from meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.1, 0.1), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005)])
     >>> c = moved_electrodes(s, wall_discs(s), [0.1 * np.pi / 2], [0.01]).electrodes[0].centre_m
     >>> np.round(c, 6).tolist()

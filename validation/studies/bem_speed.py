@@ -307,7 +307,7 @@ def sensor_timings(full: bool):
     t0 = time.perf_counter()
     g = conductance_matrix(Scene(preset("angels-4")), 1.0)
     out["angels-4 unbounded, default mesh (compiled)"] = (time.perf_counter() - t0, 2.0, f"{g.info['triangles']} triangles")
-    code = ("import time; t=time.perf_counter(); from bem import conductance_matrix; from meshes import Scene, preset; "
+    code = ("import time; t=time.perf_counter(); from electrosense.bem import conductance_matrix; from electrosense.meshes import Scene, preset; "
             "conductance_matrix(Scene(preset('angels-4')), 1.0); print(time.perf_counter()-t)")
     t0 = time.perf_counter()
     subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
