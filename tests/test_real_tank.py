@@ -171,12 +171,14 @@ def test_eit_mat_reader_conventions(tmp_path):
     assert len(log.V_V) == len(rows) and log.setups == ("Ref",)
 
 
-def test_eit_mat_reader_refuses_a_nonzero_drive_entry(tmp_path):
+def test_eit_mat_reader_leaves_out_a_nonzero_drive_entry_and_says_so(tmp_path):
     p, vv, cur, volt = _mat(tmp_path)
+    rows, _ = read_eit_mat(p)
     vv[0, 0] = 0.5
     scipy.io.savemat(p, {"vvRef": vv.reshape(-1, 1), "voltsRef": cur[:, None], "currRef": volt[:, None]})
-    with pytest.raises(BenchLogError, match="touches a drive electrode"):
-        read_eit_mat(p)
+    rows_now, meta = read_eit_mat(p)
+    assert rows_now == rows and meta["reader_notes"] == [
+        "vvRef: 1 values on measurements touching a drive electrode (their contact impedances enter): left out"]
 
 
 @pytest.mark.parametrize("line,reason", [("Ref,1,1,3,4,0.1,0.001", "itself"), ("Ref,1,2,3,4,nan,0.001", "finite"),
@@ -380,3 +382,29 @@ def test_transfer_modules_examples_run(module):
 
     result = doctest.testmod(importlib.import_module(module))
     assert result.attempted > 0 and result.failed == 0
+
+
+def test_a_fitted_move_off_the_wall_is_shortened_and_said(tmp_path):
+    """A linear fit that puts an electrode 1.3 m up the wall (out of the water, as one did on a real file): the BEM
+    refinement halves the step until every disc is on the wall, says so, and solves; a move of which no half fits
+    (onto the neighbour and beyond the floor at once) is refused without a solve."""
+    from electrosense.meshes.scene_file import load_scene, load_scene_settings
+    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.comparison.transfer import compare_transfer_log
+    from electrosense.validation.diagnosis.transfer import refine_positions, step_on_the_wall, wall_discs
+
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(2), noise=2e-4)
+    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
+    scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
+    comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    wall = [w for w in wall_discs(scene) if w.index + 1 in settings["protocol"]["ring"]]
+    up = np.zeros(len(wall))
+    up[0] = 1300.0
+    fitted = {"height_offsets_mm": up.tolist(), "heldout_rms_rel": 1.0, "twofold_rms_rel": 1.0, "n_parameters": 9}
+    best, res = refine_positions(comp, scene, wall, "electrode_heights", fitted, 1.0, settings["bem"], steps=1)
+    assert res is not None and best["steps"] == 1 and "shortened to" in best["notes"][0]
+    assert "is not on the tank's boundary" in best["notes"][0]
+    assert abs(best["height_offsets_mm"][0]) < 1e3 * scene.tank.water_depth_m
+    f, why = step_on_the_wall(scene, wall, np.zeros(len(wall)), np.zeros(len(wall)),
+                              np.r_[1e3, np.zeros(len(wall) - 1)], np.r_[-1e3, np.zeros(len(wall) - 1)])
+    assert f == 0 and why
