@@ -7,6 +7,9 @@ the ``main`` group below; heavy imports happen inside the commands so that
 from __future__ import annotations
 
 import importlib
+import os
+import traceback
+from pathlib import Path
 
 import click
 
@@ -26,7 +29,50 @@ _COMMANDS = {
 }
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Esense(click.Group):
+    """The command group, with one last word on errors: no input makes ``esense`` print a traceback.
+
+    Refused input (a ``ValueError`` from any layer: bench logs, scene files,
+    meshes, the BEM's boundary conditions...) and files that cannot be read or
+    written (``OSError``) end in one line that says what and where, exit 2.
+    Anything else is a bug of ours: one line naming the exception and the
+    place it was raised, exit 1; ``ESENSE_TRACEBACK=1`` shows the traceback.
+    """
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.exceptions.Abort, SystemExit,
+                KeyboardInterrupt):
+            raise
+        except Exception as exc:
+            if os.environ.get("ESENSE_TRACEBACK"):
+                raise
+            raise SystemExit(error_line(exc)) from None
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line ``esense`` prints for an exception that ends a command.
+
+    >>> error_line(ValueError("pail.toml: [tank] radius_m must be positive"))
+    'esense: error: pail.toml: [tank] radius_m must be positive'
+    >>> error_line(FileNotFoundError(2, "No such file or directory", "run.csv"))
+    "esense: error: [Errno 2] No such file or directory: 'run.csv'"
+    >>> try:
+    ...     [][1]
+    ... except IndexError as exc:
+    ...     print(error_line(exc))   # doctest: +ELLIPSIS
+    esense: internal error: IndexError: list index out of range (at <doctest ...>:2); ESENSE_TRACEBACK=1 ...
+    """
+    if isinstance(exc, (ValueError, OSError)):
+        return f"esense: error: {exc}"
+    tb = traceback.extract_tb(exc.__traceback__)
+    where = f" (at {Path(tb[-1].filename).name}:{tb[-1].lineno})" if tb else ""
+    return (f"esense: internal error: {type(exc).__name__}: {exc}{where}; ESENSE_TRACEBACK=1 shows the traceback, "
+            "please report it with the command that raised it")
+
+
+@click.group(cls=_Esense, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="electrosense")
 def main():
     """electrosense: electric-sense sensors in water, simulated (BEM, PSM) and checked against the bench.
