@@ -39,7 +39,7 @@ from electrosense.meshes.surface_electrodes import (
 )
 from electrosense.meshes.tank_mesh import _weld, equidistributed_nodes, graded_size_function, mesh_convex_polygon
 
-__all__ = ["mesh_cylinder_tank", "electrode_surface", "mesh_plane_with_discs"]
+__all__ = ["mesh_cylinder_tank", "electrode_surface", "disc_problems", "mesh_plane_with_discs"]
 
 #: a disc centre this close (relative to the tank's size) to a boundary is on it
 _ON_TOL = 1e-6
@@ -65,6 +65,39 @@ def electrode_surface(tank: CylinderTank, electrode: DiscElectrode, index: int) 
     elif float(tank.radius_at(electrode.centre_m[2])) - np.hypot(*electrode.centre_m[:2]) <= a:
         raise ValueError(f"{label} (radius {a} m) does not fit on the {on[0]}: its rim reaches the wall")
     return on[0]
+
+
+def disc_problems(tank: CylinderTank, electrodes, first_label: int = 1) -> list[str]:
+    """Every reason why these disc electrodes cannot sit on the tank (empty list: they can).
+
+    A disc must lie on one boundary region, its rim clear of the region's
+    edges (:func:`electrode_surface`), and clear of every other disc (their
+    centres farther apart than the sum of their radii, measured along the
+    chord: a lower bound of the distance on the surface).
+
+    >>> from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> t = CylinderTank(0.1, 0.2)
+    >>> disc_problems(t, [DiscElectrode((0.1, 0.0, 0.0), 0.005), DiscElectrode((0.1, 0.0, 0.008), 0.005)])
+    ['electrodes 1 and 2 overlap (centres 0.008 m apart, radii 0.005 and 0.005 m)']
+    >>> disc_problems(t, [DiscElectrode((0.1, 0.0, 0.3), 0.005)])[0][:48]
+    'electrode 1 at (0.1, 0.0, 0.3) m is not on the t'
+    """
+    problems, discs = [], []
+    for i, e in enumerate(electrodes, start=first_label):
+        if not isinstance(e, DiscElectrode):
+            continue
+        try:
+            electrode_surface(tank, e, i)
+            discs.append((i, np.asarray(e.centre_m, float), e.radius_m))
+        except ValueError as exc:
+            problems.append(str(exc))
+    for k, (i, c, a) in enumerate(discs):
+        for j, c2, a2 in discs[k + 1:]:
+            d = float(np.linalg.norm(c - c2))
+            if d <= a + a2:
+                problems.append(f"electrodes {i} and {j} overlap (centres {d:.3g} m apart, radii {a:.3g} and "
+                                f"{a2:.3g} m)")
+    return problems
 
 
 def mesh_plane_with_discs(boundary_uv: np.ndarray, discs_uv: list, size_uv) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -157,6 +190,9 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     base = None if focus_m is None else graded_size_function(h_far / 3, focus_m, grading, h_far)
     discs = [e for e in electrodes if isinstance(e, DiscElectrode)]
     size = electrode_size_function(discs, h_far, edge_fraction, electrode_grading, base)
+    problems = disc_problems(tank, electrodes, first_label)
+    if problems:
+        raise ValueError("; ".join(problems))
     where = {}
     for i, e in enumerate(electrodes, start=first_label):
         if isinstance(e, DiscElectrode):

@@ -60,12 +60,18 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True) -> dic
     if diagnose:
         from electrosense.validation.diagnosis.transfer import diagnose_transfer, one_geometry
 
-        diagnosis, resid, shape, seconds = diagnose_transfer(comp, scene, sigma, bem_options, protocol)
+        try:
+            diagnosis, resid, shape, seconds = diagnose_transfer(comp, scene, sigma, bem_options, protocol)
+        except (ValueError, MemoryError) as exc:     # the comparison is written all the same
+            diagnosis, shape, seconds = {"error": f"the diagnosis stopped: {exc}"}, None, {}
         metrics["bem"].update(seconds)
         if shape is not None and comp.measured_signals:
             t0 = time.perf_counter()
-            diagnosis["one_geometry"] = one_geometry(comp, shape, diagnosis["candidates"]["ring_radius"], sigma,
-                                                     bem_options, protocol)
+            try:
+                diagnosis["one_geometry"] = one_geometry(comp, shape, diagnosis["candidates"]["ring_radius"], sigma,
+                                                         bem_options, protocol)
+            except (ValueError, MemoryError) as exc:
+                diagnosis["one_geometry"] = {"error": f"not computed: {exc}"}
             metrics["bem"]["shape_ball_solves_s"] = time.perf_counter() - t0
         metrics["diagnosis"] = diagnosis
     metrics["wall_s"] = time.perf_counter() - t_start

@@ -167,16 +167,23 @@ def report_markdown(m: dict) -> str:
                f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= 0.15); measured/BEM "
                f"amplitude {m['ball_height']['measured_over_simulated_amplitude'][k]:.2f}"
                for k, v in m["object_rms_rel"].items()]]
-    if "diagnosis" in m:
+    if "error" in m.get("diagnosis", {}):
+        lines += [f"- Diagnosis: {m['diagnosis']['error']}."]
+    elif "diagnosis" in m:
         d = m["diagnosis"]
         lines += [(f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
                    f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
-                    f"2-fold {v['twofold_rms_rel']:.4f}" for k, v in d["candidates"].items()],
+                    f"2-fold {v['twofold_rms_rel']:.4f}" + "".join(f"; {n}" for n in v.get("notes", []))
+                    for k, v in d["candidates"].items()],
+                  *[f"  - {k}: not scored, its changed scene is not a valid one ({why})"
+                    for k, why in d.get("skipped", {}).items()],
                   f"  - where the gap lies before any effect (stated geometry): {d['gap_before_split']['text']}.",
                   *([f"  - where the rest lies (after {d['chosen']}): {d['remaining']['text']}."]
                     if d["chosen"] != "none" else [f"  - {d['rule']}."])]
-        if "one_geometry" in d:
+        if "error" in d.get("one_geometry", {}):
+            lines += [f"- One tank shape for both? {d['one_geometry']['error']}."]
+        elif "one_geometry" in d:
             g = d["one_geometry"]
             lines += [f"- One tank shape for both? Ring radius stated {100 * g['ring_radius_m_stated']:.1f} cm; the "
                       f"empty tank's held-out fit wants {100 * g['ring_radius_m_for_empty_tank']:.1f} cm (held-out "
@@ -186,7 +193,7 @@ def report_markdown(m: dict) -> str:
     else:
         lines += ["- Diagnosis: not run (--no-diagnosis)."]
     lines += ["", "![empty tank](empty_tank.png)", "", "![tank shape](geometry.png)", "",
-              *(["![where the gap lies](remainder.png)", ""] if "diagnosis" in m else []),
+              *(["![where the gap lies](remainder.png)", ""] if "remaining" in m.get("diagnosis", {}) else []),
               "![difference signals](difference_signals.png)", ""]
     return "\n".join(lines)
 
@@ -195,7 +202,7 @@ def summary_text(m: dict) -> str:
     """The headline numbers (noise floor, empty tank, objects, diagnosis) and the goals beside them."""
     lines = [json.dumps({k: m[k] for k in ("noise_floor", "empty_heldout_rms_rel", "object_rms_rel")}, indent=1)]
     if "diagnosis" in m:
-        lines.append(f"diagnosis: {({k: m['diagnosis'][k] for k in ('chosen', 'gap_before', 'gap_after')})}")
+        lines.append(f"diagnosis: {({k: m['diagnosis'][k] for k in ('chosen', 'gap_before', 'gap_after', 'error') if k in m['diagnosis']})}")
     return "\n".join(lines + [GOALS])
 
 
@@ -209,10 +216,11 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
     c = comparison
     empty_tank_figure(folder, c.Z_measured_ohm, c.scale * c.Z_model_ohm, ~c.held_out, c.reciprocity)
     difference_signals_figure(folder, c.signals)
+    one_geometry = metrics.get("diagnosis", {}).get("one_geometry")
     if c.offsets is not None:
         geometry_figure(folder, c.offsets, resid or {"stated geometry": c.residual},
-                        metrics.get("diagnosis", {}).get("one_geometry"))
-    if "diagnosis" in metrics:
+                        None if one_geometry is None or "error" in one_geometry else one_geometry)
+    if "remaining" in metrics.get("diagnosis", {}):
         d = metrics["diagnosis"]
         remainder_figure(folder, d["gap_before_split"], d["remaining"], d["chosen"])
     path = folder / "report.md"

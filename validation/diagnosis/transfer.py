@@ -50,6 +50,7 @@ import numpy as np
 from electrosense.bem.protocol import drive_impedances_ohm
 from electrosense.bem.sensitivity import shift_sensitivities_ohm_per_m
 from electrosense.bem.solve import solve_scene
+from electrosense.meshes.cylinder_tank_mesh import disc_problems
 from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
@@ -266,34 +267,81 @@ def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_p
     sensitivities and a first-order step; each step here solves the scene
     with the electrodes where the last fit put them and fits the remaining
     offsets about it (the even drives, as always; the odd ones scored).
-    ``fitted``: the candidate's scores and parameters from
+    Every step stays in the water: one that would put a disc off the wall,
+    across the floor or the free surface, or onto another disc is halved
+    (:func:`step_on_the_wall`) and, where no half of it is possible, refused;
+    a solve that fails ends the refinement. Either is said in the result's
+    ``notes``. ``fitted``: the candidate's scores and parameters from
     :func:`score_candidates`. Returns its refined scores and parameters and
-    the 2-fold residuals.
+    the 2-fold residuals (None when no step improved on ``fitted``).
     """
     n = len(wall)
-    arc = 1e-3 * np.asarray(fitted.get("arc_offsets_mm", np.zeros(n)))
-    up = 1e-3 * np.asarray(fitted.get("height_offsets_mm", np.zeros(n)))
+    d_arc = 1e-3 * np.asarray(fitted.get("arc_offsets_mm", np.zeros(n)))
+    d_up = 1e-3 * np.asarray(fitted.get("height_offsets_mm", np.zeros(n)))
+    arc, up = np.zeros(n), np.zeros(n)
     t = comparison.table
-    best, res = fitted, None
+    best, res, notes = fitted, None, []
     for step in range(1, steps + 1):
+        fraction, why = step_on_the_wall(scene, wall, arc, up, d_arc, d_up)
+        if fraction == 0:
+            notes.append(f"step {step} refused: even 1/64 of it {why}")
+            break
+        if fraction < 1:
+            notes.append(f"step {step} shortened to {fraction:g} of the fitted move, which {why}")
+        arc, up = arc + fraction * d_arc, up + fraction * d_up
         moved = moved_electrodes(scene, wall, arc, up)
-        sol = solve_scene(moved, sigma_S_per_m, **bem_options)
+        try:
+            sol = solve_scene(moved, sigma_S_per_m, **bem_options)
+        except (ValueError, MemoryError) as exc:
+            notes.append(f"step {step}: the moved scene could not be solved ({exc}); refinement stopped")
+            break
         comp = compare_empty_tank(t, sol, sigma_S_per_m)
         blocks = {"scale": [comp.Z_model_ohm],
                   **position_blocks(sol, [w for w in wall_discs(moved) if w.index in {v.index for v in wall}], comp)}
         cands, resid = score_candidates(blocks, [name], comp.Z_measured_ohm, comp.folds)
         c = cands[name]
-        arc = arc + 1e-3 * np.asarray(c.get("arc_offsets_mm", np.zeros(n)))
-        up = up + 1e-3 * np.asarray(c.get("height_offsets_mm", np.zeros(n)))
+        d_arc = 1e-3 * np.asarray(c.get("arc_offsets_mm", np.zeros(n)))
+        d_up = 1e-3 * np.asarray(c.get("height_offsets_mm", np.zeros(n)))
         c = {**c, "steps": step}
         if "arc_offsets_mm" in fitted:
-            c["arc_offsets_mm"] = np.round(1e3 * arc, 2).tolist()
+            c["arc_offsets_mm"] = np.round(1e3 * (arc + d_arc), 2).tolist()
         if "height_offsets_mm" in fitted:
-            c["height_offsets_mm"] = np.round(1e3 * up, 2).tolist()
+            c["height_offsets_mm"] = np.round(1e3 * (up + d_up), 2).tolist()
         if c["heldout_rms_rel"] >= best["heldout_rms_rel"]:
             break
         best, res = c, resid[name]
+    if notes:
+        best = {**best, "notes": notes}
     return best, res
+
+
+def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 6) -> tuple[float, str]:
+    """The largest fraction (1, 1/2, ... 1/2**halvings, else 0) of a move that keeps every wall disc placeable.
+
+    ``arc_m``, ``up_m``: where the discs ``wall`` are now (offsets from the
+    scene's positions, m); ``d_arc_m``, ``d_up_m``: the move. Placeable is
+    :func:`electrosense.meshes.cylinder_tank_mesh.disc_problems`' test. Returns the fraction and, when
+    it is below 1, what the full move would have done.
+
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> s = Scene(None, tank=CylinderTank(0.1, 0.2), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005)])
+    >>> w = wall_discs(s)
+    >>> step_on_the_wall(s, w, [0.0], [0.0], [0.0], [0.05])
+    (1.0, '')
+    >>> f, why = step_on_the_wall(s, w, [0.0], [0.0], [0.0], [1.3]); f, why[:37]
+    (0.0625, 'would make: electrode 1 at (0.1, 0.0,')
+    """
+    tank = scene.tank
+    arc_m, up_m, d_arc_m, d_up_m = (np.asarray(v, float) for v in (arc_m, up_m, d_arc_m, d_up_m))
+    why = ""
+    for k in range(halvings + 1):
+        f = 0.5 ** k
+        problems = disc_problems(tank, moved_electrodes(scene, wall, arc_m + f * d_arc_m,
+                                                        up_m + f * d_up_m).electrodes)
+        if not problems:
+            return f, why
+        why = why or "would make: " + "; ".join(problems[:2])
+    return 0.0, why
 
 
 def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
@@ -363,15 +411,27 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     def derivative(changed_scene, step):
         return (Zm - solved_transfer_ohm(changed_scene, sigma_S_per_m, bem_options, drive, meas)) / step
 
+    skipped = {}       # candidates whose changed scene cannot be built or solved: why
+
+    def changed(name, make):
+        """``make()``, or None with the reason kept in ``skipped`` when the changed scene is not a valid one."""
+        try:
+            return make()
+        except (ValueError, MemoryError) as exc:
+            skipped[name] = str(exc)
+            return None
+
     # water depth: one more solve (finite difference of a sixth of the depth)
     tank = scene.tank
     if hasattr(tank, "water_depth_m"):
         dH = tank.water_depth_m / 6
         t0 = time.perf_counter()
-        blocks["water_depth"] = [derivative(replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)),
-                                            dH)]
+        col = changed("water_depth", lambda: derivative(
+            replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m - dH)), dH))
+        if col is not None:
+            blocks["water_depth"] = [col]
+            candidates.append("water_depth")
         seconds["depth_solve_s"] = time.perf_counter() - t0
-        candidates.append("water_depth")
     # the tank's shape at the ring: radius (both radii scaled) and taper (floor radius alone), one solve each;
     # columns per metre of the RING's radius (taper: per metre of the floor's radius)
     shape, R_ring = None, None
@@ -380,15 +440,22 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         t0 = time.perf_counter()
         f = 0.9
         scaled = reshaped_tank(scene, f * tank.radius_m, f * tank.floor_radius_m)
-        Z_scaled = solved_transfer_ohm(scaled, sigma_S_per_m, bem_options, drive, meas)
-        blocks["ring_radius"] = [(Zm - Z_scaled) / ((1 - f) * R_ring)]
+        Z_scaled = changed("ring_radius", lambda: solved_transfer_ohm(scaled, sigma_S_per_m, bem_options, drive, meas))
         dF = 0.1 * tank.floor_radius_m
-        blocks["wall_taper"] = [derivative(reshaped_tank(scene, floor_radius_m=tank.floor_radius_m - dF), dF)]
+        taper = changed("wall_taper", lambda: derivative(
+            reshaped_tank(scene, floor_radius_m=tank.floor_radius_m - dF), dF))
         seconds["shape_solves_s"] = time.perf_counter() - t0
-        shape = {"scene": scaled, "R_ring_m": R_ring, "R_ring_scaled_m": f * R_ring, "Z": Z_scaled}
-        candidates += ["ring_radius", "wall_taper", "ring_radius+wall_taper"]
-        if "water_depth" in blocks:
-            candidates.append("ring_radius+water_depth")
+        if Z_scaled is not None:
+            blocks["ring_radius"] = [(Zm - Z_scaled) / ((1 - f) * R_ring)]
+            shape = {"scene": scaled, "R_ring_m": R_ring, "R_ring_scaled_m": f * R_ring, "Z": Z_scaled}
+            candidates.append("ring_radius")
+            if "water_depth" in blocks:
+                candidates.append("ring_radius+water_depth")
+        if taper is not None:
+            blocks["wall_taper"] = [taper]
+            candidates.append("wall_taper")
+            if Z_scaled is not None:
+                candidates.append("ring_radius+wall_taper")
     if wall and "water_depth" in blocks:
         candidates += ["water_depth+electrode_angles", "water_depth+electrode_angles+electrode_heights",
                        "water_depth+electrode_angles+channel_offsets"]
@@ -416,6 +483,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         "rule": (f"an effect is named unless the empty tank's held-out gap is within {ceiling}x "
                  "the measurement's own floor per measurement (reciprocity): then `none`, as in the pose diagnosis"),
         "candidates": cands,
+        "skipped": skipped,
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
                                     "rel": float(r0[i])} for i in worst],
