@@ -14,9 +14,15 @@ even drive patterns and scored on the odd ones
   (reciprocity, :mod:`electrosense.bem.sensitivity`), with the rigid rotation
   of the ring as gauge;
 * ``water_depth``, ``ring_radius``, ``wall_taper``: one more solve each
-  (finite differences), and combinations of these;
+  (finite differences), and combinations of these; a candidate whose
+  changed scene is not valid is skipped with its reason (``skipped``);
+* ``common_mode``, ``drive_common_mode``, ``common_mode+channel_gains``: the
+  instrument reading a complex fraction of a common-mode voltage
+  (:mod:`electrosense.validation.diagnosis.common_mode`; nonlinear, its own
+  fit, scored alike);
 * the best electrode-position candidate refined on the BEM
-  (:func:`refine_positions`: the electrodes moved, the scene solved again).
+  (:func:`refine_positions`: the electrodes moved, the scene solved again,
+  every step kept in the water).
 
 ``chosen`` is the candidate with the smallest held-out gap (``none`` when
 the empty tank is already within 1.5x the measurement's own floor); what it leaves
@@ -59,6 +65,7 @@ from electrosense.validation.comparison.transfer import (
     score_fit,
     solved_transfer_ohm,
 )
+from electrosense.validation.diagnosis.common_mode import common_mode_rows, fit_common_mode, instrument_reference
 from electrosense.validation.diagnosis.select import SelectionRules
 from electrosense.validation.diagnosis.transfer_remainder import where_the_rest_lies
 
@@ -344,6 +351,29 @@ def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 
     return 0.0, why
 
 
+def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floating=()) -> tuple[dict, dict]:
+    """The measurement system's common-mode error (:mod:`electrosense.validation.diagnosis.common_mode`) as candidates.
+
+    ``common_mode``: each measurement pair's common-mode voltage against the
+    instrument's ground (a ground electrode in the water, else the ring's
+    mean), read with a complex fraction ``c``; ``drive_common_mode``: the
+    drive pair's half voltage (a current source referenced at one terminal);
+    ``common_mode+channel_gains``: the first with a gain per channel. Scored
+    as the linear candidates (fold 1 held out), with standard errors.
+    """
+    ref = instrument_reference(np.shape(K_S)[0], ring, floating) if ring else list(range(1, np.shape(K_S)[0] + 1))
+    Z, Vcm = common_mode_rows(K_S, drive, measure, ref)
+    half_drive = 0.5 * common_mode_rows(K_S, drive, drive, ref)[0]      # half the drive pair's own voltage
+    channel = np.unique(measure, axis=0, return_inverse=True)[1].ravel()
+    cands, resid = {}, {}
+    for name, X, ch in (("common_mode", Vcm, None), ("drive_common_mode", half_drive, None),
+                        ("common_mode+channel_gains", Vcm, channel)):
+        sc, res, params = fit_common_mode(Z_measured, Z, X, folds, ch)
+        cands[name] = {**sc, **params, "reference_electrodes": ref if name != "drive_common_mode" else "drive pair"}
+        resid[name] = res
+    return cands, resid
+
+
 def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
     """Contact impedances (ohm m^2) from the drive pairs' own V / I beyond the BEM's (min-norm over the pairs).
 
@@ -460,6 +490,9 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         candidates += ["water_depth+electrode_angles", "water_depth+electrode_angles+electrode_heights",
                        "water_depth+electrode_angles+channel_offsets"]
     cands, resid = score_candidates(blocks, candidates, Zd, folds, R_ring)
+    cm_cands, cm_resid = common_mode_candidates(K0, drive, meas, Zd, folds, ring, floating)
+    cands.update(cm_cands)
+    resid.update(cm_resid)
     if wall:        # the best electrode-position candidate, refined on the BEM
         t0 = time.perf_counter()
         name = min(("electrode_angles", "electrode_heights", "electrode_angles+electrode_heights"),
