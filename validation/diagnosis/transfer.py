@@ -302,7 +302,11 @@ def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_p
         except (ValueError, MemoryError) as exc:
             notes.append(f"step {step}: the moved scene could not be solved ({exc}); refinement stopped")
             break
-        comp = compare_empty_tank(t, sol, sigma_S_per_m)
+        try:
+            comp = compare_empty_tank(t, sol, sigma_S_per_m)
+        except ValueError as exc:                      # e.g. signs flipped: the moved scene is not the log's
+            notes.append(f"step {step}: the moved scene does not match the log ({exc}); refinement stopped")
+            break
         blocks = {"scale": [comp.Z_model_ohm],
                   **position_blocks(sol, [w for w in wall_discs(moved) if w.index in {v.index for v in wall}], comp)}
         cands, resid = score_candidates(blocks, [name], comp.Z_measured_ohm, comp.folds)
@@ -343,8 +347,8 @@ def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 
     why = ""
     for k in range(halvings + 1):
         f = 0.5 ** k
-        problems = disc_problems(tank, moved_electrodes(scene, wall, arc_m + f * d_arc_m,
-                                                        up_m + f * d_up_m).electrodes)
+        moved = moved_electrodes(scene, wall, arc_m + f * d_arc_m, up_m + f * d_up_m).electrodes
+        problems = disc_problems(tank, moved) + _order_problems(scene.electrodes, moved, wall, arc_m + f * d_arc_m)
         if not problems:
             return f, why
         why = why or "would make: " + "; ".join(problems[:2])
@@ -372,6 +376,19 @@ def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floatin
         cands[name] = {**sc, **params, "reference_electrodes": ref if name != "drive_common_mode" else "drive pair"}
         resid[name] = res
     return cands, resid
+
+
+def _order_problems(electrodes, moved, wall, arc_m) -> list[str]:
+    """The wall discs' order around the ring must survive a move: none passes a neighbour, none goes round."""
+    R = np.array([np.hypot(*np.asarray(electrodes[w.index].centre_m)[:2]) for w in wall])
+    if np.any(np.abs(np.asarray(arc_m)) >= np.pi * R):
+        return ["an electrode would go half way round the ring or more"]
+    before = [np.arctan2(*np.asarray(electrodes[w.index].centre_m)[1::-1]) for w in wall]
+    after = [np.arctan2(*np.asarray(moved[w.index].centre_m)[1::-1]) for w in wall]
+    if not np.array_equal(np.argsort(np.mod(before, 2 * np.pi)), np.argsort(np.mod(np.asarray(after) - after[0]
+                                                                                  + before[0], 2 * np.pi))):
+        return ["electrodes would pass each other along the ring"]
+    return []
 
 
 def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
