@@ -331,7 +331,8 @@ def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 
 
     ``arc_m``, ``up_m``: where the discs ``wall`` are now (offsets from the
     scene's positions, m); ``d_arc_m``, ``d_up_m``: the move. Placeable is
-    :func:`electrosense.meshes.cylinder_tank_mesh.disc_problems`' test. Returns the fraction and, when
+    :func:`electrosense.meshes.cylinder_tank_mesh.disc_problems`' test, with the discs' order around the
+    ring kept (none passes a neighbour or goes half way round). Returns the fraction and, when
     it is below 1, what the full move would have done.
 
     >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
