@@ -42,7 +42,7 @@ def test_a_common_mode_fraction_is_found_with_its_uncertainty(seed):
     drive, measure = rows(n)
     ref = instrument_reference(n + 1, range(1, n + 1))
     assert ref == [n + 1]
-    Z, Vcm = common_mode_rows(K, drive, measure, ref)
+    Z, Vcm, _ = common_mode_rows(K, drive, measure, ref)
     middle = (measure[:, 0] - drive[:, 0]) % n == n // 2      # the far side's middle pair of each drive
     assert np.all(np.abs(Vcm[middle]) < 1e-9 * np.abs(Z).max())
     c = complex(rng.uniform(-3e-3, 3e-3), rng.uniform(1e-2, 3e-2))
@@ -68,7 +68,7 @@ def test_without_a_common_mode_the_fit_finds_none():
     n = 16
     K = ring_network_K(n, rng)
     drive, measure = rows(n)
-    Z, Vcm = common_mode_rows(K, drive, measure, [n + 1])
+    Z, Vcm, _ = common_mode_rows(K, drive, measure, [n + 1])
     Zd = 2.0 * np.abs(Z) * (1 + 1e-3 * rng.standard_normal(len(Z)))
     sc, _, p = fit_common_mode(Zd, Z, Vcm, drive_folds(drive)[2])
     assert sc["heldout_rms_rel"] < 1.2e-3

@@ -411,4 +411,4 @@ def test_a_fitted_move_off_the_wall_is_shortened_and_said(tmp_path):
     spacing = 2 * np.pi * scene.tank.radius_at(wall[0].centre_m[2]) / len(wall)
     f, why = step_on_the_wall(scene, wall, np.zeros(len(wall)), np.zeros(len(wall)),
                               np.r_[1.6 * spacing, np.zeros(len(wall) - 1)], np.zeros(len(wall)))
-    assert f == 0.25 and ("pass each other" in why or "overlap" in why)     # past its neighbour: a quarter stays
+    assert f == 0.5 and ("pass each other" in why or "overlap" in why)     # past its neighbour: half of it stays

@@ -43,24 +43,26 @@ def instrument_reference(n_electrodes: int, ring, floating=()) -> list[int]:
     return off if len(off) == 1 else ring
 
 
-def common_mode_rows(K_S, drive, measure, reference) -> tuple[np.ndarray, np.ndarray]:
-    """Signed transfer impedance ``Z`` and common-mode voltage ``V_cm`` (both ohm: per ampere) of each row.
+def common_mode_rows(K_S, drive, measure, reference) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Signed transfer impedance ``Z``, common-mode voltage ``V_cm`` and half the drive pair's voltage of each row
+    (all ohm: per ampere).
 
     ``drive``, ``measure``: (R, 2) 1-based pairs (current from ``drive[:, 0]`` to
     ``drive[:, 1]``; ``Z = V_p - V_q``); ``reference``: electrodes whose mean
     potential is the ground (:func:`instrument_reference`).
 
     >>> K = np.array([[2.0, -1, -1], [-1, 2, -1], [-1, -1, 2]])     # three electrodes, 1 S between each two
-    >>> Z, Vcm = common_mode_rows(K, np.array([[1, 2]]), np.array([[1, 3]]), [3])
-    >>> Z.round(4).tolist(), Vcm.round(4).tolist()
-    ([0.3333], [0.1667])
+    >>> Z, Vcm, half_drive = common_mode_rows(K, np.array([[1, 2]]), np.array([[1, 3]]), [3])
+    >>> Z.round(4).tolist(), Vcm.round(4).tolist(), half_drive.round(4).tolist()
+    ([0.3333], [0.1667], [0.3333])
     """
     pairs, inv = np.unique(np.asarray(drive), axis=0, return_inverse=True)
     V = node_potentials_V(K_S, pairs)[inv.ravel()]                        # (R, n) per ampere
     V = V - V[:, np.asarray(reference) - 1].mean(axis=1, keepdims=True)
     rows = np.arange(len(V))
     p, q = np.asarray(measure)[:, 0] - 1, np.asarray(measure)[:, 1] - 1
-    return V[rows, p] - V[rows, q], 0.5 * (V[rows, p] + V[rows, q])
+    a, b = np.asarray(drive)[:, 0] - 1, np.asarray(drive)[:, 1] - 1
+    return V[rows, p] - V[rows, q], 0.5 * (V[rows, p] + V[rows, q]), 0.5 * (V[rows, a] - V[rows, b])
 
 
 def _model(theta, Z, X, channel):

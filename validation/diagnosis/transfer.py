@@ -367,8 +367,7 @@ def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floatin
     as the linear candidates (fold 1 held out), with standard errors.
     """
     ref = instrument_reference(np.shape(K_S)[0], ring, floating) if ring else list(range(1, np.shape(K_S)[0] + 1))
-    Z, Vcm = common_mode_rows(K_S, drive, measure, ref)
-    half_drive = 0.5 * common_mode_rows(K_S, drive, drive, ref)[0]      # half the drive pair's own voltage
+    Z, Vcm, half_drive = common_mode_rows(K_S, drive, measure, ref)
     channel = np.unique(measure, axis=0, return_inverse=True)[1].ravel()
     cands, resid = {}, {}
     for name, X, ch in (("common_mode", Vcm, None), ("drive_common_mode", half_drive, None),
@@ -380,16 +379,22 @@ def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floatin
 
 
 def _order_problems(electrodes, moved, wall, arc_m) -> list[str]:
-    """The wall discs' order around the ring must survive a move: none passes a neighbour, none goes round."""
-    R = np.array([np.hypot(*np.asarray(electrodes[w.index].centre_m)[:2]) for w in wall])
-    if np.any(np.abs(np.asarray(arc_m)) >= np.pi * R):
-        return ["an electrode would go half way round the ring or more"]
-    before = [np.arctan2(*np.asarray(electrodes[w.index].centre_m)[1::-1]) for w in wall]
-    after = [np.arctan2(*np.asarray(moved[w.index].centre_m)[1::-1]) for w in wall]
-    if not np.array_equal(np.argsort(np.mod(before, 2 * np.pi)), np.argsort(np.mod(np.asarray(after) - after[0]
-                                                                                  + before[0], 2 * np.pi))):
-        return ["electrodes would pass each other along the ring"]
-    return []
+    """The wall discs' order around the ring must survive a move: every angular gap between neighbours stays open.
+
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> s = Scene(None, tank=CylinderTank(0.1, 0.2), electrodes=[DiscElectrode((0.1, 0.0, 0.0), 0.005),
+    ...                                                          DiscElectrode((0.0, 0.1, 0.0), 0.005)])
+    >>> w, arc = wall_discs(s), np.array([0.2, 0.0])                   # the first goes past the second
+    >>> _order_problems(s.electrodes, moved_electrodes(s, w, arc).electrodes, w, arc)
+    ['electrodes 1 and 2 would pass each other along the ring']
+    """
+    phi = np.mod([np.arctan2(*np.asarray(electrodes[w.index].centre_m)[1::-1]) for w in wall], 2 * np.pi)
+    turn = np.asarray(arc_m, float) / np.array([np.hypot(*np.asarray(moved[w.index].centre_m)[:2]) for w in wall])
+    order = np.argsort(phi)
+    gaps = np.diff(np.r_[phi[order], phi[order][0] + 2 * np.pi])
+    moved_gaps = gaps + np.diff(np.r_[turn[order], turn[order][0]])
+    return [f"electrodes {wall[order[k]].index + 1} and {wall[order[(k + 1) % len(order)]].index + 1} would pass "
+            "each other along the ring" for k in np.flatnonzero(moved_gaps <= 0)[:1]]
 
 
 def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
