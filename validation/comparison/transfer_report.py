@@ -173,8 +173,14 @@ def report_markdown(m: dict) -> str:
         d = m["diagnosis"]
         lines += [(f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
                    f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
+                  *([f"  - stated geometry fitted on the empty tank, object set-ups predicted: "
+                     f"{d['stated_geometry_heldout_setups']['empty_to_objects_rms_rel']:.4f}"]
+                    if d.get("stated_geometry_heldout_setups") else []),
                   *[f"  - {k} ({v['n_parameters']} parameters): held-out {v['heldout_rms_rel']:.4f}, "
-                    f"2-fold {v['twofold_rms_rel']:.4f}" + "".join(f"; {n}" for n in v.get("notes", []))
+                    f"2-fold {v['twofold_rms_rel']:.4f}"
+                    + (f", object set-ups from the empty tank {v['heldout_setups']['empty_to_objects_rms_rel']:.4f}"
+                       if "heldout_setups" in v else "")
+                    + "".join(f"; {n}" for n in v.get("notes", []))
                     for k, v in d["candidates"].items()],
                   *[f"  - {k}: not scored, its changed scene is not a valid one ({why})"
                     for k, why in d.get("skipped", {}).items()],

@@ -6,7 +6,9 @@ even drive patterns and scored on the odd ones
 (:func:`electrosense.validation.comparison.transfer.score_fit`):
 
 * ``channel_gains`` / ``channel_offsets`` / ``common_offset``: the
-  measurement system, per measurement pair;
+  measurement system, per measurement pair; ``pair_parity_gains``: a gain
+  per class of (drive pair, measurement pair) by the parity of their places
+  on the ring (a multiplexer's two groups);
 * ``current_to_electrode_G``: part of the drive current returning through an
   electrode off the ring (a ground);
 * ``electrode_angles`` / ``electrode_heights``: each ring electrode moved
@@ -24,6 +26,9 @@ even drive patterns and scored on the odd ones
   (:func:`refine_positions`: the electrodes moved, the scene solved again,
   every step kept in the water).
 
+Every candidate is also fitted on the empty tank and scored on the object
+set-ups (:func:`heldout_setups`: ``heldout_setups`` of each candidate),
+which held-out drives cannot do for what differs between odd and even drives.
 ``chosen`` is the candidate with the smallest held-out gap (``none`` when
 the empty tank is already within 1.5x the measurement's own floor); what it leaves
 is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
@@ -62,6 +67,7 @@ from electrosense.validation.comparison.transfer import (
     balls_at,
     compare_empty_tank,
     model_transfer_ohm,
+    ring_pair_places,
     score_fit,
     solved_transfer_ohm,
 )
@@ -166,10 +172,70 @@ def channel_blocks(Z_model, measure) -> dict:
 def candidate_blocks(name: str) -> list[str]:
     """The column blocks of a candidate named ``a+b+...``: the scale (BEM's Z) first, unless gains replace it.
 
-    >>> candidate_blocks("water_depth+electrode_angles"), candidate_blocks("channel_gains")
-    (['scale', 'water_depth', 'electrode_angles'], ['channel_gains'])
+    >>> candidate_blocks("water_depth+electrode_angles"), candidate_blocks("channel_gains"), candidate_blocks("scale")
+    (['scale', 'water_depth', 'electrode_angles'], ['channel_gains'], ['scale'])
     """
-    return (["scale"] if name != "channel_gains" else []) + name.split("+")
+    names = name.split("+")
+    return names if names[0] in ("scale", "channel_gains") else ["scale"] + names
+
+
+def pair_parity_blocks(Z_model, drive, measure, ring) -> dict:
+    """``pair_parity_gains``: a gain for each class of (drive pair, measurement pair) by the parity of their place
+    along the ring, beside the common scale (the even-even class is its reference): a multiplexer that routes odd
+    and even pairs through different groups. Empty without a ring.
+
+    Drives held out by parity never see the odd drives' classes; set-ups held out do (:func:`heldout_setups`).
+
+    >>> b = pair_parity_blocks(np.ones(4), np.array([[1, 2], [2, 3], [1, 2], [2, 3]]),
+    ...                        np.array([[3, 4], [4, 1], [4, 1], [3, 4]]), [1, 2, 3, 4])
+    >>> [c.tolist() for c in b["pair_parity_gains"]]
+    [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 0.0]]
+    """
+    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
+    if d is None or m is None:
+        return {}
+    cls = 2 * (d % 2) + m % 2
+    return {"pair_parity_gains": [Z_model * (cls == k) for k in (1, 2, 3)]}
+
+
+def heldout_setups(comparison, blocks: dict, candidates, R_ring_m=None, common_mode=None) -> dict:
+    """Each candidate fitted on the empty tank (all its drives) and scored on the object set-ups, and the reverse.
+
+    What a candidate fits (a channel's gain, an electrode's place, the tank's
+    shape) stays when an object goes in, so the empty tank's fit must predict
+    the object set-ups' measured magnitudes: each of their rows is the
+    candidate's model times the BEM's object-over-empty ratio (objects at the
+    stated height). ``common_mode``: the designs of
+    :func:`common_mode_candidates`, to score those too. Returns
+    ``{name: {"empty_to_objects_rms_rel", "objects_to_empty_rms_rel", set-up: rms, "fitted_on_the_empty_tank":
+    parameters}}`` (empty without object set-ups).
+    """
+    setups = list(comparison.measured_signals)
+    if not setups:
+        return {}
+    ratio = [1 + comparison.simulated_signals[k][0] for k in setups]
+    Zd0 = comparison.Z_measured_ohm
+    R = len(Zd0)
+
+    def stack(col):
+        return np.concatenate([col] + [col * r for r in ratio])
+
+    Zd = np.concatenate([Zd0] + [Zd0 * (1 + comparison.measured_signals[k]) for k in setups])
+    folds = np.repeat([0, 1], [R, R * len(setups)])
+    stacked = {k: [stack(c) for c in cols] for k, cols in blocks.items()}
+    fitted, resid = score_candidates(stacked, ["scale", *candidates], Zd, folds, R_ring_m)   # params: empty tank's fit
+    for name, (Z, X, ch) in (common_mode or {}).items():
+        ch = None if ch is None else np.tile(ch, 1 + len(setups))
+        resid[name] = fit_common_mode(Zd, stack(Z), stack(X), folds, ch)[1]
+
+    def rms(r):
+        return float(np.sqrt(np.mean(r ** 2)))
+
+    scores = ("heldout_rms_rel", "twofold_rms_rel", "n_parameters")
+    return {name: {"empty_to_objects_rms_rel": rms(r[R:]), "objects_to_empty_rms_rel": rms(r[:R]),
+                   **{k: rms(r[R * (i + 1):R * (i + 2)]) for i, k in enumerate(setups)},
+                   "fitted_on_the_empty_tank": {k: v for k, v in fitted.get(name, {}).items() if k not in scores}}
+            for name, r in resid.items()}
 
 
 def block_parameters(block: str, c, scale: float, R_ring_m: float | None = None) -> dict:
@@ -195,6 +261,9 @@ def block_parameters(block: str, c, scale: float, R_ring_m: float | None = None)
         return {"height_offsets_mm": np.round(1e3 * c / scale, 2).tolist()}
     if block.startswith("current_to_electrode"):
         return {"fraction": float(c[0] / scale)}
+    if block == "pair_parity_gains":
+        return {"pair_parity_gains_rel": dict(zip(("even-odd", "odd-even", "odd-odd"),
+                                                  np.round(1 + c / scale, 4).tolist()))}
     if block == "channel_gains":
         return {"gains_rel": np.round(c / np.mean(c), 4).tolist()}
     return {}
@@ -356,7 +425,7 @@ def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 
     return 0.0, why
 
 
-def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floating=()) -> tuple[dict, dict]:
+def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floating=()) -> tuple[dict, dict, dict]:
     """The measurement system's common-mode error (:mod:`electrosense.validation.diagnosis.common_mode`) as candidates.
 
     ``common_mode``: each measurement pair's common-mode voltage against the
@@ -365,17 +434,21 @@ def common_mode_candidates(K_S, drive, measure, Z_measured, folds, ring, floatin
     drive pair's half voltage (a current source referenced at one terminal);
     ``common_mode+channel_gains``: the first with a gain per channel. Scored
     as the linear candidates (fold 1 held out), with standard errors.
+    Returns the candidates, their residuals and each one's design
+    ``{name: (Z, X, channel)}`` (the arguments of
+    :func:`~electrosense.validation.diagnosis.common_mode.fit_common_mode`).
     """
     ref = instrument_reference(np.shape(K_S)[0], ring, floating) if ring else list(range(1, np.shape(K_S)[0] + 1))
     Z, Vcm, half_drive = common_mode_rows(K_S, drive, measure, ref)
     channel = np.unique(measure, axis=0, return_inverse=True)[1].ravel()
+    designs = {"common_mode": (Z, Vcm, None), "drive_common_mode": (Z, half_drive, None),
+               "common_mode+channel_gains": (Z, Vcm, channel)}
     cands, resid = {}, {}
-    for name, X, ch in (("common_mode", Vcm, None), ("drive_common_mode", half_drive, None),
-                        ("common_mode+channel_gains", Vcm, channel)):
-        sc, res, params = fit_common_mode(Z_measured, Z, X, folds, ch)
+    for name, (Zs, X, ch) in designs.items():
+        sc, res, params = fit_common_mode(Z_measured, Zs, X, folds, ch)
         cands[name] = {**sc, **params, "reference_electrodes": ref if name != "drive_common_mode" else "drive pair"}
         resid[name] = res
-    return cands, resid
+    return cands, resid, designs
 
 
 def _order_problems(electrodes, moved, wall, arc_m) -> list[str]:
@@ -512,10 +585,17 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     if wall and "water_depth" in blocks:
         candidates += ["water_depth+electrode_angles", "water_depth+electrode_angles+electrode_heights",
                        "water_depth+electrode_angles+channel_offsets"]
+    blocks.update(pair_parity_blocks(Zm, drive, meas, ring))
+    if "pair_parity_gains" in blocks:
+        candidates.append("pair_parity_gains")
     cands, resid = score_candidates(blocks, candidates, Zd, folds, R_ring)
-    cm_cands, cm_resid = common_mode_candidates(K0, drive, meas, Zd, folds, ring, floating)
+    cm_cands, cm_resid, cm_designs = common_mode_candidates(K0, drive, meas, Zd, folds, ring, floating)
     cands.update(cm_cands)
     resid.update(cm_resid)
+    across = heldout_setups(comparison, blocks, candidates, R_ring, cm_designs)
+    for name, scores in across.items():
+        if name in cands:
+            cands[name]["heldout_setups"] = scores
     if wall:        # the best electrode-position candidate, refined on the BEM
         t0 = time.perf_counter()
         name = min(("electrode_angles", "electrode_heights", "electrode_angles+electrode_heights"),
@@ -539,6 +619,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         "rule": (f"an effect is named unless the empty tank's held-out gap is within {ceiling}x "
                  "the measurement's own floor per measurement (reciprocity): then `none`, as in the pose diagnosis"),
         "candidates": cands,
+        "stated_geometry_heldout_setups": across.get("scale"),
         "skipped": skipped,
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
