@@ -158,3 +158,20 @@ def test_the_command_line_says_one_line_and_no_traceback(tmp_path, damage):
     assert res.exit_code != 0 and "Traceback" not in res.output
     assert isinstance(res.exception, SystemExit)           # the command's one line, not an escaped exception
     assert "bad.mat" in str(res.exception) and str(res.exception).startswith("esense: error: ")
+
+
+def test_the_files_electrodes_become_the_scenes_ring(tmp_path):
+    """Electrode k of the file is the k-th of the scene's [protocol] ring; a ring of another length is refused."""
+    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.bench.transfer.log import read_transfer_log
+
+    n = 8
+    p = _save(tmp_path, "a.mat", _layout(np.random.default_rng(5), n, setups=("Ref",)))
+    ring = list(range(20, 20 + 2 * n, 2))                        # the scene's electrodes 20, 22, ..., 34
+    plain = read_transfer_log(eit_mat_to_transfer_log(p, tmp_path / "plain.csv", scene="s.toml"))
+    mapped = read_transfer_log(eit_mat_to_transfer_log(p, tmp_path / "mapped.csv", scene="s.toml", ring=ring))
+    np.testing.assert_array_equal(mapped.V_V, plain.V_V)
+    np.testing.assert_array_equal(mapped.drive, np.asarray(ring)[plain.drive - 1])
+    np.testing.assert_array_equal(mapped.measure, np.asarray(ring)[plain.measure - 1])
+    with pytest.raises(BenchLogError, match="the file's ring has 8 electrodes, the scene's \\[protocol\\] ring 16"):
+        eit_mat_to_transfer_log(p, tmp_path / "x.csv", scene="s.toml", ring=range(1, 17))

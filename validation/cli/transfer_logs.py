@@ -46,12 +46,13 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True) -> dic
     scene_copy = out / scene_path.name
     if scene_copy.resolve() != scene_path.resolve():
         shutil.copyfile(scene_path, scene_copy)
-    log_path = (eit_mat_to_transfer_log(data, out / "transfer_log.csv", scene=scene_path.name)
-                if data.suffix.lower() == ".mat" else data)
-    log = read_transfer_log(log_path)
     scene = load_scene(scene_path)
     settings = load_scene_settings(scene_path)
     protocol = settings.get("protocol", {})
+    log_path = (eit_mat_to_transfer_log(data, out / "transfer_log.csv", scene=scene_path.name,
+                                        ring=protocol.get("ring"))
+                if data.suffix.lower() == ".mat" else data)
+    log = read_transfer_log(log_path)
     sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
     bem_options = dict(settings.get("bem", {}))
     comp = compare_transfer_log(log, scene, sigma, bem_options, protocol)

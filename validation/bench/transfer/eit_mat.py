@@ -230,9 +230,23 @@ def _current_and_drive_voltage(fields: dict, path: str, setup: str):
     return None, None
 
 
-def eit_mat_to_transfer_log(mat_path, out_path, scene: str) -> Path:
-    """Convert a .mat of this layout to a transfer log naming ``scene`` (relative to the log's folder)."""
+def eit_mat_to_transfer_log(mat_path, out_path, scene: str, ring=None) -> Path:
+    """Convert a .mat of this layout to a transfer log naming ``scene`` (relative to the log's folder).
+
+    ``ring``: the scene's electrode numbers of the file's electrodes 1..n in
+    ring order (the scene's ``[protocol]`` ring); None: the scene numbers
+    them 1..n. A ring of another length than the file's is refused.
+    """
     from electrosense.validation.bench.transfer.log import write_transfer_log
 
     rows, meta = read_eit_mat(mat_path)
+    if ring is not None:
+        ring = [int(e) for e in ring]
+        n = max(max(r[1:5]) for r in rows)
+        if len(ring) != n:
+            raise BenchLogError(str(mat_path), None, f"the file's ring has {n} electrodes, the scene's [protocol] "
+                                f"ring {len(ring)}: not this scene's data")
+        rows = [(r[0], *(ring[e - 1] for e in r[1:5]), *r[5:]) for r in rows]
+        if ring != list(range(1, n + 1)):
+            meta["electrodes_mapped_to_scene_ring"] = ring
     return write_transfer_log(out_path, {"scene": scene, **meta}, rows)
