@@ -345,6 +345,8 @@ def test_electrode_heights_found_and_the_rest_split_on_a_synthetic_phantom(tmp_p
     assert d["shrink"] > 0.8
     found = np.array(d["candidates"][d["chosen"]]["height_offsets_mm"]) * 1e-3
     assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
+    se = np.array(d["candidates"][d["chosen"]]["height_offsets_mm_se"]) * 1e-3      # the noise's share
+    assert np.all(np.abs(found - found.mean() - dz) < 4 * se + 2e-4)
     shares = d["remaining"]["shares"]
     assert abs(sum(shares.values()) - 1) < 1e-9
 

@@ -223,7 +223,10 @@ def fit_linear(Zd, columns, folds, gauge=None, ridge=1e-6):
     Returns
     -------
     The held-out relative residuals (R,) and ``{fold: coefficients}`` of each
-    fold's fit (the fit that holds that fold out).
+    fold's fit (the fit that holds that fold out); the coefficients'
+    standard errors are ``{"se": {fold: se}}`` in the same dict: the
+    covariance of the weighted least squares with the training residuals'
+    own scatter as the noise (relative, independent from row to row).
 
     >>> Zm = np.array([1.0, 2.0, 3.0, 4.0]); one = np.ones(4)
     >>> res, c = fit_linear(2 * Zm + 0.5, np.c_[Zm, one], np.array([0, 1, 0, 1]))
@@ -243,6 +246,9 @@ def fit_linear(Zd, columns, folds, gauge=None, ridge=1e-6):
         c = np.linalg.lstsq(lhs, np.r_[np.ones(tr.sum()), np.zeros(len(reg) + len(cons))], rcond=None)[0]
         res[~tr] = (A[~tr] @ c) / Zd[~tr] - 1
         coefs[int(f)] = c
+        r = A[tr] @ c / Zd[tr] - 1
+        noise2 = float(r @ r) / max(int(tr.sum()) - P + len(cons), 1)
+        coefs.setdefault("se", {})[int(f)] = np.sqrt(np.clip(np.diag(np.linalg.pinv(lhs.T @ lhs)) * noise2, 0, None))
     return res, coefs
 
 

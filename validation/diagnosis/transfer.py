@@ -290,13 +290,36 @@ def score_candidates(blocks: dict, candidates, Z_measured, folds, R_ring_m=None)
         for row, k in enumerate(gauged):
             g[row, start[k]:start[k + 1]] = 1.0
         sc, res, coefs = score_fit(Z_measured, cols, folds, g)
-        c = coefs[1]
+        c, se = coefs[1], coefs["se"][1]
         scale = c[0] if names[0] == "scale" else 1.0
         for k, b in enumerate(names):
-            sc.update(block_parameters(b, c[start[k]:start[k + 1]], scale, R_ring_m))
+            block = block_parameters(b, c[start[k]:start[k + 1]], scale, R_ring_m)
+            sc.update(block)
+            sc.update(_standard_errors(block, block_parameters(b, c[start[k]:start[k + 1]] + se[start[k]:start[k + 1]],
+                                                               scale, R_ring_m)))
         cands[name] = sc
         resid[name] = res
     return cands, resid
+
+
+def _standard_errors(params: dict, shifted: dict) -> dict:
+    """``{name}_se`` of each numeric parameter: its change when every coefficient moves by one standard error
+    (first order; the coefficients' correlations left out). The noise's share only: a fit linear about one
+    solve is also biased by its linearisation, which the refinement on the BEM removes (on a synthetic
+    phantom, electrode heights off by up to 3 mm against 0.7 mm standard errors before, within 2 of them after).
+
+    >>> _standard_errors({"depth_change_m": -0.005, "note": "x"}, {"depth_change_m": -0.004})
+    {'depth_change_m_se': 0.001}
+    """
+    out = {}
+    for k, v in params.items():
+        if isinstance(v, dict):
+            out[f"{k}_se"] = {kk: round(abs(shifted[k][kk] - vv), 6) for kk, vv in v.items()}
+        elif isinstance(v, list):
+            out[f"{k}_se"] = np.round(np.abs(np.subtract(shifted[k], v)), 6).tolist()
+        elif isinstance(v, float):
+            out[f"{k}_se"] = round(abs(shifted[k] - v), 9)
+    return out
 
 
 def position_blocks(solution, wall, comparison) -> dict:
