@@ -55,12 +55,12 @@ def test_a_common_mode_fraction_is_found_with_its_uncertainty(seed):
     assert abs(p["c_quadrature"] - c.imag) < 4 * p["c_quadrature_se"] + 1e-6
     assert p["c_quadrature_se"] < 0.3 * c.imag
     # the diagnosis's candidates: common_mode explains it, far better than the stated model (scale alone)
-    cands, resid = common_mode_candidates(K, drive, measure, Zd, folds, list(range(1, n + 1)))
+    cands, resid, designs = common_mode_candidates(K, drive, measure, Zd, folds, list(range(1, n + 1)))
     assert cands["common_mode"]["reference_electrodes"] == [n + 1]
     assert cands["common_mode"]["heldout_rms_rel"] < 1.5 * noise
     scale_only = np.median(Zd / np.abs(Z))
     assert np.sqrt(np.mean((scale_only * np.abs(Z) / Zd - 1) ** 2)) > 5 * cands["common_mode"]["heldout_rms_rel"]
-    assert resid["common_mode"].shape == Z.shape
+    assert resid["common_mode"].shape == Z.shape and set(designs) == set(cands)
 
 
 def test_without_a_common_mode_the_fit_finds_none():
