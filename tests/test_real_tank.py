@@ -282,6 +282,7 @@ def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monk
         assert m["object_rms_rel"]["Avg1"] < 0.2
         assert ("diagnosis" in m) == (cmd == "diagnose")
         assert (tmp_path / cmd / "report.md").exists() and (tmp_path / cmd / "empty_tank.png").exists()
+        assert (tmp_path / cmd / "candidates.png").exists() == (cmd == "diagnose")
     cands = m["diagnosis"]["candidates"]
     assert "electrode_angles" in cands and "current_to_electrode_9" in cands and "current_to_electrode_10" not in cands
     assert m["diagnosis"]["chosen"] == "none"          # the BEM's own data with noise: nothing to explain

@@ -6,6 +6,8 @@
 * ``geometry.png``: model / measured - 1 by ring offset for the stated tank
   and the shape candidates, and the ring radius the empty tank and each ball
   want (:func:`electrosense.validation.diagnosis.transfer.one_geometry`);
+* ``candidates.png``: each candidate's gap on held-out drives and on the
+  object set-ups (fitted on the empty tank), against the floor;
 * ``remainder.png``: where the gap lies before any effect and after the
   chosen one (:func:`electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`):
   the shares of its parts and the mean by pair parity class;
@@ -37,6 +39,7 @@ __all__ = [
     "GOALS",
     "difference_signals_figure",
     "empty_tank_figure",
+    "candidates_figure",
     "geometry_figure",
     "remainder_figure",
     "report_markdown",
@@ -152,6 +155,32 @@ def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
     return save(fig, Path(folder) / "remainder.png")
 
 
+def candidates_figure(folder, diagnosis: dict, floor_rel: float) -> Path | None:
+    """What each candidate explains: its RMS gap on held-out drives and, fitted on the empty tank, on the object
+    set-ups, against the stated geometry's and the measurement's own floor (per measurement, reciprocity).
+    None when no candidate was scored on object set-ups."""
+    cands = {k: v for k, v in diagnosis["candidates"].items() if "heldout_setups" in v}
+    stated = diagnosis.get("stated_geometry_heldout_setups")
+    if not cands or not stated:
+        return None
+    names = sorted(cands, key=lambda k: -cands[k]["heldout_setups"]["empty_to_objects_rms_rel"])
+    y = np.arange(len(names))
+    fig, ax = new_figure(1, 1, panel_size_in=(8.5, 1.8 + 0.26 * len(names)))
+    a = ax[0, 0]
+    a.barh(y + 0.2, [100 * cands[k]["heldout_rms_rel"] for k in names], 0.4, color="0.7", label="held-out drives")
+    a.barh(y - 0.2, [100 * cands[k]["heldout_setups"]["empty_to_objects_rms_rel"] for k in names], 0.4,
+           color="tab:blue", label="object set-ups, fitted on the empty tank")
+    a.axvline(100 * diagnosis["gap_before"], color="0.4", ls="--", lw=1, label="stated geometry, held-out drives")
+    a.axvline(100 * stated["empty_to_objects_rms_rel"], color="tab:blue", ls="--", lw=1,
+              label="stated geometry, object set-ups")
+    a.axvline(100 * floor_rel, color="k", lw=1.2, label="floor per measurement (reciprocity)")
+    a.set_yticks(y, [f"{k} ({cands[k]['n_parameters']})" for k in names], fontsize=8)
+    a.set_ylim(-0.7, len(names) - 0.3)
+    a.set(xlabel="RMS of model / measured - 1 (%)", title="what each candidate explains (its parameters in brackets)")
+    a.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.09), ncol=2)
+    return save(fig, Path(folder) / "candidates.png")
+
+
 def report_markdown(m: dict) -> str:
     """The report (markdown) of a metrics dict written by the transfer comparison."""
     lines = ["# Real tank: BEM against the measured phantom", "",
@@ -200,6 +229,8 @@ def report_markdown(m: dict) -> str:
         lines += ["- Diagnosis: not run (--no-diagnosis)."]
     lines += ["", "![empty tank](empty_tank.png)", "", "![tank shape](geometry.png)", "",
               *(["![where the gap lies](remainder.png)", ""] if "remaining" in m.get("diagnosis", {}) else []),
+              *(["![what each candidate explains](candidates.png)", ""]
+                if m.get("diagnosis", {}).get("stated_geometry_heldout_setups") else []),
               "![difference signals](difference_signals.png)", ""]
     return "\n".join(lines)
 
@@ -229,6 +260,7 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
     if "remaining" in metrics.get("diagnosis", {}):
         d = metrics["diagnosis"]
         remainder_figure(folder, d["gap_before_split"], d["remaining"], d["chosen"])
+        candidates_figure(folder, d, metrics["noise_floor"]["per_measurement_rms_rel"])
     path = folder / "report.md"
     path.write_text(report_markdown(metrics))
     return path
