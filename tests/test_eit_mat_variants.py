@@ -152,7 +152,9 @@ def test_the_command_line_says_one_line_and_no_traceback(tmp_path, damage):
     elif damage == "text":
         bad.write_text("vvRef = [1 2 3]\n")
     scene = tmp_path / "tank.toml"
-    scene.write_text('[tank]\nshape = "cylinder"\nradius_m = 0.1\nheight_m = 0.2\n')
+    scene.write_text('[tank]\nshape = "cylinder"\nradius_m = 0.1\nheight_m = 0.2\n'
+                     '[electrode_ring]\nn = 8\nz_m = 0.0\nradius_m = 0.005\n'
+                     '[protocol]\nring = [1, 2, 3, 4, 5, 6, 7, 8]\nreference = "Ref"\n')
     res = CliRunner().invoke(main, ["study", "real_tank", "--data", str(bad), "--scene", str(scene),
                                     "-o", str(tmp_path / "out")])
     assert res.exit_code != 0 and "Traceback" not in res.output
