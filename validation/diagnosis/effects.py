@@ -11,9 +11,10 @@ name                   what changes (parameters)                    how it is ev
 ``contact_impedance``  z_c on every electrode (common: z; per        series network on K
                        electrode: z_1..z_n, ohm m^2)                (z_c / BEM-fitted area)
 ``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
-``pose_offset``        robot frame shifted/turned against the tank  effect model at moved poses
-                       (dx, dy, dyaw; or the sensor mounted off
-                       its logged pose)
+``pose_offset``        robot frame shifted/turned against the tank  the BEM's pose gradient
+                       (dx, dy, dyaw; or the sensor mounted off     (Taylor step from the
+                       its logged pose)                             baseline; effect model when
+                                                                    the scene changes too)
 ``water_depth``        free surface (or floor) elsewhere (dd)       effect model in that tank
 ``tank_size``          walls elsewhere (dLx, dLy)                   effect model in that tank
 ``unmodelled_object``  a sphere at (x, y, z) of dipole chi b^3      effect model with the sphere
@@ -90,6 +91,11 @@ class Problem:
     weight : (P, m), optional
         Weights of the relative residuals in the fits and scores (default 1):
         s / sqrt(s^2 + model error^2), see :func:`model_trust_weights`.
+    pose_gradient : PoseGradient, optional
+        The BEM's d log K / d(x, y, yaw) at the logged poses
+        (:mod:`electrosense.validation.diagnosis.pose_gradient`): a scene that
+        moves only the sensor is then predicted from the baseline itself, not
+        through the effect model.
     """
 
     obs: Observations
@@ -98,6 +104,7 @@ class Problem:
     K_effect0: np.ndarray | None = None
     baseline_name: str = ""
     weight: np.ndarray | None = None
+    pose_gradient: object = None
     t_ref_s: float = field(init=False)
     T_ref_C: float | None = field(init=False)
     areas_m2: np.ndarray = field(init=False)
@@ -146,13 +153,20 @@ class Problem:
         at = slice(None) if rows is None or (len(rows) == len(idx) and np.array_equal(rows, idx)) \
             else np.searchsorted(rows, idx)
         K = self.K_base[idx]
-        if scenario.geometry_changed:
+        if scenario.geometry_changed and self.pose_gradient is not None and self._moves_pose_only(scenario):
+            # the sensor moved in the believed scene: the BEM's own change of K with pose (Taylor step)
+            K = self.pose_gradient.moved(K, idx, self.obs.poses[idx], scenario.poses[at])
+        elif scenario.geometry_changed:
             # relative change of every entry of K, as the effect model sees it; zero row sums restored
             K = K * (self._effect_K_at(scenario, at) / self.K_effect0[idx])
             n = K.shape[-1]
             off = K * (1 - np.eye(n))
             K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
         return self.currents(K, scenario, at, idx)
+
+    def _moves_pose_only(self, scenario: Scenario) -> bool:
+        """Whether ``scenario`` differs from the believed scene by the sensor's pose alone (x, y, yaw)."""
+        return scenario.tank == self.obs.tank and tuple(scenario.objects) == tuple(self.obs.objects)
 
     def currents(self, K: np.ndarray, scenario: Scenario, at, idx: np.ndarray, contact: bool = True) -> np.ndarray:
         """Receiver currents (p, m) from the scene's K (p, n, n) at unit water scale: then the water's conductivity,
