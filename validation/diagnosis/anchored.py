@@ -225,6 +225,7 @@ class AnchoredBaseline:
     bem_error: np.ndarray | None = None  # (P, m) estimated discretisation error of the BEM itself
     stopped: str = ""
     base: str = "psm"  # what the BEM's ratio was interpolated against: the PSM, or the free-space K ("free")
+    pose_gradient: object = None  # the BEM's d log K / d(x, y, yaw) at the logged poses (:mod:`.pose_gradient`)
 
     @property
     def interpolation_rms(self) -> float:
@@ -331,9 +332,14 @@ def _spread(candidates: np.ndarray, weight: np.ndarray, passes: list, k: int) ->
 def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_model=None, bem_options=None,
                       store: AnchorStore | None = None, first_fraction: float = 0.2, step_fraction: float = 0.1,
                       max_bem_s: float = MAX_BEM_SECONDS, check_discretisation: bool = True,
-                      progress=None) -> AnchoredBaseline:
+                      pose_reference=None, progress=None) -> AnchoredBaseline:
     """The BEM at an adaptive set of logged poses, interpolated (module doc), until its estimated error is below
-    ``target_factor * noise`` (module doc); K at the observations' conductivity."""
+    ``target_factor * noise`` (module doc); K at the observations' conductivity.
+
+    ``pose_reference`` (``(poses, tank, objects) -> K``, the diagnosis's effect model), optional: then the BEM's
+    own change of K with pose is computed too (:mod:`.pose_gradient`, cached with the anchors), as
+    ``pose_gradient`` of the result.
+    """
     from electrosense.validation.diagnosis.where import place_labels
     from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
 
@@ -401,15 +407,20 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     new_poses, new_K = [], []
     bem_seconds = [0.0, 0]  # CPU seconds of BEM poses, count (for the budget: the same answer on a busy machine)
 
-    def run_bem(idx):
-        nonlocal sweep, n_new
-        idx = np.asarray([i for i in idx if not np.isfinite(K_bem[i, 0, 0])], int)
-        if not len(idx):
-            return
+    def get_sweep():
+        nonlocal sweep
         if sweep is None:
             from electrosense.bem import PoseSweep
 
             sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
+        return sweep
+
+    def run_bem(idx):
+        nonlocal n_new
+        idx = np.asarray([i for i in idx if not np.isfinite(K_bem[i, 0, 0])], int)
+        if not len(idx):
+            return
+        get_sweep()
         groups = np.unique(group[idx])  # one solve per distinct pose, shared by every sample at it
         rep = first_of[groups]
         say(f"BEM at {len(rep)} poses" + (f" ({len(idx)} samples)" if len(idx) > len(rep) else ""))
@@ -504,7 +515,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     fill = ~have
     if fill.any():
         K[fill] = _apply_log_ratio(bases[base][0][fill], L[fill])
-    # the BEM's own discretisation: a coarser mesh at a few anchor poses (cached with the anchors)
+    # the BEM's own discretisation: a finer mesh at a few anchor poses, extrapolated (cached with the anchors)
     check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
     if check_discretisation and not check and len(np.flatnonzero(have)):
         try:
@@ -513,17 +524,25 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         except Exception as exc:  # the estimate is optional; say so in the budget
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}
+    grad, grad_entry = None, {}
+    if pose_reference is not None:
+        try:
+            grad, grad_entry = _pose_gradient(obs, entry if covered else None, get_sweep, passes, say,
+                                              pose_reference, K_bem)
+        except Exception as exc:  # the pose effects fall back on the effect model; say so
+            say(f"BEM pose gradient not computed ({type(exc).__name__}: {exc}); pose effects through the PSM")
     bem_error = None
     if check:
         from scipy.spatial import cKDTree
 
         _, j = cKDTree(pose_features(sensor, check["poses"])).query(F)
         bem_error = check["error"][j]
-    if new_poses or (check and "check_poses" not in (entry or {})):
+    if new_poses or (check and "check_poses" not in (entry or {})) or (grad_entry and "grad_nodes" not in (entry or {})):
         entry_poses = np.vstack([cached_poses] + new_poses)
         entry_K = np.vstack([cached_K] + new_K)
         saved = {"poses": entry_poses, "K_unit": entry_K, "focus_m": focus}
         saved.update({f"check_{k}": v for k, v in check.items()})
+        saved.update({f"grad_{k}": v for k, v in grad_entry.items()})
         store.save(saved)
     anchors = np.flatnonzero(have)
     return AnchoredBaseline(
@@ -531,10 +550,46 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         n_cached=int(np.sum(exact >= 0)) + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
-        seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped,
+        seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
     )
 
 
+#: gradient nodes: a tenth of the log's samples, at least five a pass (both ends and three between)
+GRADIENT_NODE_FRACTION = 0.1
+GRADIENT_NODES_PER_PASS = 5
+
+
+def _pose_gradient(obs, entry, get_sweep, passes, say, reference, K_bem):
+    """The BEM's d log K / d(x, y, yaw) at the logged poses (:mod:`.pose_gradient`), from the stored nodes of
+    ``entry`` when they serve this log (the same tank mesh), else from new ones; (gradient, what to store)."""
+    from electrosense.validation.diagnosis.multifidelity import choose_bem_poses
+    from electrosense.validation.diagnosis.pose_gradient import PoseGradient, log_derivatives, pose_gradient, stencil
+
+    n = obs.sensor.n_electrodes
+    pairs = n * (n - 1) // 2
+    if obs.tank is None and not len(obs.objects):  # unbounded water, nothing in it: K does not depend on pose
+        zero = np.zeros((obs.n_poses, 3, pairs))
+        return PoseGradient(zero, zero.copy(), np.zeros((0, 4)), np.zeros((0, 3, pairs))), {}
+    cached = None
+    if entry is not None and "grad_nodes" in entry:
+        cached = {"nodes": entry["grad_nodes"], "G": entry["grad_G"], "H": entry["grad_H"]}
+    ref = lambda p: reference(p, obs.tank, tuple(obs.objects))  # noqa: E731
+    # nodes dense where the effect model's gradient changes fastest along the pass
+    G_ref, _ = log_derivatives(ref(stencil(obs.poses).reshape(-1, 4)).reshape(obs.n_poses, 7, n, n))
+    k = max(GRADIENT_NODES_PER_PASS * len(passes), int(np.ceil(GRADIENT_NODE_FRACTION * obs.n_poses)))
+    node_idx = choose_bem_poses(np.abs(G_ref).max(axis=(1, 2)), passes, k)
+    have = np.flatnonzero(np.isfinite(K_bem[:, 0, 0]))
+    if len(have):   # each node moved to the nearest anchor of its pass: the BEM there is known
+        label = np.empty(obs.n_poses, int)
+        for j, idx in enumerate(passes):
+            label[idx] = j
+        node_idx = np.unique([min((a for a in have if label[a] == label[i]), key=lambda a: abs(a - i), default=i)
+                              for i in node_idx])
+    grad, store = pose_gradient(obs.sensor, obs.poses, passes, lambda p: get_sweep().conductance(p).K_S, node_idx,
+                                ref, cached, K_known=K_bem)
+    if store:
+        say(f"BEM pose gradient at {len(grad.nodes)} poses (6 or 7 solves each), {grad.seconds:.1f} s")
+    return grad, store
 def _distinct(idx: np.ndarray, group: np.ndarray) -> np.ndarray:
     """``idx`` less the samples at a pose already in it (one per distinct pose, in order)."""
     return idx[np.sort(np.unique(group[idx], return_index=True)[1])]
@@ -569,15 +624,19 @@ def _fit_base(K_bem, F, group, have, K_ref, usable, cached_off, K_ref_cached, ca
             "loo_usable_rms": float(np.sqrt(np.mean(at**2))) if at.size else np.inf}
 
 
-#: the coarser mesh of the discretisation check, in units of the anchors' (sensor edge, tank edge)
-CHECK_COARSENING = 1.5
+#: the finer mesh of the discretisation check, in units of the anchors' (sensor edge, tank edge)
+CHECK_REFINEMENT = 1.5
 
 
 def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_bem, have, tank_effect, rec, say,
                           n_check: int = 4) -> dict:
-    """The BEM at ``n_check`` anchor poses (strongest, median and weakest tank effect) on a mesh
-    :data:`CHECK_COARSENING` times coarser: |K_coarse / K - 1| of the receiver currents (about the anchors' own
-    discretisation error for a first-order convergence, an upper estimate for a faster one)."""
+    """The anchors' own discretisation error, measured: the BEM at ``n_check`` anchor poses (strongest, median
+    and weakest tank effect) on a mesh :data:`CHECK_REFINEMENT` times finer (sensor and tank), extrapolated.
+
+    With an error ``C h^p`` the anchors' error is ``|K_fine / K - 1| q^p / (q^p - 1)`` (q the refinement);
+    ``p = 1`` is taken (the electrode edges' r^-1/2 singularity in the tank's graded mesh converges at about
+    first order; a faster convergence makes this an upper estimate): three times the change to the finer mesh.
+    """
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import default_tank_edge_length_m
 
@@ -585,12 +644,12 @@ def _discretisation_check(sensor, tank, objects, bem_options, focus, poses, K_be
     order = idx[np.argsort(tank_effect[idx])]
     pick = np.unique(order[np.round(np.linspace(0, len(order) - 1, min(n_check, len(order)))).astype(int)])
     opts = dict(bem_options)
-    opts["edge_length_m"] = min(CHECK_COARSENING * opts["edge_length_m"], 1.9 * sensor.radius_m)  # mesher's limit
-    opts["tank_edge_length_m"] = CHECK_COARSENING * (opts.get("tank_edge_length_m")
-                                                     or default_tank_edge_length_m(sensor))
-    say(f"BEM discretisation check at {len(pick)} poses (mesh {CHECK_COARSENING}x coarser)")
-    coarse = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **opts).conductance(poses[pick]).K_S
+    q = CHECK_REFINEMENT
+    opts["edge_length_m"] = opts["edge_length_m"] / q
+    opts["tank_edge_length_m"] = (opts.get("tank_edge_length_m") or default_tank_edge_length_m(sensor)) / q
+    say(f"BEM discretisation check at {len(pick)} poses (mesh {q}x finer)")
+    fine = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **opts).conductance(poses[pick]).K_S
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    err = np.abs(coarse[:, r, e] / K_bem[pick][:, r, e] - 1.0)
+    err = np.abs(fine[:, r, e] / K_bem[pick][:, r, e] - 1.0) * q / (q - 1.0)
     return {"poses": poses[pick], "error": err}
