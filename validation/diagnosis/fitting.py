@@ -48,6 +48,7 @@ __all__ = [
     "fit",
     "cross_validate",
     "object_starts",
+    "dipole_responses",
     "subspace_angle_deg",
 ]
 
@@ -326,19 +327,14 @@ def _object_grid(problem: Problem, n_xy: int = 13, n_z: int = 5) -> np.ndarray:
     return g[dist > obs.sensor.radius_m + 0.02]
 
 
-def object_starts(problem: Problem, idx, r: np.ndarray, n_best: int = 3) -> list[np.ndarray]:
-    """Starting parameters (x, y, z, chi b^3) for the sphere from a grid scan of the residual ``r`` (p, m).
-
-    For every grid place the first-order change of the receiver currents by a
-    unit dipole (the PSM's small-object term with the electrode centres, in
-    free space, on the baseline's conductance) is correlated with the
-    residual; the places that explain most of it are returned with their
-    best strength.
-    """
+def dipole_responses(problem: Problem, idx) -> tuple[np.ndarray, np.ndarray]:
+    """(grid (G, 3), v (p, G, m)): the first-order relative change of the receiver currents at samples ``idx``
+    by a unit dipole (chi b^3 = 1 m^3) at each place of the object grid (the PSM's small-object term with the
+    electrode centres, in free space, on the baseline's conductance)."""
     obs = problem.obs
     grid = _object_grid(problem)
     if len(grid) == 0:
-        return []
+        return grid, np.zeros((len(idx), 0, obs.n_receivers))
     n, e = obs.sensor.n_electrodes, obs.emitter - 1
     rec = [k for k in range(n) if k != e]
     c = sensor_to_tank(obs.sensor.electrode_centres_m, obs.poses[idx])  # (p, n, 3)
@@ -352,7 +348,16 @@ def object_starts(problem: Problem, idx, r: np.ndarray, n_best: int = 3) -> list
     G = problem.K_base[idx][:, rec][:, :, rec]  # (p, m, m)
     g1 = G.sum(axis=-1)  # G 1
     dI = -np.einsum("pij,pgjk,pk->pgi", G, A, g1) * obs.U_V[idx, None, None]
-    v = dI / np.abs(problem.I_base[idx])[:, None, :]  # relative, (p, G, m)
+    return grid, dI / np.abs(problem.I_base[idx])[:, None, :]  # relative, (p, G, m)
+
+
+def object_starts(problem: Problem, idx, r: np.ndarray, n_best: int = 3) -> list[np.ndarray]:
+    """Starting parameters (x, y, z, chi b^3) for the sphere from a grid scan of the residual ``r`` (p, m):
+    the places whose unit-dipole response (:func:`dipole_responses`) explains most of it, with their best
+    strength."""
+    grid, v = dipole_responses(problem, idx)
+    if len(grid) == 0:
+        return []
     vv = np.einsum("pgi,pgi->g", v, v)
     vr = np.einsum("pgi,pi->g", v, r)
     ok = vv > 0

@@ -202,7 +202,7 @@ class Selection:
 
 def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rules: SelectionRules = SelectionRules(),
                       region_mask=None, floor: float | None = None,
-                      model_error_by_place: dict | None = None) -> Selection:
+                      model_error_by_place: dict | None = None, detection: dict | None = None) -> Selection:
     """Greedy forward selection over the single-candidate fits of ``ranking``.
 
     ``floor`` (default ``noise``) is the noise floor: the bench noise and the
@@ -222,9 +222,24 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
     in_current = lambda c: [e.name for e in c.effects if e.name != "none"]  # noqa: E731
     path: list[CandidateScore] = []
     steps = []
-    if baseline.heldout_gap <= rules.start_noise * fl:
+    if detection is not None and not detection["detected"]:
+        # no candidate improves the held-out fit beyond what the noise model gives at the false-alarm rate
+        stop = (f"no candidate's held-out improvement ({detection['improvement']:.1f} s^2) exceeds the "
+                f"{1 - detection['alpha']:.0%} quantile of its distribution under the noise model "
+                f"({detection['improvement_threshold']:.1f} s^2; p = {detection['p_detection']:.3g})")
+        if detection["p_fit_before"] < detection["alpha"]:
+            return Selection([], "unexplained", [{"stop": stop + f"; yet the gap is beyond the noise model "
+                                                          f"(p = {detection['p_fit_before']:.3g}): nothing in the "
+                                                          "library explains it"}])
+        return Selection([], "none", [{"stop": stop}])
+    if detection is None and baseline.heldout_gap <= rules.start_noise * fl:
         return Selection([], "none", [{"stop": "the gap before any effect is within the noise floor"}])
     while len(path) < rules.max_effects:
+        if path and detection is not None and \
+                _fits_noise_model(current, problem, detection)["p_fit_after"] >= detection["alpha"]:
+            steps.append({"stop": "the held-out residual is within the noise model (goodness of fit at the "
+                                  "false-alarm rate)"})
+            break
         if path and current.heldout_gap <= rules.at_noise * fl:
             steps.append({"stop": "the held-out gap is within the noise"})
             break
@@ -245,7 +260,8 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
         if not tried:
             break
         best = _parsimonious(min(tried, key=lambda c: c.score), tried, current, rules, fl)
-        best = _fewest_reaching_floor(best, tried, current, rules, fl)
+        if detection is None:
+            best = _fewest_reaching_floor(best, tried, current, rules, fl)
         excess = current.heldout_gap**2 - fl**2
         gain = current.heldout_gap**2 - best.heldout_gap**2
         step = {"tried": {c.name: {"score": c.score, "heldout_gap": c.heldout_gap} for c in tried}, "best": best.name,
@@ -264,8 +280,15 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
     if len(path) >= 2:
         current = _swap_pass(problem, current, singles, folds, noise, region_mask, steps, rules, baseline)
         path[-1] = current
+    if detection is not None and path:
+        fits = _fits_noise_model(path[-1], problem, detection)
+        steps.append({"fit_after": fits})
+        if fits["p_fit_after"] >= detection["alpha"]:
+            return Selection(path, "explained", steps)
     if not path:
-        if baseline.heldout_gap <= rules.none_ceiling * fl:
+        if detection is not None:
+            verdict = "unexplained" if detection["p_fit_before"] < detection["alpha"] else "none"
+        elif baseline.heldout_gap <= rules.none_ceiling * fl:
             verdict = "none"
             if baseline.heldout_gap > rules.none_ceiling * noise:
                 steps.append({"stop": _model_limit_note(baseline.heldout_gap, noise, fl, model_error_by_place)})
@@ -281,6 +304,15 @@ def forward_selection(problem, ranking: list[CandidateScore], folds, noise, rule
                               f"({100 * fl:.3g} %) nor removes {rules.named_shrink:.0%} of it: nothing is named "
                               f"(nearest: {path[-1].name}, {100 * path[-1].heldout_gap:.3g} %)"})
     return Selection(path, verdict, steps)
+
+
+def _fits_noise_model(c: CandidateScore, problem, detection: dict) -> dict:
+    """Goodness of fit of ``c``'s held-out residual against the noise model's distribution of SSE / s^2."""
+    from electrosense.validation.diagnosis.detection import p_value
+
+    r = c.heldout * problem.weight
+    sse = float(np.nansum(r**2) / detection["noise"] ** 2)
+    return {"sse_after": sse, "p_fit_after": p_value(sse, detection["null_sse"])}
 
 
 def _model_limit_note(gap: float, noise: float, floor: float, by_place: dict | None) -> str:
