@@ -127,6 +127,7 @@ class Diagnosis:
     model_error: dict = field(default_factory=dict)
     ambiguity: list = field(default_factory=list)
     bem_check: dict | None = None
+    detection: dict | None = None
 
     @property
     def noise_floor(self) -> float:
@@ -196,6 +197,7 @@ def diagnose(
     model_error: float = 0.0,
     bem_correction_poses: int = 0,
     bem_check_poses: int = 12,
+    statistical: bool = True,
     progress=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.
@@ -236,6 +238,11 @@ def diagnose(
         estimated error of that correction. The diagnosis then explains the
         gap between the bench and the BEM's physics, not the PSM's
         approximation (0: the bare PSM).
+    statistical : bool
+        The verdict by the tests of :mod:`electrosense.validation.diagnosis.detection` (held-out
+        improvement and goodness of fit against the noise model, false-alarm rate
+        :data:`~electrosense.validation.diagnosis.detection.ALPHA`); False: the thresholds of
+        :class:`SelectionRules` in units of the noise floor.
     bem_check_poses : int
         With the anchored baseline: solve the chosen explanation's fitted scene with the BEM at this many of
         the baseline's BEM poses, when it holds a geometric effect or a contact impedance
@@ -247,14 +254,17 @@ def diagnose(
     notes = []
     names = parse_effects(effects) if isinstance(effects, (str, type(None))) else list(effects) + (["none"] if "none" not in effects else [])
     anchored = None
+    effect_name = getattr(effect_model, "name", type(effect_model).__name__) if effect_model is not None else None
     if K_base is None and model == "anchored":
         from electrosense.validation.diagnosis.anchored import anchored_baseline
 
         noise0 = _prior_noise(obs, psm_model)
         say(f"baseline: BEM anchors interpolated over {obs.n_poses} poses (noise about {100 * noise0:.3f} %)")
+        if effect_model is None:
+            effect_model, effect_name = default_effect_model(obs, psm_model)
         anchored = anchored_baseline(obs, noise0, psm_model=_load(psm_model),
                                      bem_options={k: v for k, v in (model_options or {}).items() if k != "psm_model"},
-                                     progress=say)
+                                     pose_reference=effect_model, progress=say)
         K_base = anchored.K
         notes.append(f"baseline: the BEM at {len(anchored.anchors)} of {obs.n_poses} poses, interpolated as a ratio "
                      f"to the {'PSM' if anchored.base == 'psm' else 'free-space K'} "
@@ -281,8 +291,6 @@ def diagnose(
             notes.append(f"the baseline PSM could not serve as effect model ({exc})")
     if effect_model is None:
         effect_model, effect_name = default_effect_model(obs, psm_model)
-    else:
-        effect_name = getattr(effect_model, "name", type(effect_model).__name__)
     if effect_name == "point-electrodes":
         notes.append("geometric effects evaluated with the point-electrode stand-in (the PSM was not usable)")
     if obs.sigma_logged_S_per_m is not None:
@@ -320,7 +328,11 @@ def diagnose(
                          f"{100 * np.sqrt(np.mean(correction.leave_one_out**2)):.3f} % RMS")
         except Exception as exc:  # the diagnosis still runs on the bare PSM; say so
             notes.append(f"BEM correction of the PSM baseline not computed ({type(exc).__name__}: {exc})")
-    problem = Problem(obs, K_base, effect_model, baseline_name=model)
+    problem = Problem(obs, K_base, effect_model, baseline_name=model,
+                      pose_gradient=anchored.pose_gradient if anchored is not None else None)
+    if anchored is not None and anchored.pose_gradient is not None and len(anchored.pose_gradient.nodes):
+        notes.append(f"pose offsets through the BEM's own pose gradient (central differences at "
+                     f"{len(anchored.pose_gradient.nodes)} poses, interpolated), not through the effect model")
     everything = np.arange(obs.n_poses)
     r0 = problem.relative_residual(problem.I_base, everything)
     noise = noise_level(r0, obs.pass_indices())
@@ -347,8 +359,15 @@ def diagnose(
     if skipped:
         notes.append(f"candidates not applicable to these data: {', '.join(skipped)}")
     ranking = rank_candidates(problem, lib, folds, noise, r0, mask, progress=lambda n: say(f"fitting {n}"))
+    detection = None
+    if statistical:
+        from electrosense.validation.diagnosis.detection import diagnose_detection
+
+        say("detection test against the noise model")
+        detection = diagnose_detection(problem, ranking, folds, noise,
+                                       anchored.total_error if anchored is not None else None)
     selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor,
-                                  model_error_by_place=budget.get("baseline_by_place"))
+                                  model_error_by_place=budget.get("baseline_by_place"), detection=detection)
     confusable = confusable_pairs(ranking, rules)
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
     notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
@@ -380,7 +399,7 @@ def diagnose(
         except Exception as exc:  # report, do not fail the diagnosis
             notes.append(f"PSM/BEM split not computed: {exc}")
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
-                     time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check)
+                     time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check, detection)
 
 
 def simulated_by(obs: Observations) -> str | None:
@@ -463,6 +482,13 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
             "target": anchored.target, "rounds": anchored.rounds, "stopped": anchored.stopped or None,
             "bare_psm_vs_bem_rms": anchored.psm_vs_bem_rms,
         })
+        if anchored.pose_gradient is not None and len(anchored.pose_gradient.nodes):
+            from electrosense.validation.diagnosis.anchored import _receiver_entries
+
+            out["pose_gradient"] = {**anchored.pose_gradient.error_per_step(_receiver_entries(obs.sensor)),
+                                    "how": "the BEM at 7 poses around each node (central differences, steps 1 mm "
+                                           "and 0.01 rad), interpolated over pose; leave-one-out error beside the "
+                                           "change itself"}
         if anchored.bem_error is not None:
             out["bem_discretisation_rms"] = rms(anchored.bem_error)
             out["bem_discretisation_by_place"] = by_place(anchored.bem_error)
@@ -479,8 +505,9 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
     out["bem_discretisation"] = {
         "free_space": "the sensor mesh's electrode-edge error in unbounded water is corrected against the converged "
                       "ring-element BEM (bem.edge_correction)",
-        "in_the_tank": ("estimated at a few anchor poses as the change of the receiver currents on a 1.5x coarser "
-                        "sensor and tank mesh; each sample takes the estimate of the nearest such pose"
+        "in_the_tank": ("measured at a few anchor poses: the change of the receiver currents on a 1.5x finer "
+                        "sensor and tank mesh, extrapolated to the converged limit (first order: three times the "
+                        "change); each sample takes the estimate of the nearest such pose"
                         if "bem_discretisation_rms" in out else "not estimated"),
     }
     base = out["baseline_rms"] or 0.0

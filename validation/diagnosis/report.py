@@ -128,6 +128,22 @@ def _readable_params(c: CandidateScore) -> dict:
     return out
 
 
+def _intervals(params: dict, sd: dict) -> dict:
+    """95 % confidence intervals (normal approximation at the optimum) of every parameter, nested like ``params``.
+
+    >>> _intervals({"a": 1.0}, {"a": 0.5})
+    {'a': [0.02001800773, 1.97998199227]}
+    """
+    out = {}
+    for k, v in params.items():
+        if isinstance(v, dict):
+            out[k] = _intervals(v, sd.get(k, {}))
+        else:
+            e = 1.959963984540054 * float(sd.get(k, np.nan))
+            out[k] = [round(v - e, 12), round(v + e, 12)]
+    return out
+
+
 def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
     before, before_r = d.gap_before, d.baseline.region_gap
     params = c.fit.params()
@@ -139,6 +155,7 @@ def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
         "form": c.effects[0].form if len(c.effects) == 1 else [e.form for e in c.effects],
         "params": p,
         "uncertainty": u,
+        "interval_95": _intervals(p, u),
         "n_params": c.n_params,
         "heldout_gap": c.heldout_gap,
         "shrink": 1 - c.heldout_gap / before if before > 0 else 0.0,
@@ -186,6 +203,7 @@ def diagnosis_dict(d: Diagnosis) -> dict:
         "model_error": d.model_error,
         "ambiguity": d.ambiguity,
         "bem_check": d.bem_check,
+        "detection": {k: v for k, v in (d.detection or {}).items() if k != "null_sse"} or None,
         "combination": _candidate_row(final, d) if d.selection.chosen else None,
         "where": where,
         "model_split": d.model_split,

@@ -33,6 +33,11 @@ CASES = {
     "tank_size": ("tank_size", {"dLx_m": -0.03}, {}, ("tank_size",)),
     "water_depth": ("water_depth", {"d_m": -0.04}, {}, ("water_depth",)),
     "unmodelled_object": ("object", {"radius_m": 0.025}, {}, ("unmodelled_object",)),
+    "insulating_object": ("object", {"radius_m": 0.025, "insulating": True}, {}, ("unmodelled_object",)),
+    "pose_offset": ("pose_offset", {"dx_m": 0.003, "dy_m": -0.002, "dyaw_rad": 0.0}, {}, ("pose_offset",)),
+    "heading_offset": ("pose_offset", {"dx_m": 0.0, "dy_m": 0.0, "dyaw_rad": 0.035}, {}, ("pose_offset",)),
+    "object_and_drift": ("object", {"radius_m": 0.025}, {"drift_per_hour": 0.02},
+                         ("unmodelled_object", "temperature_drift")),
     # out of the library: the right answer is the nearest physical name or `unexplained`
     "elongated_object": ("elongated", {}, {}, ("unmodelled_object", "unexplained")),
     "two_objects": ("two_objects", {}, {}, ("unmodelled_object", "unexplained")),
@@ -66,7 +71,8 @@ def world_scene(setup, poses, effect, args, rng):
         r = setup.sensor.radius_m
         if effect == "object":
             b = args["radius_m"]
-            objects = (Sphere((x, side * (r + b + 0.03), zc), conductivity_S_per_m=np.inf, radius_m=b),)
+            material = 0.0 if args.get("insulating") else np.inf
+            objects = (Sphere((x, side * (r + b + 0.03), zc), conductivity_S_per_m=material, radius_m=b),)
         elif effect == "elongated":
             objects = (Box((x, side * (r + 0.045), zc), conductivity_S_per_m=0.0, size_m=(0.12, 0.02, 0.03), yaw_rad=0.3),)
         else:
@@ -99,6 +105,20 @@ def _scene_ok(sensor, poses, tank=None, objects=()) -> bool:
     return True
 
 
+def true_poses(poses, effect, args):
+    """The poses the sensor really took: the logged ones, moved by a robot-frame offset for ``pose_offset``
+    (true position = rotation(dyaw) logged position + (dx, dy), true yaw = logged yaw + dyaw)."""
+    poses = np.array(poses, float)
+    if effect != "pose_offset":
+        return poses
+    c, s = np.cos(args["dyaw_rad"]), np.sin(args["dyaw_rad"])
+    x, y = poses[:, 0].copy(), poses[:, 1].copy()
+    poses[:, 0] = c * x - s * y + args["dx_m"]
+    poses[:, 1] = s * x + c * y + args["dy_m"]
+    poses[:, 3] += args["dyaw_rad"]
+    return poses
+
+
 def world_K(setup, poses, effect, args, rng, cache: Path):
     """The BEM's K (P, n, n) of the true scene, cached in ``cache`` by a hash of everything it depends on."""
     import hashlib
@@ -108,6 +128,7 @@ def world_K(setup, poses, effect, args, rng, cache: Path):
     from electrosense.meshes.sensor_mesh import default_edge_length_m
 
     tank, objects, z = world_scene(setup, poses, effect, args, rng)
+    poses = true_poses(poses, effect, args)
     key = hashlib.sha256(repr((setup.sensor.to_dict(), tank, objects, z, np.round(poses, 9).tolist(),
                                setup.sigma_S_per_m)).encode()).hexdigest()[:20]
     path = cache / f"world-{key}.npy"
