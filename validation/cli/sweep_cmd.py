@@ -84,8 +84,11 @@ def _bench_log_frame(C, poses):
 
 
 @click.command("sweep")
-@click.option("--model", "model", type=click.Choice(["bem", "psm"]), required=True,
-              help="bem: the boundary-element reference; psm: the poly-spherical model.")
+@click.option("--model", "model", type=click.Choice(["bem", "psm", "map"]), required=True,
+              help="bem: the boundary-element reference; psm: the poly-spherical model; map: a tank map "
+                   "(`esense map build`, given with --map; its sensor, tank and depth are the scene).")
+@click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False),
+              help="Tank map file (with --model map).")
 @click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False),
               help="PSM model file (from `esense calibrate`); default: calibrate on the sensor's free-space BEM (cached).")
 @scene_options(pose=False, tank_default="1,1,1")
@@ -94,7 +97,8 @@ def _bench_log_frame(C, poses):
 @click.option("--steps", type=int, help="Number of poses on the line, both ends included.")
 @click.option("--grid", "grid_text", help="Grid X0:X1:NX,Y0:Y1:NY[,YAW0:YAW1:NYAW] (m, m, rad; ends included).")
 @click.option("--yaw", type=finite_float(), default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
-@click.option("--z", "z_m", type=finite_float(), default=0.0, show_default=True, help="Height of the sensor centre in m (tank frame).")
+@click.option("--z", "z_m", type=finite_float(), default=None,
+              help="Height of the sensor centre in m (tank frame); default 0, or the map's depth.")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True),
@@ -162,9 +166,23 @@ def _sweep(o):
         raise click.BadParameter(f"{out}: the output must end in {', '.join(_OUTPUT_SUFFIXES)}", param_hint="-o")
     if psm_file and model != "psm":
         raise click.BadParameter("--psm goes with --model psm", param_hint="--psm")
-    scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
-                                         default_tank=Tank(NOMINAL_TANK_M))
-    sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+    if (model == "map") != bool(o.map_file):
+        raise click.BadParameter("--model map and --map FILE go together", param_hint="--map")
+    if model == "map":
+        from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
+        from electrosense.validation.simulation.tank_map import load_tank_map
+
+        if o.sensor_spec or o.scene_file or o.tank_text:
+            raise click.BadParameter("with --model map the sensor and the tank are the map's", param_hint="--map")
+        tank_map = load_tank_map(o.map_file)
+        sensor, tank, objects = tank_map.sensor, tank_map.tank, ()
+        sigma = o.sigma or NOMINAL_SIGMA_S_PER_M
+        o.z_m = tank_map.z_m if o.z_m is None else o.z_m
+    else:
+        scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
+                                             default_tank=Tank(NOMINAL_TANK_M))
+        sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+    o.z_m = 0.0 if o.z_m is None else o.z_m
 
     grid = None
     if o.grid_text:
@@ -190,7 +208,7 @@ def _sweep(o):
         if model != "bem":
             raise click.BadParameter("--tank-edge-length is a BEM option", param_hint="--tank-edge-length")
         bem_options["tank_edge_length_m"] = o.tank_edge_length_m
-    model_options = {"images": images} if model == "psm" else {}
+    model_options = {"images": images} if model == "psm" else {"map": Path(o.map_file).name} if model == "map" else {}
     model_options.update(bem_options)
     if contact_impedance is not None:
         model_options["contact_impedance_ohm_m2"] = contact_impedance
@@ -221,7 +239,7 @@ def _sweep(o):
     n_workers = workers or local_cores()
     # the model is set up (and may refuse) before any store exists, so a refusal leaves nothing behind
     evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
-                               poses=poses, **bem_options)
+                               poses=poses, **bem_options, **({"tank_map": tank_map} if model == "map" else {}))
     chunk_poses = o.chunk_poses or default_chunk_poses(len(poses), n_workers)
     store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
                         overwrite=o.overwrite)
@@ -244,7 +262,7 @@ def _sweep(o):
     if out.suffix == ".csv":
         from electrosense.validation.bench.log import write_bench_log
 
-        source = f"esense sweep --model {model} ({'BEM' if model == 'bem' else 'PSM'}; {code_version()})"
+        source = f"esense sweep --model {model} ({dict(bem='BEM', psm='PSM', map='tank map of the BEM')[model]}; {code_version()})"
         meta = {
             "sensor": _sensor_spec_for_log(sensor, out),
             "emitter": sensor.emitter,

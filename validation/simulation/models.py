@@ -60,8 +60,9 @@ __all__ = [
     "poses_array",
 ]
 
-#: The model names understood by :func:`simulate`.
-MODELS = ("bem", "psm")
+#: The model names understood by :func:`simulate` (``"map"``: a tank map, :mod:`.tank_map`, given as
+#: ``tank_map=FILE``).
+MODELS = ("bem", "psm", "map")
 
 #: Keyword arguments of the calibration BEM that a PSM run accepts.
 _PSM_CALIBRATION_OPTIONS = ("edge_length_m",)
@@ -384,6 +385,18 @@ def pose_evaluator(
         evaluator = PSMEvaluator(psm_model, float(sigma_S_per_m), tank, objects, images,
                                  contact_impedance_ohm_m2, sensor, info=info)
         return evaluator if poses is None else evaluator.for_poses(poses)
+    if model == "map":
+        from electrosense.validation.simulation.tank_map import MapEvaluator, load_tank_map
+
+        if bem_options.get("tank_map") is None:
+            raise ModelError("the model 'map' needs a map file (tank_map=..., `--map FILE`)")
+        tank_map = bem_options["tank_map"]
+        tank_map = load_tank_map(tank_map) if isinstance(tank_map, (str, os.PathLike)) else tank_map
+        if tank_map.sensor.to_dict() != sensor.to_dict() or tank_map.tank != tank or tuple(objects):
+            raise ModelError(f"the map is of {tank_map.sensor.name} in a {tank_map.tank.size_m} m tank (depth "
+                             f"{tank_map.tank.water_depth_m} m) without objects; the run asks for {sensor.name} in "
+                             f"{None if tank is None else tank.size_m}")
+        return MapEvaluator(tank_map, float(sigma_S_per_m))
     raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
 
 
