@@ -26,6 +26,7 @@ _COMMANDS = {
     "diagnose_cmd": "diagnose",
     "demo_cmd": "demo",
     "study_cmd": "study",
+    "map_cmd": "map_group",
 }
 
 

@@ -176,7 +176,7 @@ def _sweep(o):
             raise click.BadParameter("with --model map the sensor and the tank are the map's", param_hint="--map")
         tank_map = load_tank_map(o.map_file)
         sensor, tank, objects = tank_map.sensor, tank_map.tank, ()
-        sigma = o.sigma or NOMINAL_SIGMA_S_PER_M
+        sigma = o.sigma or tank_map.sigma_S_per_m or NOMINAL_SIGMA_S_PER_M
         o.z_m = tank_map.z_m if o.z_m is None else o.z_m
     else:
         scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},

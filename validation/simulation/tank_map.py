@@ -96,6 +96,7 @@ class TankMap:
     code: str = ""
     wall_gap_m: float = 0.005
     history: list = field(default_factory=list)
+    sigma_S_per_m: float | None = None  # the water's conductivity the map was built for (K is kept at 1 S/m)
 
     def __post_init__(self):
         from electrosense.validation.diagnosis.anchored import RBFInterpolant, pose_features
@@ -154,7 +155,7 @@ class TankMap:
                 "tank": {"size_m": list(self.tank.size_m), "water_depth_m": self.tank.water_depth_m},
                 "objects": repr(self.objects), "z_m": self.z_m, "wall_gap_m": self.wall_gap_m,
                 "bem_options": {k: v for k, v in self.bem_options.items() if isinstance(v, (int, float, str))},
-                "code": self.code, "history": self.history}
+                "code": self.code, "history": self.history, "sigma_S_per_m": self.sigma_S_per_m}
         partial = path.with_name(path.name + ".writing.npz")
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, meta=json.dumps(meta))
         partial.replace(path)
@@ -180,12 +181,13 @@ def load_tank_map(path) -> TankMap:
     tank = Tank(tuple(meta["tank"]["size_m"]), meta["tank"]["water_depth_m"])
     return TankMap(SensorDescription.from_dict(meta["sensor"]), tank, float(meta["z_m"]), nodes, K_nodes, K_free,
                    (), meta.get("bem_options", {}), meta.get("code", ""), float(meta.get("wall_gap_m", 0.005)),
-                   meta.get("history", []))
+                   meta.get("history", []), meta.get("sigma_S_per_m"))
 
 
 def build_tank_map(sensor, tank, z_m: float, path=None, target: float = 1.7e-4, wall_gap_m: float = 0.005,
                    spacing_m: float = 0.01, n_headings: int = 48, first: int = 60, per_round: int = 30,
-                   max_seconds: float = 240.0, bem_options: dict | None = None, progress=None) -> TankMap:
+                   max_seconds: float = 240.0, bem_options: dict | None = None, sigma_S_per_m: float | None = None,
+                   progress=None) -> TankMap:
     """Build (or resume, from ``path``) the map of ``sensor`` in ``tank`` at depth ``z_m`` (module doc).
 
     ``target``: the largest estimated relative error of a receiver current over the candidates at which the
@@ -228,7 +230,7 @@ def build_tank_map(sensor, tank, z_m: float, path=None, target: float = 1.7e-4, 
     if len(nodes) < first:
         solve(_farthest_points(F, first - len(nodes), pose_features(sensor, nodes) if len(nodes) else None))
     while True:
-        m = TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, (), options, code, wall_gap_m, history)
+        m = TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, (), options, code, wall_gap_m, history, sigma_S_per_m)
         err = m.estimated_error(C).max(axis=1)
         round_ = {"bem_poses": len(nodes), "max_error": float(err.max()), "rms_error": float(np.sqrt(np.mean(err**2))),
                   "seconds": time.perf_counter() - t0}
