@@ -72,12 +72,17 @@ from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_
 from electrosense.bem.low_rank import right_singular_vectors
 from electrosense.bem.memory import check_memory
 from electrosense.bem.operators import TriangleSet, mixed_system
+from electrosense.bem.shape_derivative import layer_part, region_shape_derivatives, surface_gradient_operator
 from electrosense.bem.solution import solve
 from electrosense.bem.solve import check_object_materials
 from electrosense.bem.system import column_coefficients, contact_impedances
 from electrosense.meshes.pose import Pose, poses_array, rotation_z
 
-__all__ = ["PoseSweep", "WOODBURY_MIN_RCOND"]
+__all__ = ["PoseSweep", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
+
+#: wall derivatives: the tank's faces within this many sensor lengths of the sensor's axis take the sensor's part
+#: of their potential exactly (:mod:`electrosense.bem.shape_derivative`)
+WALL_SPLIT_RADIUS_FACTOR = 1.0
 
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
@@ -119,6 +124,10 @@ class PoseSweep:
     edge_correction : bool
         Add the sensor mesh's free-space electrode-edge error to every pose's
         K (:mod:`electrosense.bem.edge_correction`; computed once, about a second).
+    tank_mesh : LabelledMesh, optional
+        The tank's mesh, made by the caller (e.g. a mesh of ``tank`` deformed
+        smoothly, to difference K between shapes without remeshing); default:
+        meshed here, graded towards ``focus_m``.
 
     Example
     -------
@@ -127,7 +136,8 @@ class PoseSweep:
 
     def __init__(self, sensor, tank=None, objects=(), sigma_S_per_m: float = 1.0, contact_impedance_ohm_m2=None,
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
-                 edge_correction: bool = True, tank_grading: float | None = None, **sensor_mesh_options):
+                 edge_correction: bool = True, tank_grading: float | None = None, tank_mesh=None,
+                 **sensor_mesh_options):
         from electrosense.meshes.sensor_mesh import mesh_sensor
 
         sigma_S_per_m = check_conductivity(sigma_S_per_m)
@@ -139,6 +149,7 @@ class PoseSweep:
         self.sigma_S_per_m = float(sigma_S_per_m)
         self.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
         self.tank_edge_length_m = tank_edge_length_m
+        self._given_tank_mesh = tank_mesh
         from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
 
         self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
@@ -228,8 +239,8 @@ class PoseSweep:
         from electrosense.meshes.scene_mesh import default_tank_edge_length_m, sensor_axis_points_m
         from electrosense.meshes.tank_mesh import mesh_tank
 
-        tank_mesh = None
-        if self.tank is not None:
+        tank_mesh = self._given_tank_mesh
+        if self.tank is not None and tank_mesh is None:
             if self.focus_m is None:
                 self.focus_m = np.concatenate([sensor_axis_points_m(Scene(self.sensor, Pose.from_array(p), self.tank), 9)
                                                for p in poses])
@@ -306,7 +317,8 @@ class PoseSweep:
         check_scene(Scene(self.sensor, Pose.from_array(pose), self.tank, self.objects))
 
     def _solve_pose(self, pose):
-        """The sensor's unknowns (Ns, n) at one pose, and the rank kept of the coupling."""
+        """The sensor's unknowns (Ns, n) at one pose, the rank kept of the coupling, and the environment's
+        unknowns (Ne + nc, n: the potential on the tank's faces, then the objects')."""
         A_se, A_es, r_e = self._coupling(pose)
         # dominant right singular vectors by randomised range finding (bem.low_rank: a few products with
         # ~rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3);
@@ -334,10 +346,16 @@ class PoseSweep:
             schur = self._A_e - (A_es @ W) @ Vt
             lu, piv, _ = factorise(schur, f"system at pose {pose.tolist()}")
             y_e = scipy.linalg.lu_solve((lu, piv), f, check_finite=False)
-        return self._y0 - W @ (Vt @ y_e), k
+        return self._y0 - W @ (Vt @ y_e), k, y_e
 
-    def conductance(self, poses, progress: bool = False, check: bool = True) -> ConductanceMatrix:
-        """Conductance matrices for poses (P, 4) (x, y, z, yaw): K_S of shape (P, n, n)."""
+    def conductance(self, poses, progress: bool = False, check: bool = True,
+                    wall_derivatives: bool = False) -> ConductanceMatrix:
+        """Conductance matrices for poses (P, 4) (x, y, z, yaw): K_S of shape (P, n, n).
+
+        ``wall_derivatives``: also ``info["dK_dwall_S_per_m"]`` (P, regions, n, n), the change of K per metre
+        that each of the tank mesh's regions (``info["wall_regions"]``, e.g. ``wall_x+`` or ``free_surface``)
+        moves outward, from each pose's own solution (:mod:`electrosense.bem.shape_derivative`).
+        """
         poses = poses_array(poses)
         t0 = time.perf_counter()
         if check:
@@ -354,11 +372,18 @@ class PoseSweep:
 
             iterator = tqdm(iterator, desc="BEM poses", unit="pose")
         unbounded = self.tank is None
+        walls = self._wall_operator() if wall_derivatives else None
+        dK_walls = None if walls is None else np.zeros((len(poses), len(walls[2]), self.n, self.n))
         for p in iterator:
             if self.env_tris is None:
                 K[p] = self._free_K + self._K_correction
                 continue
-            y_s, ranks[p] = self._solve_pose(poses[p])
+            y_s, ranks[p], y_e = self._solve_pose(poses[p])
+            if walls is not None:
+                op, region, names = walls
+                part = self._sensor_part_on_walls(poses[p], y_s, op)
+                dK_walls[p] = region_shape_derivatives(op, y_e[:len(region)], region, len(names), self.sigma_S_per_m,
+                                                       part)
             C = np.zeros((self.n, self.n))
             np.add.at(C, self._electrode_of_row, self._electrode_weight[:, None] * y_s[self._electrode_rows])
             K[p] = (isolate(C) if unbounded else C) + self._K_correction
@@ -367,6 +392,40 @@ class PoseSweep:
                 "sensor_triangles": int(self.sensor_mesh.n_triangles), "seconds": seconds,
                 "coupling_rank": ranks.tolist(), **self.timings,
                 "edge_correction_max_relative": float(np.abs(self._K_correction).max() / np.abs(K).max())}
+        if dK_walls is not None:
+            info.update(dK_dwall_S_per_m=dK_walls, wall_regions=walls[2])
         g = ConductanceMatrix(K, self.emitter, self.sigma_S_per_m, info)
         info.update(asymmetry=g.asymmetry, row_sum_residue=g.row_sum_residue)
         return g
+
+    def _sensor_part_on_walls(self, pose, y_s, op):
+        """(faces, values, gradients): the sensor's layers' part of the unit solutions' potential on the tank's
+        faces within :data:`WALL_SPLIT_RADIUS_FACTOR` sensor lengths of its axis, and its gradient along them
+        (:func:`electrosense.bem.shape_derivative.layer_part`)."""
+        R, t = rotation_z(pose[3]), pose[:3]
+        half = 0.5 * self.sensor.length_m
+        axis = t + R[:, 0] * np.clip((op.centroids_m - t) @ R[:, 0], -half, half)[:, None]
+        faces = np.flatnonzero(np.linalg.norm(op.centroids_m - axis, axis=1)
+                               < WALL_SPLIT_RADIUS_FACTOR * self.sensor.length_m)
+        if not len(faces):
+            return None
+        wb = self.sensor_boundary
+        on_e = wb.electrode > 0
+        q = np.where(on_e[:, None], y_s / self.scale_m, 0.0)
+        u = np.where(on_e[:, None], 0.0, y_s)
+        k = wb.electrode[on_e] - 1
+        u[on_e] = (np.arange(self.n)[None, :] == k[:, None]) - (self.z_c[k] * self.sigma_S_per_m)[:, None] * q[on_e]
+        tris = TriangleSet(self.sensor_tris.triangles @ R.T + t)
+        values, grads = layer_part(op.centroids_m[faces], op.tangents[faces], tris, u, q)
+        return faces, values, grads
+
+    def _wall_operator(self):
+        """(gradient operator, region label per tank face, region names) of the tank mesh, built once; None in
+        unbounded water."""
+        if self.tank is None or not self._env_ready:
+            return None
+        if getattr(self, "_walls", None) is None:
+            tm = self.tank_mesh
+            self._walls = (surface_gradient_operator(tm.triangles_m), np.asarray(tm.region, int),
+                           tuple(tm.region_names))
+        return self._walls
