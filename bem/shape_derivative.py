@@ -57,8 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["SurfaceGradientOperator", "surface_gradient_operator", "layer_part", "shape_derivative",
-           "region_shape_derivatives"]
+__all__ = ["SurfaceGradientOperator", "surface_gradient_operator", "layer_part", "shape_derivatives"]
 
 #: faces whose normals differ by more than this (degrees) are not neighbours in the gradient's least squares:
 #: the edges and corners of a box are not smoothed across
@@ -176,23 +175,19 @@ def layer_part(points_m: np.ndarray, tangents: np.ndarray, triangles, u: np.ndar
     return v0, grad
 
 
-def shape_derivative(op: SurfaceGradientOperator, potentials: np.ndarray, normal_velocity: np.ndarray,
-                     sigma_S_per_m: float = 1.0, part: tuple | None = None) -> np.ndarray:
-    """(n, n) dK / dtheta (S per unit of theta) for boundary faces moving outward by ``normal_velocity`` (F,)
-    per unit of theta, from the unit solutions' potentials (F, n) on those faces (module doc; ``part`` as in
-    :meth:`SurfaceGradientOperator.gradient`)."""
+def shape_derivatives(op: SurfaceGradientOperator, potentials: np.ndarray, normal_velocities,
+                      sigma_S_per_m: float = 1.0, part: tuple | None = None) -> np.ndarray:
+    """(k, n, n) dK / dtheta_k (S per unit of theta_k) for boundary faces moving outward (out of the water) by
+    ``normal_velocities`` (k, F; dense or sparse) per unit of each theta_k, from the unit solutions' potentials
+    (F, n) on those faces (module doc; ``part`` as in :meth:`SurfaceGradientOperator.gradient`).
+
+    Moving the sensor by ``d`` in a tank that holds nothing else is moving every wall by ``-d`` as seen from it:
+    the velocities ``-n . d`` (and ``-(z x (c - p)) . n`` for a turn about the vertical through ``p``) give the
+    BEM's pose derivatives from the same solution.
+    """
     g = op.gradient(potentials, part)  # (F, n, 3)
-    w = op.areas_m2 * np.asarray(normal_velocity, float)
-    return sigma_S_per_m * np.einsum("f,fia,fja->ij", w, g, g)
-
-
-def region_shape_derivatives(op: SurfaceGradientOperator, potentials: np.ndarray, region: np.ndarray,
-                             n_regions: int, sigma_S_per_m: float = 1.0, part: tuple | None = None) -> np.ndarray:
-    """(n_regions, n, n): dK for each region of faces (labels ``region`` (F,) in ``range(n_regions)``) moving
-    outward by one metre, all at once (one gradient per solution)."""
-    g = op.gradient(potentials, part)
-    R = sp.csr_matrix((op.areas_m2, (np.asarray(region, int), np.arange(len(region)))),
-                      shape=(n_regions, len(region)))
-    pair = np.einsum("fia,fja->fij", g, g).reshape(len(region), -1)
     n = g.shape[1]
-    return sigma_S_per_m * np.asarray(R @ pair).reshape(n_regions, n, n)
+    pair = np.einsum("fia,fja->fij", g, g).reshape(len(g), n * n)
+    V = normal_velocities
+    weighted = V.multiply(op.areas_m2[None, :]).tocsr() if sp.issparse(V) else np.asarray(V, float) * op.areas_m2
+    return sigma_S_per_m * np.asarray(weighted @ pair).reshape(-1, n, n)

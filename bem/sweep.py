@@ -63,6 +63,7 @@ import time
 
 import numpy as np
 import scipy.linalg
+import scipy.sparse as sp
 
 from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
 from electrosense.bem.boundary_conditions import WaterBoundary
@@ -72,7 +73,7 @@ from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_
 from electrosense.bem.low_rank import right_singular_vectors
 from electrosense.bem.memory import check_memory
 from electrosense.bem.operators import TriangleSet, mixed_system
-from electrosense.bem.shape_derivative import layer_part, region_shape_derivatives, surface_gradient_operator
+from electrosense.bem.shape_derivative import layer_part, shape_derivatives, surface_gradient_operator
 from electrosense.bem.solution import solve
 from electrosense.bem.solve import check_object_materials
 from electrosense.bem.system import column_coefficients, contact_impedances
@@ -87,6 +88,14 @@ WALL_SPLIT_RADIUS_FACTOR = 1.0
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
 WOODBURY_MIN_RCOND = 1e-8
+
+
+def _pose_velocities(op, normals: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """(3, F) outward normal velocities of the tank's faces, as the sensor sees them, per metre of its x and y
+    and per radian of its yaw (a turn about the vertical through its centre): the walls move the other way."""
+    r = op.centroids_m - np.asarray(pose[:3], float)
+    turn = np.column_stack([-r[:, 1], r[:, 0], np.zeros(len(r))])  # z x r
+    return -np.stack([normals[:, 0], normals[:, 1], np.einsum("fk,fk->f", turn, normals)])
 
 
 class PoseSweep:
@@ -354,7 +363,9 @@ class PoseSweep:
 
         ``wall_derivatives``: also ``info["dK_dwall_S_per_m"]`` (P, regions, n, n), the change of K per metre
         that each of the tank mesh's regions (``info["wall_regions"]``, e.g. ``wall_x+`` or ``free_surface``)
-        moves outward, from each pose's own solution (:mod:`electrosense.bem.shape_derivative`).
+        moves outward, and, with no objects in the tank, ``info["dK_dpose"]`` (P, 3, n, n), the change of K
+        with the sensor's x, y (per metre) and yaw (per radian), from each pose's own solution
+        (:mod:`electrosense.bem.shape_derivative`).
         """
         poses = poses_array(poses)
         t0 = time.perf_counter()
@@ -373,17 +384,22 @@ class PoseSweep:
             iterator = tqdm(iterator, desc="BEM poses", unit="pose")
         unbounded = self.tank is None
         walls = self._wall_operator() if wall_derivatives else None
-        dK_walls = None if walls is None else np.zeros((len(poses), len(walls[2]), self.n, self.n))
+        dK_walls = None if walls is None else np.zeros((len(poses), walls[1].shape[0], self.n, self.n))
+        dK_pose = None if walls is None or self.objects else np.zeros((len(poses), 3, self.n, self.n))
         for p in iterator:
             if self.env_tris is None:
                 K[p] = self._free_K + self._K_correction
                 continue
             y_s, ranks[p], y_e = self._solve_pose(poses[p])
             if walls is not None:
-                op, region, names = walls
+                op, regions, normals = walls
+                velocities = regions if dK_pose is None else sp.vstack([regions, _pose_velocities(op, normals,
+                                                                                                   poses[p])])
                 part = self._sensor_part_on_walls(poses[p], y_s, op)
-                dK_walls[p] = region_shape_derivatives(op, y_e[:len(region)], region, len(names), self.sigma_S_per_m,
-                                                       part)
+                dK = shape_derivatives(op, y_e[:op.areas_m2.size], velocities, self.sigma_S_per_m, part)
+                dK_walls[p] = dK[:regions.shape[0]]
+                if dK_pose is not None:
+                    dK_pose[p] = dK[regions.shape[0]:]
             C = np.zeros((self.n, self.n))
             np.add.at(C, self._electrode_of_row, self._electrode_weight[:, None] * y_s[self._electrode_rows])
             K[p] = (isolate(C) if unbounded else C) + self._K_correction
@@ -393,7 +409,9 @@ class PoseSweep:
                 "coupling_rank": ranks.tolist(), **self.timings,
                 "edge_correction_max_relative": float(np.abs(self._K_correction).max() / np.abs(K).max())}
         if dK_walls is not None:
-            info.update(dK_dwall_S_per_m=dK_walls, wall_regions=walls[2])
+            info.update(dK_dwall_S_per_m=dK_walls, wall_regions=tuple(self.tank_mesh.region_names))
+        if dK_pose is not None:
+            info.update(dK_dpose=dK_pose)
         g = ConductanceMatrix(K, self.emitter, self.sigma_S_per_m, info)
         info.update(asymmetry=g.asymmetry, row_sum_residue=g.row_sum_residue)
         return g
@@ -420,12 +438,16 @@ class PoseSweep:
         return faces, values, grads
 
     def _wall_operator(self):
-        """(gradient operator, region label per tank face, region names) of the tank mesh, built once; None in
-        unbounded water."""
+        """(gradient operator, (regions, F) sparse indicator of each region's faces, (F, 3) outward normals) of
+        the tank mesh, built once; None in unbounded water."""
         if self.tank is None or not self._env_ready:
             return None
         if getattr(self, "_walls", None) is None:
             tm = self.tank_mesh
-            self._walls = (surface_gradient_operator(tm.triangles_m), np.asarray(tm.region, int),
-                           tuple(tm.region_names))
+            T = tm.triangles_m
+            cross = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+            region = np.asarray(tm.region, int)
+            regions = sp.csr_matrix((np.ones(len(region)), (region, np.arange(len(region)))),
+                                    shape=(len(tm.region_names), len(region)))
+            self._walls = (surface_gradient_operator(T), regions, cross / np.linalg.norm(cross, axis=1, keepdims=True))
         return self._walls

@@ -125,11 +125,11 @@ def test_repeated_passes_cost_one_bem_solve_per_distinct_pose(tmp_path, monkeypa
             self.ev = pose_evaluator("psm", sensor, None, 1.0, objects)  # answers at every pose
             self.sensor = sensor
 
-        def conductance(self, poses_, progress=False):
+        def conductance(self, poses_, progress=False, wall_derivatives=False):
             solved.append(np.array(poses_))
             K = self.ev.conductance(poses_).K_S
             wiggle = 1 + 0.01 * np.sin(7 * poses_[:, 0])[:, None, None]
-            return SimpleNamespace(K_S=K * wiggle)
+            return SimpleNamespace(K_S=K * wiggle, info={})   # no shape derivatives: the baseline does without
 
     monkeypatch.setattr(bem, "PoseSweep", CountingSweep)
     I = np.ones((len(poses), setup.sensor.n_electrodes - 1))
@@ -180,9 +180,10 @@ def test_a_second_log_with_position_noise_reuses_the_anchors(tmp_path, monkeypat
         def __init__(self, sensor, tank, objects, sigma_S_per_m, focus_m=None, **options):
             self.ev = pose_evaluator("psm", sensor, tank, 1.0, objects)
 
-        def conductance(self, poses_, progress=False):
+        def conductance(self, poses_, progress=False, wall_derivatives=False):
             solved.append(len(poses_))
-            return SimpleNamespace(K_S=self.ev.conductance(poses_).K_S * (1 + 0.01 * np.sin(5 * poses_[:, 0]))[:, None, None])
+            return SimpleNamespace(K_S=self.ev.conductance(poses_).K_S * (1 + 0.01 * np.sin(5 * poses_[:, 0]))[:, None, None],
+                                   info={})
 
     monkeypatch.setattr(bem, "PoseSweep", SmoothSweep)
     I = np.ones((len(poses), setup.sensor.n_electrodes - 1))

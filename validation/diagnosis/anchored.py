@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from electrosense.bem.block_cache import cache_root
+from electrosense.meshes.tank import TANK_REGIONS
 from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
@@ -67,6 +68,10 @@ __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseli
 #: about 2e-4 mid-tank, 1e-3 with a tip 1.5 cm from a wall (5-electrode sensor, factors 2 against 3), which
 #: the budget's discretisation estimate reports
 SENSOR_EDGE_FACTOR = 3.0
+
+#: what an anchor entry holds (K, the focus, the discretisation check, the pose gradient's nodes, the walls'
+#: shape derivatives): a new format is a new entry
+ANCHOR_FORMAT = 2
 
 #: interpolation nodes closer than this (m, every tip coordinate) are merged into one
 NODE_MERGE_M = 5e-4
@@ -177,7 +182,7 @@ class AnchorStore:
         geometry = {k: v for k, v in self.sensor.to_dict().items() if k not in ("name", "notes")}
         text = json.dumps({"sensor": geometry, "tank": repr(self.tank), "objects": repr(tuple(self.objects)),
                            "bem": {k: repr(v) for k, v in sorted(self.bem_options.items())},
-                           "code": code_version()}, sort_keys=True)
+                           "code": code_version(), "format": ANCHOR_FORMAT}, sort_keys=True)
         self.key = hashlib.sha256(text.encode()).hexdigest()[:24]
         self.folder = Path(self.folder) if self.folder is not None else anchor_cache_dir()
 
@@ -226,6 +231,9 @@ class AnchoredBaseline:
     stopped: str = ""
     base: str = "psm"  # what the BEM's ratio was interpolated against: the PSM, or the free-space K ("free")
     pose_gradient: object = None  # the BEM's d log K / d(x, y, yaw) at the logged poses (:mod:`.pose_gradient`)
+    wall_derivatives: np.ndarray | None = None  # (P, regions, n, n) dK per metre each tank region moves out (NaN off
+    #                                              the BEM poses; at the observations' conductivity)
+    wall_regions: tuple = ()
 
     @property
     def interpolation_rms(self) -> float:
@@ -389,6 +397,18 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         exact[d < 5e-5] = j[d < 5e-5]
     K_bem = np.full((P, n, n), np.nan)
     K_bem[exact >= 0] = cached_K[exact[exact >= 0]]
+    # the shape derivatives at the BEM poses (:mod:`electrosense.bem.shape_derivative`): of the walls (for the
+    # wall effects) and, with nothing else in the tank, of the sensor's pose (for the pose effects)
+    derivative_shapes = {} if tank is None else {"dK_dwall_S_per_m": (len(TANK_REGIONS), n, n)}
+    if tank is not None and not objects:
+        derivative_shapes["dK_dpose"] = (3, n, n)
+    regions_ok = entry is not None and tuple(str(r) for r in entry.get("wall_regions", ())) == TANK_REGIONS
+    derivatives, cached_derivatives = {}, {}
+    for key, shape in derivative_shapes.items():
+        derivatives[key] = np.full((P,) + shape, np.nan)
+        stored = entry.get(key) if covered and regions_ok else None
+        cached_derivatives[key] = stored if stored is not None else np.full((len(cached_poses),) + shape, np.nan)
+        derivatives[key][exact >= 0] = cached_derivatives[key][exact[exact >= 0]]
     # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
     # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
     # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
@@ -404,7 +424,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         K_psm[ok] = K_psm_all[: int(ok.sum())]
     sweep = None
     n_new = 0
-    new_poses, new_K = [], []
+    new_poses, new_K, new_derivatives = [], [], {}
     bem_seconds = [0.0, 0]  # CPU seconds of BEM poses, count (for the budget: the same answer on a busy machine)
 
     def get_sweep():
@@ -425,11 +445,16 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         rep = first_of[groups]
         say(f"BEM at {len(rep)} poses" + (f" ({len(idx)} samples)" if len(idx) > len(rep) else ""))
         t_bem = time.process_time()
-        K = sweep.conductance(obs.poses[rep]).K_S
+        g = sweep.conductance(obs.poses[rep], wall_derivatives=bool(derivatives))
+        K = g.K_S
         bem_seconds[0] += time.process_time() - t_bem
         bem_seconds[1] += len(rep)
         members = np.flatnonzero(np.isin(group, groups) & ~np.isfinite(K_bem[:, 0, 0]))
         K_bem[members] = K[np.searchsorted(groups, group[members])]
+        for key, values in derivatives.items():
+            got = g.info.get(key, np.full((len(rep),) + values.shape[1:], np.nan))
+            values[members] = got[np.searchsorted(groups, group[members])]
+            new_derivatives.setdefault(key, []).append(got)
         n_new += len(rep)
         new_poses.append(obs.poses[rep])
         new_K.append(K)
@@ -525,7 +550,12 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}
     grad, grad_entry = None, {}
-    if pose_reference is not None:
+    if pose_reference is not None and "dK_dpose" in derivatives and _every_pass_has(derivatives["dK_dpose"], passes):
+        from electrosense.validation.diagnosis.pose_gradient import pose_gradient_from_derivatives
+
+        ref = lambda p: pose_reference(p, tank, objects)  # noqa: E731
+        grad = pose_gradient_from_derivatives(sensor, obs.poses, passes, derivatives["dK_dpose"], K_bem, ref)
+    elif pose_reference is not None:
         try:
             grad, grad_entry = _pose_gradient(obs, entry if covered else None, get_sweep, passes, say,
                                               pose_reference, K_bem)
@@ -541,6 +571,10 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         entry_poses = np.vstack([cached_poses] + new_poses)
         entry_K = np.vstack([cached_K] + new_K)
         saved = {"poses": entry_poses, "K_unit": entry_K, "focus_m": focus}
+        for key in derivatives:
+            saved[key] = np.concatenate([cached_derivatives[key]] + new_derivatives.get(key, []))
+        if derivatives:
+            saved["wall_regions"] = np.array(TANK_REGIONS)
         saved.update({f"check_{k}": v for k, v in check.items()})
         saved.update({f"grad_{k}": v for k, v in grad_entry.items()})
         store.save(saved)
@@ -551,7 +585,16 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
+        wall_derivatives=(derivatives["dK_dwall_S_per_m"] * obs.sigma_S_per_m if "dK_dwall_S_per_m" in derivatives
+                          else None),
+        wall_regions=TANK_REGIONS if derivatives else (),
     )
+
+
+def _every_pass_has(values: np.ndarray, passes: list, at_least: int = 2) -> bool:
+    """Whether every pass holds ``at_least`` samples where ``values`` (P, ...) is finite."""
+    known = np.all(np.isfinite(values.reshape(len(values), -1)), axis=1)
+    return all(known[np.asarray(p)].sum() >= at_least for p in passes)
 
 
 #: gradient nodes: a tenth of the log's samples, at least five a pass (both ends and three between)

@@ -93,9 +93,12 @@ class Problem:
         s / sqrt(s^2 + model error^2), see :func:`model_trust_weights`.
     pose_gradient : PoseGradient, optional
         The BEM's d log K / d(x, y, yaw) at the logged poses
-        (:mod:`electrosense.validation.diagnosis.pose_gradient`): a scene that
-        moves only the sensor is then predicted from the baseline itself, not
-        through the effect model.
+        (:mod:`electrosense.validation.diagnosis.pose_gradient`): the sensor's
+        move is then predicted from the baseline itself, not through the
+        effect model.
+    wall_gradient : WallGradient, optional
+        The BEM's correction of the effect model's change of K with the
+        walls, floor and free surface (:mod:`electrosense.validation.diagnosis.wall_gradient`).
     """
 
     obs: Observations
@@ -105,6 +108,7 @@ class Problem:
     baseline_name: str = ""
     weight: np.ndarray | None = None
     pose_gradient: object = None
+    wall_gradient: object = None
     t_ref_s: float = field(init=False)
     T_ref_C: float | None = field(init=False)
     areas_m2: np.ndarray = field(init=False)
@@ -153,16 +157,33 @@ class Problem:
         at = slice(None) if rows is None or (len(rows) == len(idx) and np.array_equal(rows, idx)) \
             else np.searchsorted(rows, idx)
         K = self.K_base[idx]
-        if scenario.geometry_changed and self.pose_gradient is not None and self._moves_pose_only(scenario):
-            # the sensor moved in the believed scene: the BEM's own change of K with pose (Taylor step)
-            K = self.pose_gradient.moved(K, idx, self.obs.poses[idx], scenario.poses[at])
-        elif scenario.geometry_changed:
-            # relative change of every entry of K, as the effect model sees it; zero row sums restored
+        if not scenario.geometry_changed:
+            return self.currents(K, scenario, at, idx)
+        poses = scenario.poses[at]
+        if self.pose_gradient is not None:
+            # the sensor's move in the believed scene: the BEM's own change of K with pose (Taylor step)
+            K = self.pose_gradient.moved(K, idx, self.obs.poses[idx], poses)
+            if self._moves_pose_only(scenario):
+                return self.currents(K, scenario, at, idx)
+            # the rest of the scene's change, as the effect model sees it at the moved poses
+            held = self.obs.poses[scenario.rows if scenario.rows is not None else idx]
+            moved_only = np.column_stack([scenario.poses[:, :2], held[:, 2], scenario.poses[:, 3]])
+            believed = replace(scenario, poses=moved_only, tank=self.obs.tank, objects=tuple(self.obs.objects))
+            K = K * (self._effect_K_at(scenario, at) / self._effect_K_at(believed, at))
+        else:
+            # relative change of every entry of K, as the effect model sees it
             K = K * (self._effect_K_at(scenario, at) / self.K_effect0[idx])
-            n = K.shape[-1]
-            off = K * (1 - np.eye(n))
-            K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
-        return self.currents(K, scenario, at, idx)
+        if self.wall_gradient is not None and scenario.tank is not None:
+            # the walls' part corrected to the BEM's first order (:mod:`.wall_gradient`)
+            from electrosense.validation.diagnosis.pose_gradient import apply_pair_log
+            from electrosense.validation.diagnosis.wall_gradient import wall_parameters
+
+            theta = wall_parameters(self.obs, scenario.tank, poses, idx)
+            if np.any(theta):
+                return self.currents(apply_pair_log(K, self.wall_gradient.log_change(idx, theta)), scenario, at, idx)
+        n = K.shape[-1]
+        off = K * (1 - np.eye(n))   # zero row sums restored
+        return self.currents(off - np.eye(n) * off.sum(axis=-1, keepdims=True), scenario, at, idx)
 
     def _moves_pose_only(self, scenario: Scenario) -> bool:
         """Whether ``scenario`` differs from the believed scene by the sensor's pose alone (x, y, yaw)."""

@@ -331,8 +331,20 @@ def diagnose(
     problem = Problem(obs, K_base, effect_model, baseline_name=model,
                       pose_gradient=anchored.pose_gradient if anchored is not None else None)
     if anchored is not None and anchored.pose_gradient is not None and len(anchored.pose_gradient.nodes):
-        notes.append(f"pose offsets through the BEM's own pose gradient (central differences at "
-                     f"{len(anchored.pose_gradient.nodes)} poses, interpolated), not through the effect model")
+        notes.append(f"pose offsets through the BEM's own pose gradient at {len(anchored.pose_gradient.nodes)} BEM "
+                     f"poses ({anchored.pose_gradient.how}), not through the effect model")
+    if anchored is not None and anchored.wall_derivatives is not None:
+        from electrosense.validation.diagnosis.wall_gradient import wall_gradient
+
+        try:
+            problem.wall_gradient = wall_gradient(problem, anchored.wall_derivatives, anchored.wall_regions,
+                                                  anchored.K)
+        except (ValueError, np.linalg.LinAlgError) as exc:   # the wall effects stay with the effect model; say so
+            notes.append(f"the walls' BEM derivatives not used ({type(exc).__name__}: {exc})")
+        if problem.wall_gradient is not None:
+            notes.append(f"walls, floor and free surface through the BEM's shape derivative at "
+                         f"{len(problem.wall_gradient.nodes)} BEM poses (the effect model's change corrected to "
+                         "the BEM's first order)")
     everything = np.arange(obs.n_poses)
     r0 = problem.relative_residual(problem.I_base, everything)
     noise = noise_level(r0, obs.pass_indices())
@@ -350,6 +362,10 @@ def diagnose(
     if anchored is not None:
         problem.weight = problem.weight / np.sqrt(1.0 + (anchored.total_error / noise) ** 2)
     budget = model_error_budget(obs, model, noise, anchored, correction)
+    if problem.wall_gradient is not None:
+        from electrosense.validation.diagnosis.anchored import _receiver_entries
+
+        budget["wall_gradient"] = problem.wall_gradient.summary(_receiver_entries(obs.sensor))
     floor = budget["noise_floor"]
     where = breakdown(obs, r0)
     mask = region_mask(where)
@@ -486,9 +502,8 @@ def model_error_budget(obs: Observations, model: str, noise: float, anchored=Non
             from electrosense.validation.diagnosis.anchored import _receiver_entries
 
             out["pose_gradient"] = {**anchored.pose_gradient.error_per_step(_receiver_entries(obs.sensor)),
-                                    "how": "the BEM at 7 poses around each node (central differences, steps 1 mm "
-                                           "and 0.01 rad), interpolated over pose; leave-one-out error beside the "
-                                           "change itself"}
+                                    "how": anchored.pose_gradient.how + "; leave-one-out error beside the change "
+                                                                        "itself"}
         if anchored.bem_error is not None:
             out["bem_discretisation_rms"] = rms(anchored.bem_error)
             out["bem_discretisation_by_place"] = by_place(anchored.bem_error)

@@ -41,8 +41,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["POSE_STEPS", "stencil", "log_derivatives", "PoseGradient", "pose_gradient", "arc_length", "along_passes",
-           "pair_log", "apply_pair_log"]
+__all__ = ["POSE_STEPS", "stencil", "log_derivatives", "PoseGradient", "pose_gradient",
+           "pose_gradient_from_derivatives", "arc_length", "along_passes", "pair_log", "apply_pair_log"]
 
 #: finite-difference steps along x (m), y (m) and yaw (rad): small against the distance to a wall (>= 1.5 cm),
 #: large against the BEM's quadrature noise
@@ -114,6 +114,8 @@ class PoseGradient:
     loo_G: np.ndarray
     seconds: float = 0.0
     reference: str = "none"  # the fast model whose gradient the BEM's corrects
+    how: str = ("the BEM at 7 poses around each node (central differences, steps 1 mm and 0.01 rad), the departure "
+                "from the effect model's gradient interpolated along each pass")
 
     def log_change(self, idx: np.ndarray, delta: np.ndarray) -> np.ndarray:
         """(p, pairs): the change of log K at samples ``idx`` for pose steps ``delta`` (p, 3: dx, dy, dyaw)."""
@@ -181,6 +183,35 @@ def along_passes(values: np.ndarray, node_sample: np.ndarray, s: np.ndarray, pas
             keep = np.arange(len(mine)) != j
             loo[mine[j]] = np.abs(interp(x[j:j + 1], x[keep], values[mine[keep]])[0] - values[mine[j]])
     return out, loo
+
+
+def pose_gradient_from_derivatives(sensor, poses: np.ndarray, passes: list, dK_dpose: np.ndarray, K: np.ndarray,
+                                   reference, steps: np.ndarray = POSE_STEPS) -> PoseGradient:
+    """The BEM's :class:`PoseGradient` from its exact first derivatives at the BEM poses.
+
+    ``dK_dpose`` (P, 3, n, n): dK / d(x, y, yaw) where the BEM was solved (NaN elsewhere), from each solution's
+    own shape derivative (:meth:`electrosense.bem.PoseSweep.conductance` with ``wall_derivatives``: no solve
+    more), ``K`` (P, n, n) there. As in :func:`pose_gradient`, the departure of the BEM's gradient from the
+    effect model's ``reference(poses) -> K`` is interpolated along each pass; the second derivatives are the
+    effect model's.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    poses = np.asarray(poses, float)
+    P = len(poses)
+    have = np.flatnonzero(np.all(np.isfinite(dK_dpose.reshape(P, -1)), axis=1))
+    n = K.shape[-1]
+    iu = np.triu_indices(n, 1)
+    G_n = dK_dpose[have][..., iu[0], iu[1]] / K[have][:, None, iu[0], iu[1]]   # d log|K_ij|
+    K_ref = reference(stencil(poses, steps).reshape(-1, 4))
+    G_ref, H_ref = log_derivatives(K_ref.reshape(P, 7, *K_ref.shape[1:]), steps)
+    s = arc_length(sensor, poses, passes)
+    dG, loo = along_passes(G_n - G_ref[have], have, s, passes)
+    return PoseGradient(G_ref + dG, H_ref, poses[have], loo, time.perf_counter() - t0, "effect model",
+                        "the BEM's shape derivative at each BEM pose (the walls moving the other way, from that pose's "
+                        "own solution), the departure from the effect model's gradient interpolated along each pass; "
+                        "second derivatives the effect model's")
 
 
 def pose_gradient(sensor, poses: np.ndarray, passes: list, solve, node_idx: np.ndarray, reference,
