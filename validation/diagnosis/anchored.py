@@ -73,6 +73,10 @@ SENSOR_EDGE_FACTOR = 3.0
 #: shape derivatives): a new format is a new entry
 ANCHOR_FORMAT = 2
 
+#: a cached BEM pose this close to a logged one (m, every tip coordinate, as a distance) lends it its shape
+#: derivatives
+DERIVATIVE_REUSE_M = 1e-3
+
 #: interpolation nodes closer than this (m, every tip coordinate) are merged into one
 NODE_MERGE_M = 5e-4
 
@@ -549,12 +553,23 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         except Exception as exc:  # the estimate is optional; say so in the budget
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}
+    # a cached BEM pose a fraction of a millimetre from a sample (another log of the same path, with the robot's
+    # position noise) lends that sample its derivatives: they change by far less than their own error over it
+    if derivatives and len(cached_poses):
+        from scipy.spatial import cKDTree
+
+        d, j = cKDTree(F).query(pose_features(sensor, cached_poses))
+        for key, values in derivatives.items():
+            known = np.all(np.isfinite(cached_derivatives[key].reshape(len(cached_poses), -1)), axis=1)
+            lend = (d < DERIVATIVE_REUSE_M) & known
+            lend &= ~np.all(np.isfinite(values[j].reshape(len(j), -1)), axis=1)
+            values[j[lend]] = cached_derivatives[key][lend]
     grad, grad_entry = None, {}
     if pose_reference is not None and "dK_dpose" in derivatives and _every_pass_has(derivatives["dK_dpose"], passes):
         from electrosense.validation.diagnosis.pose_gradient import pose_gradient_from_derivatives
 
         ref = lambda p: pose_reference(p, tank, objects)  # noqa: E731
-        grad = pose_gradient_from_derivatives(sensor, obs.poses, passes, derivatives["dK_dpose"], K_bem, ref)
+        grad = pose_gradient_from_derivatives(sensor, obs.poses, passes, derivatives["dK_dpose"], K, ref)
     elif pose_reference is not None:
         try:
             grad, grad_entry = _pose_gradient(obs, entry if covered else None, get_sweep, passes, say,

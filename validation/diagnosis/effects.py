@@ -99,6 +99,10 @@ class Problem:
     wall_gradient : WallGradient, optional
         The BEM's correction of the effect model's change of K with the
         walls, floor and free surface (:mod:`electrosense.validation.diagnosis.wall_gradient`).
+    object_field : ObjectField, optional
+        The change of K that a sphere added by a candidate makes, from the
+        BEM's field where it sits (:mod:`electrosense.validation.diagnosis.object_field`);
+        without it, through the effect model.
     """
 
     obs: Observations
@@ -109,6 +113,7 @@ class Problem:
     weight: np.ndarray | None = None
     pose_gradient: object = None
     wall_gradient: object = None
+    object_field: object = None
     t_ref_s: float = field(init=False)
     T_ref_C: float | None = field(init=False)
     areas_m2: np.ndarray = field(init=False)
@@ -160,17 +165,19 @@ class Problem:
         if not scenario.geometry_changed:
             return self.currents(K, scenario, at, idx)
         poses = scenario.poses[at]
+        added = self._added_spheres(scenario)
+        if added:   # the spheres a candidate adds come from the BEM's field (:mod:`.object_field`), the rest below
+            scenario = replace(scenario, objects=tuple(self.obs.objects))
         if self.pose_gradient is not None:
             # the sensor's move in the believed scene: the BEM's own change of K with pose (Taylor step)
             K = self.pose_gradient.moved(K, idx, self.obs.poses[idx], poses)
-            if self._moves_pose_only(scenario):
-                return self.currents(K, scenario, at, idx)
-            # the rest of the scene's change, as the effect model sees it at the moved poses
-            held = self.obs.poses[scenario.rows if scenario.rows is not None else idx]
-            moved_only = np.column_stack([scenario.poses[:, :2], held[:, 2], scenario.poses[:, 3]])
-            believed = replace(scenario, poses=moved_only, tank=self.obs.tank, objects=tuple(self.obs.objects))
-            K = K * (self._effect_K_at(scenario, at) / self._effect_K_at(believed, at))
-        else:
+            if not self._moves_pose_only(scenario):
+                # the rest of the scene's change, as the effect model sees it at the moved poses
+                held = self.obs.poses[scenario.rows if scenario.rows is not None else idx]
+                moved_only = np.column_stack([scenario.poses[:, :2], held[:, 2], scenario.poses[:, 3]])
+                believed = replace(scenario, poses=moved_only, tank=self.obs.tank, objects=tuple(self.obs.objects))
+                K = K * (self._effect_K_at(scenario, at) / self._effect_K_at(believed, at))
+        elif not (added and self._moves_pose_only(scenario) and np.array_equal(poses, self.obs.poses[idx])):
             # relative change of every entry of K, as the effect model sees it
             K = K * (self._effect_K_at(scenario, at) / self.K_effect0[idx])
         if self.wall_gradient is not None and scenario.tank is not None:
@@ -180,10 +187,26 @@ class Problem:
 
             theta = wall_parameters(self.obs, scenario.tank, poses, idx)
             if np.any(theta):
-                return self.currents(apply_pair_log(K, self.wall_gradient.log_change(idx, theta)), scenario, at, idx)
+                K = apply_pair_log(K, self.wall_gradient.log_change(idx, theta))
         n = K.shape[-1]
         off = K * (1 - np.eye(n))   # zero row sums restored
-        return self.currents(off - np.eye(n) * off.sum(axis=-1, keepdims=True), scenario, at, idx)
+        K = off - np.eye(n) * off.sum(axis=-1, keepdims=True)
+        if added:
+            K = K + self.object_field(poses, scenario.tank, added)
+        return self.currents(K, scenario, at, idx)
+
+    def _added_spheres(self, scenario: Scenario) -> tuple:
+        """The spheres ``scenario`` holds beyond the believed objects, when the BEM's field can give their change
+        (an :class:`~.object_field.ObjectField` and a box tank or unbounded water); else ()."""
+        known = tuple(self.obs.objects)
+        objects = tuple(scenario.objects)
+        if self.object_field is None or len(objects) <= len(known) or objects[:len(known)] != known:
+            return ()
+        added = objects[len(known):]
+        if not all(isinstance(o, Sphere) for o in added) or not (scenario.tank is None or isinstance(scenario.tank,
+                                                                                                   Tank)):
+            return ()
+        return added
 
     def _moves_pose_only(self, scenario: Scenario) -> bool:
         """Whether ``scenario`` differs from the believed scene by the sensor's pose alone (x, y, yaw)."""

@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from electrosense.meshes.tank import Tank
 from electrosense.validation.diagnosis.effects import EFFECT_NAMES, Problem, library, model_trust_weights
 from electrosense.validation.diagnosis.fitting import make_folds, noise_level
 from electrosense.validation.diagnosis.forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
@@ -333,6 +334,17 @@ def diagnose(
     if anchored is not None and anchored.pose_gradient is not None and len(anchored.pose_gradient.nodes):
         notes.append(f"pose offsets through the BEM's own pose gradient at {len(anchored.pose_gradient.nodes)} BEM "
                      f"poses ({anchored.pose_gradient.how}), not through the effect model")
+    if anchored is not None and "unmodelled_object" in names and (obs.tank is None or isinstance(obs.tank, Tank)):
+        from electrosense.validation.diagnosis.object_field import sensor_object_field
+
+        try:
+            problem.object_field = sensor_object_field(obs.sensor, obs.sigma_S_per_m)
+            notes.append("an unmodelled object's change of K from the BEM's own field where it sits (the sensor's "
+                         "unit solutions in unbounded water, tabulated; the walls' first reflections; dipole and "
+                         "quadrupole of the sphere), not through the effect model")
+        except (ValueError, np.linalg.LinAlgError) as exc:   # the object stays with the effect model; say so
+            notes.append(f"the object's BEM field not computed ({type(exc).__name__}: {exc}); the object through "
+                         "the effect model")
     if anchored is not None and anchored.wall_derivatives is not None:
         from electrosense.validation.diagnosis.wall_gradient import wall_gradient
 

@@ -7,9 +7,15 @@ on a finer mesh than the diagnosis's anchors, with the true scene
 (:mod:`electrosense.validation.studies.diagnosis_blind_unseen`). Every effect is
 injected at several strengths, given as its *signal*: the RMS over the samples
 of the relative change of the receiver currents it causes, in units of the
-bench noise (0.05 %). A geometric effect is solved once by the BEM at a base
-strength and scaled (``I0 + lambda (I1 - I0)``: the small-effect limit); an
-output-side effect (conductivity, drift, channel gains) is set directly.
+bench noise (0.05 %). A geometric effect is solved by the BEM at a base
+strength, its parameters scaled by the ratio of the signals (the offsets,
+the wall's and the surface's moves and the contact impedance in proportion,
+an object's radius by the cube root), and solved again there: the world
+is the BEM's at that strength, never a linear mix of two worlds (near a
+wall a few millimetres change the shape of the signal along the pass, which
+no model of a smaller move could fit). The signal it really reaches is
+printed. An output-side effect (conductivity, drift, channel gains) is set
+directly.
 Each log is diagnosed with the default ``esense diagnose LOG -o DIR``.
 
 Printed: one line per log (effect, signal/noise, held-out gap over the floor,
@@ -44,6 +50,13 @@ GEOMETRIC = {
 #: output-side effects: name -> acceptable first names
 OUTPUT = {"conductivity": ("conductivity",), "temperature_drift": ("temperature_drift",),
           "channel_gain": ("channel_gain",)}
+
+
+def scaled_world(world: str, args: dict, factor: float) -> dict:
+    """The world arguments of a geometric effect ``factor`` times as strong (module doc)."""
+    if world == "object":
+        return {**args, "radius_m": args["radius_m"] * factor ** (1 / 3)}
+    return {k: (v * factor if isinstance(v, float) else v) for k, v in args.items()}
 
 
 def _rms(x) -> float:
@@ -96,7 +109,8 @@ def main(argv=None):
                 world, wargs, acceptable = GEOMETRIC[name]
                 I1 = receiver_currents(world_K(setup, poses, world, wargs, np.random.default_rng(seed + 1), cache), e)
                 base = _rms(I1 / I0 - 1) / CURRENT_NOISE
-                I = I0 + (signal / base) * (I1 - I0)
+                I = receiver_currents(world_K(setup, poses, world, scaled_world(world, wargs, signal / base),
+                                              np.random.default_rng(seed + 1), cache), e)
             elif name in OUTPUT:
                 acceptable = OUTPUT[name]
                 out_args = output_arguments(name, signal * CURRENT_NOISE, t, m, np.random.default_rng(seed + 7))
@@ -108,6 +122,7 @@ def main(argv=None):
             floor = d.get("noise_floor") or d["noise"]
             first = d["chosen"][0] if d["chosen"] else d["verdict"]
             row = {"seed": seed, "n_el": setup.sensor.n_electrodes, "emitter": e, "effect": name, "signal": signal,
+                   "signal_reached": _rms(I / I0 - 1) / CURRENT_NOISE if name in GEOMETRIC else signal,
                    "gap_over_floor": d["gap_before"] / floor, "after_over_floor": d["gap_after"] / floor,
                    "shrink": 1 - d["gap_after"] / d["gap_before"], "chosen": d["chosen"], "verdict": d["verdict"],
                    "p_detection": (d.get("detection") or {}).get("p_detection"),

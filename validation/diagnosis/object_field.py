@@ -1,0 +1,126 @@
+"""An unmodelled object's change of K from the BEM's own field where it sits (dipole and quadrupole).
+
+The object candidate is a sphere at ``p``. Its change of K, to the first
+two orders of its size, is the mutual energy of the sensor's isolated unit
+solutions at ``p`` (:mod:`electrosense.bem.free_field`)::
+
+    dK_ij = sigma (d1 grad u_i . grad u_j + d2 H_i : H_j),
+
+with ``d1``, ``d2`` the sphere's dipole and quadrupole factors
+(:func:`~electrosense.bem.free_field.sphere_multipole_factors`). The field is the BEM's in
+unbounded water (tabulated once per sensor over its meridian half-plane,
+so that the body's shadow and the electrodes' true extent are in it; the
+point-electrode model's Kelvin images have neither), and the tank's walls
+add their mirror images: at a point ``p`` of a box the field of the sensor
+is that of unbounded water at ``p`` plus at each of ``p``'s reflections in
+the six walls (a Neumann wall reflects the field point), the first
+reflections only. What is neglected: the sensor's own reaction to the
+object's field and to the walls' reflections (higher order in the object's
+and the wall's distance), and degrees ``l >= 3`` of the sphere.
+
+Example
+-------
+>>> import numpy as np
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.objects import Sphere
+>>> from electrosense.bem.free_field import meridian_field
+>>> model = ObjectField(meridian_field(preset("angels-2"), edge_length_m=0.01, reach_m=0.1, spacing_m=0.004), 1.0)
+>>> dK = model(np.zeros((1, 4)), None, (Sphere((0.0, 0.04, 0.0), float("inf"), 0.01),))
+>>> dK.shape, bool(dK[0, 0, 0] > 0)      # a conductor beside the sensor: more conductance
+((1, 2, 2), True)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from electrosense.bem.free_field import MeridianField, sphere_multipole_factors
+from electrosense.meshes.pose import rotation_z
+from electrosense.meshes.tank import Tank
+
+__all__ = ["ObjectField", "wall_reflections", "sensor_object_field"]
+
+
+def wall_reflections(tank: Tank | None, points_m: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``[(reflected points (..., 3), reflection matrix (3, 3)), ...]``: the points themselves (identity) and
+    their mirror images in the six faces of a box tank (the first reflections of a Neumann box)."""
+    p = np.asarray(points_m, float)
+    out = [(p, np.eye(3))]
+    if tank is None:
+        return out
+    lo, hi = tank.water_bounds_m
+    for axis in range(3):
+        M = np.eye(3)
+        M[axis, axis] = -1.0
+        for plane in (lo[axis], hi[axis]):
+            q = p.copy()
+            q[..., axis] = 2 * plane - p[..., axis]
+            out.append((q, M))
+    return out
+
+
+@dataclass
+class ObjectField:
+    """dK of spheres in the water from the sensor's tabulated field (module doc)."""
+
+    field: MeridianField
+    sigma_S_per_m: float
+
+    def __call__(self, poses: np.ndarray, tank: Tank | None, spheres) -> np.ndarray:
+        """(P, n, n) the change of K that ``spheres`` (tank frame) make at the sensor's ``poses`` (P, 4)."""
+        poses = np.asarray(poses, float).reshape(-1, 4)
+        n = self.field.n_electrodes
+        dK = np.zeros((len(poses), n, n))
+        R = rotation_z(poses[:, 3]).reshape(len(poses), 3, 3)   # sensor -> tank
+        t = poses[:, :3]
+        half = self.field.half_length_m - self.field.radius_m   # the axis segment of the capsule
+        for s in spheres:
+            local = np.einsum("pji,pj->pi", R, np.asarray(s.centre_m, float) - t)
+            on_axis = np.column_stack([np.clip(local[:, 0], -half, half), np.zeros((len(local), 2))])
+            if np.min(np.linalg.norm(local - on_axis, axis=1)) < self.field.radius_m + s.radius_m:
+                raise ValueError("the sphere would touch the sensor at a logged pose")
+            contrast = np.inf if np.isinf(s.conductivity_S_per_m) else s.conductivity_S_per_m / self.sigma_S_per_m
+            d1, d2 = sphere_multipole_factors(s.radius_m, contrast)
+            g = np.zeros((len(poses), n, 3))
+            H = np.zeros((len(poses), n, 3, 3))
+            for q, M in wall_reflections(tank, np.broadcast_to(np.asarray(s.centre_m, float), t.shape)):
+                local = np.einsum("pji,pj->pi", R, q - t)            # R^T (q - t): the sensor's frame
+                gl, Hl = self.field.derivatives(local)
+                A = np.einsum("ab,pbc->pac", M, R)                    # d/dp of the reflected point, then to the tank
+                g += np.einsum("pac,pnc->pna", A, gl)
+                H += np.einsum("pac,pncd,pbd->pnab", A, Hl, A)
+            dK += self.sigma_S_per_m * (d1 * np.einsum("pia,pja->pij", g, g)
+                                        + d2 * np.einsum("piab,pjab->pij", H, H))
+        return dK
+
+
+def sensor_object_field(sensor, sigma_S_per_m: float, edge_length_m: float | None = None) -> ObjectField:
+    """The :class:`ObjectField` of ``sensor``, its table kept on disk (``meridian-fields`` under the cache root,
+    keyed by the sensor's geometry, the mesh edge and the model code's version)."""
+    import hashlib
+    import json
+    import os
+
+    from electrosense.bem.block_cache import cache_root
+    from electrosense.bem.free_field import meridian_field
+    from electrosense.validation.simulation.models import code_version
+
+    geometry = {k: v for k, v in sensor.to_dict().items() if k not in ("name", "notes")}
+    key = hashlib.sha256(json.dumps({"sensor": geometry, "edge": repr(edge_length_m), "code": code_version()},
+                                    sort_keys=True).encode()).hexdigest()[:24]
+    path = cache_root() / "meridian-fields" / f"{key}.npz"
+    try:
+        with np.load(path) as z:
+            table = MeridianField(z["x_m"], z["r_m"], z["u"], float(z["radius_m"]), float(z["half_length_m"]))
+    except (OSError, ValueError, KeyError, EOFError):
+        table = meridian_field(sensor, edge_length_m=edge_length_m)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            partial = path.with_name(f"{key}.{os.getpid()}.partial.npz")
+            np.savez(partial, x_m=table.x_m, r_m=table.r_m, u=table.u, radius_m=table.radius_m,
+                     half_length_m=table.half_length_m)
+            os.replace(partial, path)
+        except OSError:
+            pass   # a table not kept is computed again next time
+    return ObjectField(table, sigma_S_per_m)
