@@ -25,12 +25,22 @@
 
 Geometric effects are evaluated by an *effect model*, as a relative change
 of the baseline. With the PSM as baseline it is that PSM itself (the gap is
-explained in the PSM's own physics). With the BEM as baseline it is the PSM
-with its radii calibrated and its spheres at the electrodes' centres
-(:func:`electrosense.validation.diagnosis.forward.geometric_psm`), with Kelvin images for
-conducting spheres (:class:`electrosense.validation.diagnosis.forward.CompositeEffectModel`):
-its changes follow the BEM's within about 10 % where the calibrated PSM's are
-off by a factor of two to three near the walls.
+explained in the PSM's own physics). With the BEM as baseline (the default)
+every geometric change comes from the BEM's own solutions at the anchors:
+
+* the sensor's pose (a robot-frame or mounting offset): the BEM's exact pose
+  derivatives at every anchor (:mod:`electrosense.bem.shape_derivative`: moving the
+  sensor is moving every wall the other way), the departure from the fast
+  model's interpolated along each pass (:mod:`.pose_gradient`);
+* walls, floor and free surface: the BEM's shape derivatives at every anchor
+  correct the fast model's change to the BEM's first order (:mod:`.wall_gradient`);
+* an unmodelled object: the BEM's field of the sensor where the sphere sits,
+  its dipole and quadrupole (:mod:`.object_field`);
+
+the fast model (the PSM with its radii calibrated and its spheres at the
+electrodes' centres, :func:`electrosense.validation.diagnosis.forward.geometric_psm`,
+with Kelvin images for spheres: :class:`electrosense.validation.diagnosis.forward.CompositeEffectModel`)
+gives only the shape between anchors and the higher orders of a wall's move.
 
 Example
 -------
