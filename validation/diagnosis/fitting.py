@@ -35,8 +35,10 @@ from scipy.linalg import subspace_angles
 from scipy.optimize import lsq_linear
 
 from electrosense.meshes.pose import sensor_to_tank
+from electrosense.meshes.tank import Tank
 from electrosense.validation.comparison.metrics import noise_level
 from electrosense.validation.diagnosis.effects import Problem, combined_bounds, combined_scales
+from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = [
     "FitResult",
@@ -329,12 +331,17 @@ def _object_grid(problem: Problem, n_xy: int = 13, n_z: int = 5) -> np.ndarray:
 
 def dipole_responses(problem: Problem, idx) -> tuple[np.ndarray, np.ndarray]:
     """(grid (G, 3), v (p, G, m)): the first-order relative change of the receiver currents at samples ``idx``
-    by a unit dipole (chi b^3 = 1 m^3) at each place of the object grid (the PSM's small-object term with the
-    electrode centres, in free space, on the baseline's conductance)."""
+    by a unit dipole (chi b^3 = 1 m^3) at each place of the object grid: from the BEM's field where the place is
+    (:mod:`.object_field`) when the problem has it, else the PSM's small-object term with the electrode centres,
+    in free space, on the baseline's conductance."""
     obs = problem.obs
     grid = _object_grid(problem)
     if len(grid) == 0:
         return grid, np.zeros((len(idx), 0, obs.n_receivers))
+    if problem.object_field is not None and (obs.tank is None or isinstance(obs.tank, Tank)):
+        dK = problem.object_field.unit_dipoles(obs.poses[idx], obs.tank, grid)   # (p, G, n, n)
+        dI = receiver_currents(dK, obs.emitter) * obs.U_V[idx, None, None]
+        return grid, dI / np.abs(problem.I_base[idx])[:, None, :]
     n, e = obs.sensor.n_electrodes, obs.emitter - 1
     rec = [k for k in range(n) if k != e]
     c = sensor_to_tank(obs.sensor.electrode_centres_m, obs.poses[idx])  # (p, n, 3)

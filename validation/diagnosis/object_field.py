@@ -67,32 +67,50 @@ class ObjectField:
     field: MeridianField
     sigma_S_per_m: float
 
+    def field_at(self, poses: np.ndarray, tank: Tank | None, points_m: np.ndarray, hessian: bool = True):
+        """Gradient (P, G, n, 3) and Hessian (P, G, n, 3, 3; None unless ``hessian``) of the sensor's unit
+        solutions at tank-frame points (G, 3), the sensor at ``poses`` (P, 4), with the walls' reflections."""
+        poses = np.asarray(poses, float).reshape(-1, 4)
+        pts = np.asarray(points_m, float).reshape(-1, 3)
+        P, G, n = len(poses), len(pts), self.field.n_electrodes
+        R = rotation_z(poses[:, 3]).reshape(P, 3, 3)   # sensor -> tank
+        t = poses[:, :3]
+        g = np.zeros((P, G, n, 3))
+        H = np.zeros((P, G, n, 3, 3)) if hessian else None
+        for q, M in wall_reflections(tank, pts):
+            local = np.einsum("pji,pgj->pgi", R, q[None, :, :] - t[:, None, :])   # R^T (q - t): the sensor's frame
+            gl, Hl = self.field.derivatives(local.reshape(-1, 3))
+            A = np.einsum("ab,pbc->pac", M, R)   # d/dp of the reflected point, then to the tank frame
+            g += np.einsum("pac,pgnc->pgna", A, gl.reshape(P, G, n, 3))
+            if hessian:
+                H += np.einsum("pac,pgncd,pbd->pgnab", A, Hl.reshape(P, G, n, 3, 3), A)
+        return g, H
+
     def __call__(self, poses: np.ndarray, tank: Tank | None, spheres) -> np.ndarray:
         """(P, n, n) the change of K that ``spheres`` (tank frame) make at the sensor's ``poses`` (P, 4)."""
         poses = np.asarray(poses, float).reshape(-1, 4)
         n = self.field.n_electrodes
         dK = np.zeros((len(poses), n, n))
-        R = rotation_z(poses[:, 3]).reshape(len(poses), 3, 3)   # sensor -> tank
-        t = poses[:, :3]
-        half = self.field.half_length_m - self.field.radius_m   # the axis segment of the capsule
+        R = rotation_z(poses[:, 3]).reshape(len(poses), 3, 3)
+        half = self.field.half_length_m - self.field.radius_m   # the axis segment of the sensor's capsule
         for s in spheres:
-            local = np.einsum("pji,pj->pi", R, np.asarray(s.centre_m, float) - t)
+            local = np.einsum("pji,pj->pi", R, np.asarray(s.centre_m, float) - poses[:, :3])
             on_axis = np.column_stack([np.clip(local[:, 0], -half, half), np.zeros((len(local), 2))])
             if np.min(np.linalg.norm(local - on_axis, axis=1)) < self.field.radius_m + s.radius_m:
                 raise ValueError("the sphere would touch the sensor at a logged pose")
             contrast = np.inf if np.isinf(s.conductivity_S_per_m) else s.conductivity_S_per_m / self.sigma_S_per_m
             d1, d2 = sphere_multipole_factors(s.radius_m, contrast)
-            g = np.zeros((len(poses), n, 3))
-            H = np.zeros((len(poses), n, 3, 3))
-            for q, M in wall_reflections(tank, np.broadcast_to(np.asarray(s.centre_m, float), t.shape)):
-                local = np.einsum("pji,pj->pi", R, q - t)            # R^T (q - t): the sensor's frame
-                gl, Hl = self.field.derivatives(local)
-                A = np.einsum("ab,pbc->pac", M, R)                    # d/dp of the reflected point, then to the tank
-                g += np.einsum("pac,pnc->pna", A, gl)
-                H += np.einsum("pac,pncd,pbd->pnab", A, Hl, A)
+            g, H = self.field_at(poses, tank, np.asarray(s.centre_m, float)[None])
+            g, H = g[:, 0], H[:, 0]
             dK += self.sigma_S_per_m * (d1 * np.einsum("pia,pja->pij", g, g)
                                         + d2 * np.einsum("piab,pjab->pij", H, H))
         return dK
+
+    def unit_dipoles(self, poses: np.ndarray, tank: Tank | None, points_m: np.ndarray) -> np.ndarray:
+        """(P, G, n, n) the change of K per unit dipole strength (chi b^3 = 1 m^3) at each of ``points_m`` (G, 3):
+        the dipole term alone, for scans over places."""
+        g, _ = self.field_at(poses, tank, points_m, hessian=False)
+        return self.sigma_S_per_m * 4 * np.pi * np.einsum("pgia,pgja->pgij", g, g)
 
 
 def sensor_object_field(sensor, sigma_S_per_m: float, edge_length_m: float | None = None) -> ObjectField:
