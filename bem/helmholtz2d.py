@@ -36,7 +36,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["layer_matrices_2d", "log_integral", "NEAR_2D", "CUTOFF_2D"]
+__all__ = ["layer_matrices_2d", "log_integral", "PairGeometry", "NEAR_2D", "CUTOFF_2D"]
 
 #: pairs closer than NEAR_2D segment lengths get the logarithm's closed form
 NEAR_2D = 3.0
@@ -44,6 +44,7 @@ NEAR_2D = 3.0
 CUTOFF_2D = 40.0
 
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(4)
+_GL_X2, _GL_W2 = np.polynomial.legendre.leggauss(2)
 
 
 def log_integral(t0, d, L):
@@ -105,9 +106,9 @@ def _bessel_k0_k1(x):
 
 
 @njit(parallel=True, cache=True)
-def _helmholtz_kernel(t0, d, L, rmin, k, near_factor, cutoff, gx, gw, S, D):
+def _helmholtz_kernel(t0, d, L, rmin, lap_s, lap_d, k, near_factor, cutoff, gx, gw, gx2, gw2, S, D):
     P, Sn = t0.shape
-    ng = gx.shape[0]
+    inv2pi = 1.0 / (2.0 * math.pi)
     for i in prange(P):
         for j in range(Sn):
             if k * rmin[i, j] >= cutoff:
@@ -117,55 +118,74 @@ def _helmholtz_kernel(t0, d, L, rmin, k, near_factor, cutoff, gx, gw, S, D):
             m = max(1, int(math.ceil(2.0 * k * Lj)))
             if m > 128:
                 m = 128
+            # far pairs: two Gauss points per panel (error ~ (L / r)^4)
+            xs, ws = (gx, gw) if near or rmin[i, j] < 2.0 * near_factor * Lj else (gx2, gw2)
             s_acc = 0.0
             d_acc = 0.0
             dd = d[i, j]
             for p in range(m):
-                for q in range(ng):
-                    tq = (p + 0.5 * (gx[q] + 1.0)) * Lj / m
+                for q in range(xs.shape[0]):
+                    tq = (p + 0.5 * (xs[q] + 1.0)) * Lj / m
                     u = tq - t0[i, j]
                     r = math.sqrt(u * u + dd * dd)
                     k0, xk1 = _bessel_k0_k1(k * r)
-                    w = gw[q] * 0.5 * Lj / m
+                    w = ws[q] * 0.5 * Lj / m
                     if near:
                         s_acc += w * (k0 + math.log(r))
                         d_acc += w * dd / (r * r) * (xk1 - 1.0)
                     else:
                         s_acc += w * k0
                         d_acc += w * dd / (r * r) * xk1
-            S[i, j] = s_acc
-            D[i, j] = d_acc
+            if near:
+                S[i, j] = (s_acc - lap_s[i, j]) * inv2pi
+                D[i, j] = d_acc * inv2pi + lap_d[i, j]
+            else:
+                S[i, j] = s_acc * inv2pi
+                D[i, j] = d_acc * inv2pi
 
 
-def layer_matrices_2d(points, a, b, k: float, own=None, geometry=None) -> tuple[np.ndarray, np.ndarray]:
+class PairGeometry:
+    """What the layers of every mode share for points and segments: each pair's along-line position ``t0``, normal
+    offset ``d``, segment length, distance, and the Laplace parts in closed form (the logarithm's integral on
+    near pairs, the double layer's angle)."""
+
+    def __init__(self, points, a, b, own=None):
+        t0, d, L, rmin = _geometry(points, a, b)
+        P, Sn = t0.shape
+        own = np.full(P, -1) if own is None else np.asarray(own)
+        is_own = np.zeros((P, Sn), bool)
+        hit = own >= 0
+        is_own[np.flatnonzero(hit), own[hit]] = True
+        d = np.where(is_own, 0.0, d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dsafe = np.where(np.abs(d) > 1e-14 * L, d, 0.0)
+            one = np.where(dsafe != 0, dsafe, 1.0)
+            lap_d = np.where(dsafe != 0, np.arctan((L - t0) / one) - np.arctan(-t0 / one), 0.0) / (2 * np.pi)
+        lap_d[is_own] = 0.0
+        self.t0, self.d, self.L, self.rmin, self.is_own, self.lap_d = t0, d, np.ascontiguousarray(L), rmin, is_own, lap_d
+        near = rmin < NEAR_2D * L
+        self.lap_s = np.zeros((P, Sn))
+        self.lap_s[near] = log_integral(t0[near], d[near], L[near])
+        self._laplace_s = None
+
+    def laplace_single(self) -> np.ndarray:
+        if self._laplace_s is None:
+            self._laplace_s = -log_integral(self.t0, self.d, self.L) / (2 * np.pi)
+        return self._laplace_s
+
+
+def layer_matrices_2d(points, a, b, k: float, own=None, geometry: PairGeometry | None = None):
     """``S`` and ``D`` (P, S) of the modified Helmholtz equation of wavenumber ``k`` (1/m; 0: Laplace).
 
     ``points`` (P, 2), segments ``a`` -> ``b`` (S, 2); ``own[i]`` the segment whose
-    midpoint point i is (-1: none). ``geometry``: the pairs' precomputed
-    ``(t0, d, L, rmin)`` (see :func:`_geometry`), reused across modes.
+    midpoint point i is (-1: none). ``geometry``: the pairs' :class:`PairGeometry`, reused across modes.
     """
-    t0, d, L, rmin = _geometry(points, a, b) if geometry is None else geometry
-    P, Sn = t0.shape
-    own = np.full(P, -1) if own is None else np.asarray(own)
-    is_own = np.zeros((P, Sn), bool)
-    hit = own >= 0
-    is_own[np.flatnonzero(hit), own[hit]] = True
-    d = np.where(is_own, 0.0, d)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        dsafe = np.where(np.abs(d) > 1e-14 * L, d, 0.0)
-        lap_d = np.where(dsafe != 0, np.arctan((L - t0) / np.where(dsafe != 0, dsafe, 1.0))
-                         - np.arctan(-t0 / np.where(dsafe != 0, dsafe, 1.0)), 0.0) / (2 * np.pi)
-    lap_d[is_own] = 0.0
+    g = PairGeometry(points, a, b, own) if geometry is None else geometry
     if k == 0:
-        return -log_integral(t0, d, L) / (2 * np.pi), lap_d
-    S = np.zeros((P, Sn))
-    D = np.zeros((P, Sn))
-    _helmholtz_kernel(np.ascontiguousarray(t0), np.ascontiguousarray(d), np.ascontiguousarray(L),
-                      np.ascontiguousarray(rmin), float(k), NEAR_2D, CUTOFF_2D, _GL_X, _GL_W, S, D)
-    near = (k * rmin < CUTOFF_2D) & (rmin < NEAR_2D * L)
-    S[near] -= log_integral(t0[near], d[near], L[near])
-    S /= 2 * np.pi
-    D /= 2 * np.pi
-    D[near] += lap_d[near]
-    D[is_own] = 0.0
+        return g.laplace_single(), g.lap_d
+    S = np.zeros(g.t0.shape)
+    D = np.zeros(g.t0.shape)
+    _helmholtz_kernel(g.t0, g.d, g.L, g.rmin, g.lap_s, g.lap_d, float(k), NEAR_2D, CUTOFF_2D, _GL_X, _GL_W,
+                      _GL_X2, _GL_W2, S, D)
+    D[g.is_own] = 0.0
     return S, D

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.linalg as sla
 
-from electrosense.bem.helmholtz2d import _geometry, layer_matrices_2d
+from electrosense.bem.helmholtz2d import PairGeometry, layer_matrices_2d
 from electrosense.meshes.prism_scene import PrismScene
 from electrosense.meshes.section_mesh import SectionMesh, mesh_section, z_cells
 
@@ -86,8 +86,8 @@ def wall_responses(mesh: SectionMesh, depth_m: float, n_modes: int, conducting=(
     qface = cond_of >= 0
     conductors = sorted(set(cond_of[qface].tolist()))
     mid = mesh.midpoints
-    geom = _geometry(mid, mesh.a, mesh.b)
     own = np.arange(S_n)
+    geom = PairGeometry(mid, mesh.a, mesh.b, own)
     zeta_face = np.array([zeta[c] if c >= 0 else 0.0 for c in cond_of])
     k_all = np.pi * np.arange(n_modes) / depth_m
     g = np.zeros((n_modes, len(seg), len(seg)))
@@ -257,11 +257,14 @@ class PrismModel:
     """A scene's modal responses kept, so that the contact impedances (and the conductivity) change at no cost.
 
     ``PrismModel(scene, n_modes=None, ...)``; :meth:`impedance` ``(zeta_m) -> Z`` at conductivity 1.
+    ``responses``: the modal responses of a scene with the same cross-section and depth (the electrodes' heights
+    may differ: only their cells are rebuilt); ``object_zeta_m``: each conducting object's contact impedance
+    times the water's conductivity (m).
     """
 
     def __init__(self, scene: PrismScene, n_modes: int | None = None, cells_in_height: int = 6,
                  segments_per_electrode: int = 6, segments_per_gap: int = 4, object_spacing_m: float | None = None,
-                 responses: dict | None = None):
+                 responses: dict | None = None, object_zeta_m=None):
         problems = scene.problems()
         if problems:
             raise ValueError("prism scene: " + "; ".join(problems))
@@ -270,7 +273,8 @@ class PrismModel:
         self.mesh = mesh_section(scene, segments_per_electrode, segments_per_gap, object_spacing_m=object_spacing_m)
         self.n_modes = default_n_modes(scene, cells_in_height) if n_modes is None else int(n_modes)
         cond = tuple(o.is_conducting for o in scene.objects)
-        self._zeta_objects = tuple(0.0 for _ in scene.objects)
+        # a conductor's contact impedance times the water's conductivity (m): given, or 0
+        self._zeta_objects = tuple(object_zeta_m) if object_zeta_m is not None else tuple(0.0 for _ in scene.objects)
         self.responses = responses if responses is not None else wall_responses(
             self.mesh, scene.water_depth_m, self.n_modes, cond, self._zeta_objects)
         t1 = time.perf_counter()
@@ -296,7 +300,8 @@ def solve_prism_scene(scene: PrismScene, sigma_S_per_m: float, contact_impedance
     if not (np.isfinite(sigma) and sigma > 0):
         raise ValueError(f"conductivity must be positive, got {sigma_S_per_m}")
     t0 = time.perf_counter()
-    model = PrismModel(scene, n_modes, cells_in_height, **mesh_options)
+    model = PrismModel(scene, n_modes, cells_in_height, **mesh_options,
+                       object_zeta_m=[o.contact_impedance_ohm_m2 * sigma for o in scene.objects])
     z = contact_impedances(contact_impedance_ohm_m2, scene.n_electrodes)
     Z = model.impedance(z * sigma) / sigma
     return PrismSolution(Z, sigma, {**model.info, "seconds": time.perf_counter() - t0})
