@@ -154,7 +154,8 @@ def fit_ktc(folder: KtcFolder, n_modes: int = 30, progress=print, max_nfev: int 
         all_names = [u.name for u in ktc_unknowns(E, M, tanks=[b.tank for b in blocks])]
         start = dict(ref_fit.values)
         object_fit, problem = fit_blocks(forward, blocks, E, M, start=start,
-                                         fixed=[n for n in all_names if n not in free], max_nfev=max_nfev)
+                                         fixed=[n for n in all_names if n not in free],
+                                         max_nfev=max(6, max_nfev // 2))
         x, names = object_fit.x, object_fit.names
         heldout["tanks"] = _leave_one_tank_out(object_fit, problem, blocks)
     t3 = time.perf_counter()
@@ -232,11 +233,19 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
         dpm = np.where(ok, dp, np.nan)
         fl = linear_floor(d.injection, dm)
         meas_tot = np.where(ok, d.voltages_V, np.nan)
+        # what one scale per file (the water's conductivity or the current changed since the reference) would
+        # explain: a diagnosis of the file, fitted on it, never part of the prediction
+        vt = np.where(ok, s * volts(Z, d.injection, d.measurement_pattern), 0.0)
+        r0 = np.where(ok, dm - dpm, 0.0)
+        drift = float(np.sum(vt * r0) / max(np.sum(vt * vt), 1e-300))
         out[name] = {"predicted": dpm, "measured": dm, "mask": ok, "total_predicted": tot, "objects": fw.objects[key],
                      "truth": truth,
                      "metrics": {"difference_rms_rel": rms_rel(dpm - dm, dm), "difference_floor_rel": fl["floor_rms_rel"],
                                  "total_rms_rel": rms_rel(np.where(ok, tot, np.nan) - meas_tot, meas_tot),
                                  "amplitude_measured_over_predicted": float(np.nansum(dpm * dm) / np.nansum(dpm ** 2)),
+                                 "diagnosis_drift": drift,
+                                 "diagnosis_difference_rms_rel_after_drift": rms_rel(
+                                     np.where(ok, r0 - drift * vt, np.nan), dm),
                                  "electrodes_out_of_use": out_e, "patterns_left_out": left,
                                  "scored_voltages": int(ok.sum())}}
         del fw.objects[key]

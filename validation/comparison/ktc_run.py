@@ -89,6 +89,7 @@ def run_ktc(fit_folder, predict_folders, out_dir: Path, n_modes: int = 30, figur
         "noise_model": "independent errors of one deviation per file: its linear floor's per-voltage noise",
         "fit_folder": labels[0], "notes": notes,
         "model": {"n_modes": n_modes, "modal_solves": None},
+        "evaluations": {"empty_tank": fit.ref_fit.nfev, "tanks": None if fit.object_fit is None else fit.object_fit.nfev},
     }
     fit_tanks = {}
     if fit.object_fit is not None:

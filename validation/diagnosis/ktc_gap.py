@@ -12,13 +12,14 @@ scored on the rest:
 * on the empty tank, held out by pattern (even patterns fitted, odd ones
   scored and the other way round): ``none`` (the scene with its scale only),
   ``channel_offsets`` (the instrument adds a fixed voltage to each channel),
-  ``channel_gains``, ``offsets+gains``, ``common_mode`` (each channel also
-  reads a fraction of its pair's common-mode voltage against the electrodes'
-  mean), ``electrode_angles`` (each electrode moved along the wall: the
-  model's finite differences, a geometry error), ``two_d`` (the electrodes
-  spanning the water: the 2-D assumption, scale refitted);
+  ``channel_gains``, ``offsets+gains``, ``common_mode+offsets`` (each channel
+  also reads a fraction of its pair's common-mode voltage against the
+  electrodes' mean), ``electrode_angles+offsets`` (each electrode moved along
+  the wall: the model's finite differences, a geometry error), ``2-D
+  electrodes+offsets`` (the electrodes spanning the water: the 2-D
+  assumption, scale refitted);
 * on the tanks' changes, held out by tank (fitted on the other tanks):
-  ``none``, ``channel_gains``, ``two_d``; and ``drift`` (one scale per tank,
+  ``none``, ``channel_gains``, ``2-D electrodes``; and ``drift`` (one scale per tank,
   fitted on that tank itself: it explains, it cannot predict).
 
 The shrink of a candidate is ``1 - heldout / heldout(none)``.
@@ -65,10 +66,10 @@ def pattern_families(injection) -> list[str]:
 def by_electrode(residual, measurement_pattern) -> np.ndarray:
     """RMS (E,) of the residuals (P, M) over the channels that read each electrode (NaN ignored)."""
     R = np.asarray(residual, float)
-    ms = np.nanmean(R ** 2, axis=0)                                          # (M,)
-    W = np.abs(np.asarray(measurement_pattern)) > 0                           # (E, M)
-    with np.errstate(invalid="ignore"):
-        return np.sqrt(np.array([np.nanmean(ms[w]) if w.any() else np.nan for w in W]))
+    fin = np.isfinite(R)
+    ms = np.where(fin.any(axis=0), np.nansum(R ** 2, axis=0) / np.maximum(fin.sum(axis=0), 1), np.nan)   # (M,)
+    W = (np.abs(np.asarray(measurement_pattern)) > 0) & np.isfinite(ms)[None]                          # (E, M)
+    return np.sqrt(np.array([ms[w].mean() if w.any() else np.nan for w in W]))
 
 
 def _where(residual, reference, mp, families) -> dict:
@@ -79,7 +80,9 @@ def _where(residual, reference, mp, families) -> dict:
         rows = np.array([g == f for g in families])
         fam[f] = rms_rel(R[rows], ref[rows])
     den = float(np.sqrt(np.nanmean(ref ** 2)))
-    return {"by_channel_rel": (np.sqrt(np.nanmean(R ** 2, axis=0)) / den).tolist(),
+    fin = np.isfinite(R)
+    by_channel = np.where(fin.any(axis=0), np.nansum(R ** 2, axis=0) / np.maximum(fin.sum(axis=0), 1), np.nan)
+    return {"by_channel_rel": (np.sqrt(by_channel) / den).tolist(),
             "by_electrode_rel": (by_electrode(R, mp) / den).tolist(),
             "by_family_rel": fam}
 
@@ -143,7 +146,7 @@ def diagnose_ktc(fit, folder, predictions: dict, progress=print) -> dict:
     pot = np.einsum("ef,fp->pe", Z, inj)
     pot = pot - pot.mean(axis=1, keepdims=True)
     cm = 0.5 * np.einsum("pe,em->pm", pot, np.abs(mp))
-    cols["common_mode"] = [V.ravel()[:, None], cm.ravel()[:, None], off]
+    cols["common_mode+offsets"] = [V.ravel()[:, None], cm.ravel()[:, None], off]
     # electrode angles: each electrode moved along the wall (finite differences of the model)
     progress("diagnosis: each electrode moved along the wall (finite differences)")
     h = 0.05
@@ -154,11 +157,11 @@ def diagnose_ktc(fit, folder, predictions: dict, progress=print) -> dict:
         g2 = type(geom)(**{**geom.__dict__, "angle_offsets_deg": tuple(offs)})
         dang.append(((volts(fw.impedance("ref", g2, zeta), inj, mp) - V) / h).ravel())
     D = np.stack(dang, axis=1)
-    cols["electrode_angles"] = [V.ravel()[:, None], D, off]
+    cols["electrode_angles+offsets"] = [V.ravel()[:, None], D, off]
     # the 2-D assumption: electrodes spanning the water
     g2d = type(geom)(**{**geom.__dict__, "height_frac": 1.0, "position": 0.0})
     V2 = volts(fw.impedance("ref", g2d, zeta), inj, mp)
-    cols["two_d"] = [V2.ravel()[:, None], off]
+    cols["2-D electrodes+offsets"] = [V2.ravel()[:, None], off]
     ref_scores, ref_resid = {}, {}
     for name, blocks in cols.items():
         X = np.hstack(blocks)
@@ -196,7 +199,7 @@ def diagnose_ktc(fit, folder, predictions: dict, progress=print) -> dict:
         # channel gains fitted on the other tanks' changes
         G = np.vstack([_channel_columns(c, M) for c in rows_cols])
         res["channel_gains"] = heldout_linear(y2, G, m2, t2)
-        res["two_d"] = np.where(m2, y2 - np.concatenate([c.ravel() for c in rows_V2]), np.nan)
+        res["2-D electrodes"] = np.where(m2, y2 - np.concatenate([c.ravel() for c in rows_V2]), np.nan)
         # drift: one scale per tank on that tank (explains, cannot predict)
         drift = np.full(len(y2), np.nan)
         for i in range(len(blocks)):
