@@ -8,28 +8,11 @@ import numpy as np
 import pytest
 import scipy.io
 
-from electrosense.validation.bench.transfer.ktc_mat import KtcTruth, read_ktc_folder
+from electrosense.validation.bench.transfer.ktc_mat import KtcTruth, ktc_patterns, read_ktc_folder
 from electrosense.validation.comparison.ktc import fit_ktc, predict_folder
 from electrosense.validation.comparison.ktc_model import KtcForward, KtcGeometry, truth_objects, volts
 
 KTC = Path(__file__).resolve().parents[2] / "shared" / "data" / "ktc2023" / "training"
-
-
-def _patterns(E):
-    odd = np.arange(0, E, 2)
-    inj = []
-    for a, b in zip(odd, np.roll(odd, -1)):
-        c = np.zeros(E)
-        c[a], c[b] = 1.5, -1.5
-        inj.append(c)
-    for b in odd[2:]:
-        c = np.zeros(E)
-        c[0], c[b] = -1.5, 1.5
-        inj.append(c)
-    mp = np.zeros((E, E - 1))
-    for m in range(E - 1):
-        mp[m, m], mp[m + 1, m] = 1, -1
-    return np.array(inj).T, mp
 
 
 def _mask(n=64):
@@ -42,7 +25,7 @@ def _mask(n=64):
 def _write_series(folder, E=8, dead=(), seed=0):
     """A series made by the model itself: known unknowns, 1 % noise per voltage... of the changes' size."""
     rng = np.random.default_rng(seed)
-    inj, mp = _patterns(E)
+    inj, mp = ktc_patterns(E)
     truth = KtcTruth(_mask(), 0.23)
     geom = KtcGeometry(width_deg=12.0, depth_m=0.05, height_frac=0.6, position=0.2, n_electrodes=E,
                        ring_rotation_deg=2.0)
@@ -70,7 +53,7 @@ def test_a_series_made_by_the_model_is_recovered_and_predicted(tmp_path):
     geom = _write_series(tmp_path / "fit", E=8)
     _write_series(tmp_path / "other", E=8, dead=(3,), seed=1)
     (tmp_path / "other" / "data2.mat").write_bytes((tmp_path / "other" / "data1.mat").read_bytes())   # no truth
-    fit = fit_ktc(read_ktc_folder(tmp_path / "fit"), n_modes=6, progress=lambda s: None, max_nfev=12)
+    fit = fit_ktc(read_ktc_folder(tmp_path / "fit"), n_modes=6, progress=lambda s: None, max_nfev=8)
     assert fit.scores["ref_rms_rel"] < 0.01
     assert fit.values["ring_rotation_deg"] == pytest.approx(geom.ring_rotation_deg, abs=0.5)
     other = read_ktc_folder(tmp_path / "other")

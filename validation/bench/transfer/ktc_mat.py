@@ -33,7 +33,7 @@ import numpy as np
 from electrosense.validation.bench.log.errors import BenchLogError
 
 __all__ = ["KtcMeasurement", "KtcTruth", "KtcFolder", "linear_floor", "read_ktc_mat", "read_ktc_truth",
-           "read_ktc_folder", "usable"]
+           "read_ktc_folder", "usable", "ktc_patterns"]
 
 
 @dataclass(frozen=True)
@@ -135,6 +135,30 @@ def read_ktc_folder(path) -> KtcFolder:
             continue
         tanks[f"data{n}"] = (d, read_ktc_truth(truth))
     return KtcFolder(str(folder), ref, tanks, tuple(notes))
+
+
+def ktc_patterns(n_electrodes: int = 32, amplitude: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    """The series' current patterns (E, P) and measurement pattern (E, E - 1): currents on the odd electrodes only,
+    first each to the next odd one (adjacent), then each against every fourth odd electrode (1, 9, 17, 25 of 32);
+    measurement m is electrode m minus m + 1.
+
+    >>> inj, mp = ktc_patterns(32)
+    >>> inj.shape, mp.shape, int(np.linalg.matrix_rank(inj))
+    ((32, 76), (32, 31), 15)
+    """
+    E = int(n_electrodes)
+    odd = np.arange(0, E, 2)
+    cols = []
+    for a, b in zip(odd, np.roll(odd, -1)):
+        cols.append((a, b))
+    for ref in odd[::4]:
+        cols += [(b, ref) for b in odd if b != ref]
+    inj = np.zeros((E, len(cols)))
+    for p, (a, b) in enumerate(cols):
+        inj[a, p], inj[b, p] = amplitude, -amplitude
+    mp = np.zeros((E, E - 1))
+    mp[np.arange(E - 1), np.arange(E - 1)], mp[np.arange(1, E), np.arange(E - 1)] = 1, -1
+    return inj, mp
 
 
 def _load(path: str) -> dict:
