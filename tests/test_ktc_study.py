@@ -100,3 +100,13 @@ def test_the_training_set_with_electrodes_out_of_use(tmp_path):
     assert m["ref_rms_over_floor"] < 1.5
     p = m["predicted"]["variant/data2"]
     assert p["electrodes_out_of_use"] == [6, 22] and p["difference_rms_rel"] < 0.35
+
+
+def test_regions_one_pixel_apart_stay_apart():
+    from electrosense.meshes.prism_scene import _overlapping_objects
+
+    m = np.zeros((64, 64), np.uint8)
+    m[20:40, 10:30] = 1
+    m[20:40, 31:50] = 2
+    objs = truth_objects(KtcTruth(m, 0.23))
+    assert [o.is_conducting for o in objs] == [False, True] and not _overlapping_objects(objs)

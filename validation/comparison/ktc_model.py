@@ -95,13 +95,24 @@ class KtcGeometry:
                 round(self.ring_rotation_deg, 12), tuple(round(float(v), 12) for v in self.frame_shift_m))
 
 
-def truth_objects(truth, radius_m: float = RADIUS_M, margin_m: float = 1e-3) -> tuple:
+def truth_objects(truth, radius_m: float = RADIUS_M, margin_m: float = 1e-3, smoothing_px: float = 0.7) -> tuple:
     """The prisms of a truth mask: each region of 1 (plastic) insulating, of 2 (metal) a floating conductor; a
-    polygon's points farther than ``radius - margin`` from the axis are pulled in to it."""
+    polygon's points farther than ``radius - margin`` from the axis are pulled in to it. Regions so close that
+    their smoothed outlines overlap are traced again without smoothing (the half level between pixels keeps
+    regions apart that water pixels separate)."""
+    from electrosense.meshes.prism_scene import _overlapping_objects
+
+    objs = _truth_prisms(truth, radius_m, margin_m, smoothing_px)
+    if smoothing_px > 0 and _overlapping_objects(objs):
+        objs = _truth_prisms(truth, radius_m, margin_m, 0.0)
+    return objs
+
+
+def _truth_prisms(truth, radius_m, margin_m, smoothing_px) -> tuple:
     x, y = truth.centres_m()
     out = []
     for value, conductivity, kind in ((1, 0.0, "plastic"), (2, math.inf, "metal")):
-        for i, poly in enumerate(polygons_from_mask(truth.mask == value, x, y), start=1):
+        for i, poly in enumerate(polygons_from_mask(truth.mask == value, x, y, smoothing_px=smoothing_px), start=1):
             r = np.hypot(poly[:, 0], poly[:, 1])
             lim = radius_m - margin_m
             poly = np.where((r > lim)[:, None], poly * (lim / np.maximum(r, 1e-300))[:, None], poly)
