@@ -69,12 +69,25 @@ def main(argv=None) -> dict:
                       diagnosis=args.diagnosis, progress=lambda s: print(f"  {s}", flush=True))
     metrics["seconds"] = {**metrics.get("seconds", {}), "wall_s": time.perf_counter() - t0,
                           "cpu_s": _cpu_s() - c0, "threads": os.environ.get("NUMBA_NUM_THREADS", "default")}
-    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=1, default=_json_default))
+    (args.out / "metrics.json").write_text(json.dumps(_finite(metrics), indent=1, default=_json_default))
     from electrosense.validation.comparison.ktc_report import summary_text
 
     print(summary_text(metrics))
     sys.stdout.flush()
     return metrics
+
+
+def _finite(o):
+    """The metrics with every non-finite number as null (strict JSON)."""
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite(o.tolist())
+    if isinstance(o, (float, np.floating)) and not np.isfinite(o):
+        return None
+    return o
 
 
 def _json_default(o):
