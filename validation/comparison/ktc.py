@@ -206,9 +206,10 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
 
     Returns {tank: {"predicted": (P, M), "measured": (P, M), "mask", "total_predicted", "objects", metrics}}.
     """
-    E = folder.ref.measurement_pattern.shape[0]
+    E, M = folder.ref.measurement_pattern.shape
     if E != fit.n_electrodes:
         raise ValueError(f"{folder.path}: {E} electrodes, the fit's tanks have {fit.n_electrodes}")
+    offsets = fit.offsets() if M == fit.n_channels else np.zeros(M)      # the instrument's, where channels match
     geom = fit.geometry()
     zeta = fit.zeta()
     s = fit.scale
@@ -229,7 +230,7 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
         ok &= ok_r
         dm = np.where(ok, d.voltages_V - folder.ref.voltages_V, np.nan)
         dp = s * volts(Z - Z0, d.injection, d.measurement_pattern)
-        tot = s * volts(Z, d.injection, d.measurement_pattern) + fit.offsets()[None]
+        tot = s * volts(Z, d.injection, d.measurement_pattern) + offsets[None]
         dpm = np.where(ok, dp, np.nan)
         fl = linear_floor(d.injection, dm)
         meas_tot = np.where(ok, d.voltages_V, np.nan)

@@ -104,7 +104,10 @@ def run_ktc(fit_folder, predict_folders, out_dir: Path, n_modes: int = 30, figur
     metrics["fit_tanks"] = fit_tanks
     predictions = {}
     for lab, f in zip(labels[1:], predict_folders):
-        res = predict_folder(fit, f, lab, progress=progress)
+        try:
+            res = predict_folder(fit, f, lab, progress=progress)
+        except ValueError as exc:                   # another layout than the fit's: said, the rest goes on
+            res = {name: {"error": str(exc)} for name in f.tanks} or {"(folder)": {"error": str(exc)}}
         for name, r in res.items():
             predictions[f"{lab}/{name}"] = r
     metrics["predicted"] = {k: (r["metrics"] if "metrics" in r else {"error": r["error"]})
