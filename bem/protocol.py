@@ -32,7 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["node_potentials_V", "transfer_impedances_ohm", "drive_impedances_ohm", "adjacent_protocol",
-           "involves_drive", "all_pairs"]
+           "involves_drive", "all_pairs", "pattern_voltages_V"]
 
 
 def _pairs(pairs, n: int, what: str) -> np.ndarray:
@@ -106,3 +106,28 @@ def all_pairs(electrodes) -> np.ndarray:
     e = np.asarray(electrodes, dtype=np.int64).ravel()
     i, j = np.triu_indices(len(e), 1)
     return np.stack([e[i], e[j]], axis=1)
+
+
+def pattern_voltages_V(K_S: np.ndarray, injection_A, measurement_pattern) -> np.ndarray:
+    """(P, M) voltages of current-driven EIT: pattern p injects ``injection_A[:, p]`` (E,) (summing to zero; an
+    electrode with no current floats), measurement m reads ``measurement_pattern[:, m] @ V``.
+
+    ``K_S`` (E, E) is the conductance matrix of all the electrodes with their contact impedances (the complete
+    electrode model: the 3-D BEM's, or :class:`electrosense.bem.prism_modes.PrismSolution`'s ``K_S``).
+
+    >>> K = np.array([[1.0, -1, 0, 0], [-1, 2, -1, 0], [0, -1, 2, -1], [0, 0, -1, 1]])
+    >>> inj = np.array([[1.0], [0.0], [0.0], [-1.0]]); mp = np.array([[1.0, 0], [-1, 1], [0, -1], [0, 0]])
+    >>> pattern_voltages_V(K, inj, mp).round(6).tolist()
+    [[1.0, 1.0]]
+    """
+    K = np.asarray(K_S, dtype=float)
+    I = np.asarray(injection_A, dtype=float)
+    n = K.shape[-1]
+    if I.shape[0] != n or np.asarray(measurement_pattern).shape[0] != n:
+        raise ValueError(f"{n} electrodes in K, but currents for {I.shape[0]} and a measurement pattern over "
+                         f"{np.asarray(measurement_pattern).shape[0]}")
+    if np.any(np.abs(I.sum(axis=0)) > 1e-9 * np.abs(I).max(axis=0).clip(1e-300)):
+        raise ValueError("a pattern's currents do not sum to zero")
+    scale = np.abs(np.trace(K)) / n
+    V = np.linalg.solve(K + scale * np.ones((n, n)) / n, I)
+    return (np.asarray(measurement_pattern, dtype=float).T @ V).T

@@ -9,7 +9,7 @@ import pytest
 import scipy.io
 
 from electrosense.validation.bench.log.errors import BenchLogError
-from electrosense.validation.bench.transfer.ktc_mat import linear_floor, read_ktc_mat, read_ktc_truth
+from electrosense.validation.bench.transfer.ktc_mat import ktc_patterns, linear_floor, read_ktc_mat, read_ktc_truth
 
 KTC = Path(__file__).resolve().parents[2] / "shared" / "data" / "ktc2023" / "training"
 
@@ -17,19 +17,7 @@ KTC = Path(__file__).resolve().parents[2] / "shared" / "data" / "ktc2023" / "tra
 def _tank(rng, E=16, noise=0.0, dead=()):
     """Patterns as KTC drives them (adjacent on the odd electrodes, then all against one), a random linear
     medium (a symmetric resistance matrix on the electrodes), adjacent measurements; NaN on dead electrodes."""
-    odd = np.arange(0, E, 2)
-    inj = []
-    for a, b in zip(odd, np.roll(odd, -1)):
-        v = np.zeros(E)
-        v[a], v[b] = 1.5, -1.5
-        inj.append(v)
-    for b in odd[1:]:
-        v = np.zeros(E)
-        v[0], v[b] = 1.5, -1.5
-        inj.append(v)
-    inj = np.array(inj).T                                          # (E, P)
-    mpat = np.zeros((E, E - 1))
-    mpat[np.arange(E - 1), np.arange(E - 1)], mpat[np.arange(1, E), np.arange(E - 1)] = 1, -1
+    inj, mpat = ktc_patterns(E)
     G = rng.uniform(0.5, 1.5, (E, E))
     R = np.linalg.pinv(np.diag((G + G.T).sum(1)) - (G + G.T))       # electrode potentials per current
     U = inj.T @ R @ mpat
@@ -60,7 +48,7 @@ def test_the_floor_measures_independent_noise_and_skips_dead_electrodes(tmp_path
     rng = np.random.default_rng(2)
     inj, mpat, U = _tank(rng, E=32, noise=0.01, dead=(7,))
     m = read_ktc_mat(_save(tmp_path / "d.mat", inj, mpat, U))
-    assert m.electrodes_out_of_use == [6, 7, 8]     # the two measurements reading 7 also read 6 and 8
+    assert m.electrodes_out_of_use == [7]     # 6 and 8 are read by their other neighbours
     f = linear_floor(m.injection, m.voltages_V)
     assert 0.008 < f["noise_rms_rel"] < 0.012                     # 1 % of each voltage, independent
     assert np.isnan(f["residual"][:, np.flatnonzero(mpat[6])]).all()

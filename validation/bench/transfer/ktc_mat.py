@@ -32,7 +32,8 @@ import numpy as np
 
 from electrosense.validation.bench.log.errors import BenchLogError
 
-__all__ = ["KtcMeasurement", "KtcTruth", "linear_floor", "read_ktc_mat", "read_ktc_truth"]
+__all__ = ["KtcMeasurement", "KtcTruth", "KtcFolder", "linear_floor", "read_ktc_mat", "read_ktc_truth",
+           "read_ktc_folder", "usable", "ktc_patterns"]
 
 
 @dataclass(frozen=True)
@@ -47,9 +48,10 @@ class KtcMeasurement:
 
     @property
     def electrodes_out_of_use(self) -> list[int]:
-        """1-based electrodes whose every measurement is NaN or that no finite voltage reads."""
-        bad = ~np.isfinite(self.voltages_V).any(axis=0)                 # measurements never finite
-        return sorted({int(e) + 1 for m in np.flatnonzero(bad) for e in np.flatnonzero(self.measurement_pattern[:, m])})
+        """1-based electrodes that no finite voltage reads (every measurement that touches them is NaN)."""
+        read = np.isfinite(self.voltages_V).any(axis=0)                 # measurements finite somewhere
+        used = np.abs(self.measurement_pattern[:, read]).sum(axis=1) > 0
+        return [int(e) + 1 for e in np.flatnonzero(~used)]
 
 
 @dataclass(frozen=True)
@@ -68,6 +70,95 @@ class KtcTruth:
         n, w = self.mask.shape[0], self.pixel_m
         c = -0.5 * self.side_m + (np.arange(n) + 0.5) * w
         return c, -c
+
+
+@dataclass(frozen=True)
+class KtcFolder:
+    """A folder of the series: its empty tank (``ref.mat``) and each tank with objects, ``{name: (measurement,
+    truth)}`` (``name`` ``data1``, ...); ``notes``: files left out and why."""
+
+    path: str
+    ref: KtcMeasurement
+    tanks: dict
+    notes: tuple = ()
+
+
+def usable(meas: KtcMeasurement) -> tuple[np.ndarray, list[int], list[int]]:
+    """Which voltages can be scored: (P, M) mask, the electrodes out of use (1-based), the patterns left out.
+
+    An electrode is out of use where no finite voltage reads it; it carries no
+    current, so a pattern that puts current on it is left out whole (its
+    voltages were not made by the currents the file states), and every
+    measurement that touches it is NaN already.
+
+    >>> inj = np.array([[1.0, 0.0], [-1.0, 1.0], [0.0, -1.0], [0.0, 0.0]])
+    >>> mp = np.array([[1.0, 0, 0], [-1, 1, 0], [0, -1, 1], [0, 0, -1]])
+    >>> U = np.array([[0.5, np.nan, np.nan], [0.1, np.nan, np.nan]])
+    >>> ok, out, left = usable(KtcMeasurement(inj, mp, U, "x.mat"))
+    >>> out, left, int(ok.sum())
+    ([3, 4], [2], 1)
+    """
+    out = meas.electrodes_out_of_use
+    ok = np.isfinite(meas.voltages_V)
+    left = []
+    if out:
+        drives = np.abs(meas.injection[np.array(out) - 1]).max(axis=0) > 0
+        left = [int(p) + 1 for p in np.flatnonzero(drives)]
+        ok[drives] = False
+    return ok, out, left
+
+
+def read_ktc_folder(path) -> KtcFolder:
+    """``ref.mat`` and every ``dataN.mat`` with its ``trueN.mat`` of a folder; a ``dataN.mat`` without its truth,
+    or of another layout than the reference's, is left out with a note (no file outside the folder is read)."""
+    import re
+
+    folder = Path(path)
+    if not folder.is_dir():
+        raise BenchLogError(str(folder), None, "not a folder (a KTC folder holds ref.mat, dataN.mat, trueN.mat)")
+    ref_path = folder / "ref.mat"
+    if not ref_path.is_file():
+        raise BenchLogError(str(folder), None, "no ref.mat (the empty tank) in this folder")
+    ref = read_ktc_mat(ref_path)
+    tanks, notes = {}, []
+    numbered = sorted((int(m.group(1)), f) for f in folder.iterdir()
+                      if f.is_file() and (m := re.fullmatch(r"data(\d+)\.mat", f.name)))
+    for n, f in numbered:
+        truth = folder / f"true{n}.mat"
+        if not truth.is_file():
+            notes.append(f"{f.name}: no true{n}.mat beside it, left out")
+            continue
+        d = read_ktc_mat(f)
+        if d.injection.shape != ref.injection.shape or d.measurement_pattern.shape != ref.measurement_pattern.shape:
+            notes.append(f"{f.name}: {d.injection.shape[1]} patterns x {d.measurement_pattern.shape[1]} measurements, "
+                         f"not the reference's {ref.injection.shape[1]} x {ref.measurement_pattern.shape[1]}: left out")
+            continue
+        tanks[f"data{n}"] = (d, read_ktc_truth(truth))
+    return KtcFolder(str(folder), ref, tanks, tuple(notes))
+
+
+def ktc_patterns(n_electrodes: int = 32, amplitude: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    """The series' current patterns (E, P) and measurement pattern (E, E - 1): currents on the odd electrodes only,
+    first each to the next odd one (adjacent), then each against every fourth odd electrode (1, 9, 17, 25 of 32);
+    measurement m is electrode m minus m + 1.
+
+    >>> inj, mp = ktc_patterns(32)
+    >>> inj.shape, mp.shape, int(np.linalg.matrix_rank(inj))
+    ((32, 76), (32, 31), 15)
+    """
+    E = int(n_electrodes)
+    odd = np.arange(0, E, 2)
+    cols = []
+    for a, b in zip(odd, np.roll(odd, -1)):
+        cols.append((a, b))
+    for ref in odd[::4]:
+        cols += [(b, ref) for b in odd if b != ref]
+    inj = np.zeros((E, len(cols)))
+    for p, (a, b) in enumerate(cols):
+        inj[a, p], inj[b, p] = amplitude, -amplitude
+    mp = np.zeros((E, E - 1))
+    mp[np.arange(E - 1), np.arange(E - 1)], mp[np.arange(1, E), np.arange(E - 1)] = 1, -1
+    return inj, mp
 
 
 def _load(path: str) -> dict:
