@@ -20,7 +20,8 @@ OPTIONS = {"tank_edge_length_m": 0.04}
 def built(tmp_path_factory):
     path = tmp_path_factory.mktemp("map") / "m.npz"
     m = build_tank_map(SENSOR, TANK, 0.0, path=path, wall_gap_m=0.02, spacing_m=0.04, n_headings=8, first=10,
-                       per_round=5, max_seconds=5, bem_options=OPTIONS)
+                       per_round=5, max_seconds=5, bem_options=OPTIONS,
+                       workers=1)
     return m, path
 
 
@@ -40,7 +41,8 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
 def test_a_build_resumes_from_its_file(built):
     m, path = built
     more = build_tank_map(SENSOR, TANK, 0.0, path=path, wall_gap_m=0.02, spacing_m=0.04, n_headings=8, first=10,
-                          per_round=3, max_seconds=0, bem_options=OPTIONS)
+                          per_round=3, max_seconds=0, bem_options=OPTIONS,
+                          workers=1)
     assert np.array_equal(more.nodes[:len(m.nodes)], m.nodes)   # nothing solved twice
     assert len(more.nodes) >= len(m.nodes)
 
