@@ -352,6 +352,7 @@ class _BemPool:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
+            # spawn (OpenMP forbids fork): a script that builds a map with workers needs `if __name__ == "__main__":`
             self._pool = ProcessPoolExecutor(self.workers, mp.get_context("spawn"), _worker_init, self.args)
         else:
             _worker_init(*self.args)
