@@ -71,6 +71,9 @@ def parse_depths(text: str):
               help="Largest estimated relative error at which the build stops.")
 @click.option("--max-minutes", type=finite_float(positive=True), default=4.5, show_default=True,
               help="Wall-clock budget; the map is saved as it stands, with its estimated error.")
+@click.option("--max-cpu-minutes", type=finite_float(positive=True), default=None,
+              help="CPU budget, every process counted (default: workers x --max-minutes): on a busy machine the "
+                   "same command then builds the same map.")
 @click.option("--workers", type=click.IntRange(1, 64), default=2, show_default=True,
               help="Processes solving the BEM.")
 @click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None,
@@ -80,7 +83,7 @@ def parse_depths(text: str):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The map file (.npz); an existing map of the same scene is resumed.")
 def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m, spacing_m, n_headings, target,
-          target_max, max_minutes, workers, edge_length_m, tank_edge_length_m, output):
+          target_max, max_minutes, max_cpu_minutes, workers, edge_length_m, tank_edge_length_m, output):
     """Build (or resume) a tank map: the BEM at the poses of largest estimated error until the target."""
     from dataclasses import replace
 
@@ -116,6 +119,7 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
         m = build_tank_map(sensor, tank, z_m, path=output, objects=objects, target=target, target_max=target_max,
                            wall_gap_m=wall_gap_m, spacing_m=spacing_m, n_headings=n_headings,
                            max_seconds=60.0 * max_minutes, bem_options=options, sigma_S_per_m=sigma, workers=workers,
+                           max_cpu_seconds=None if max_cpu_minutes is None else 60.0 * max_cpu_minutes,
                            progress=click.echo)
     except ValueError as exc:
         raise click.ClickException(str(exc)) from None

@@ -88,8 +88,8 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     for t in range(P):
         w = 1.0 / (noise_rel * np.abs(currents[t]))
         res = model(q[None])
-        if res is None:
-            break
+        if res is None:   # the last estimate is outside what the model covers: no estimate for this sample
+            continue
         I, J = res[0][0], res[1][0]
         r = w * (I - currents[t])
         cost = float(r @ r)

@@ -467,9 +467,11 @@ class EvaluatorCache:
     of that scene.
     """
 
-    def __init__(self, psm_model=None, **bem_options):
-        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
+    def __init__(self, psm_model=None, tank_map=None, **bem_options):
+        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached);
+        ``tank_map``: the tank map (object or file) that model ``"map"`` evaluates."""
         self.psm_model = psm_model
+        self.tank_map = tank_map
         self.bem_options = bem_options
         self._evaluators = {}
 
@@ -487,5 +489,7 @@ class EvaluatorCache:
                 if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
                     psm = psm.get(sensor.name)
                 options = {k: v for k, v in options.items() if k == "edge_length_m"}
+            if model == "map":
+                options = {"tank_map": self.tank_map}
             self._evaluators[key] = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
         return self._evaluators[key]

@@ -334,19 +334,21 @@ def _worker_init(sensor, tank, objects, focus, options):
 
 
 def _worker_solve(poses):
-    t0 = time.process_time()
+    """K at ``poses``, this process's id and its CPU seconds so far (its set-up included)."""
     K = _WORKER["sweep"].conductance(poses).K_S
-    return K, time.process_time() - t0
+    return K, os.getpid(), time.process_time()
 
 
 class _BemPool:
     """The BEM at many poses on ``workers`` processes (each with its own PoseSweep on the same tank mesh, so a
-    pose's K does not depend on which worker solved it); CPU seconds of the workers are counted."""
+    pose's K does not depend on which worker solved it). ``cpu_s``: CPU seconds of the worker processes (with
+    one worker everything runs in this process, whose own CPU time counts it)."""
 
     def __init__(self, sensor, tank, objects, focus, options, workers: int):
         self.args = (sensor, tank, tuple(objects), focus, options)
         self.workers = max(1, int(workers))
-        self.cpu_s = 0.0
+        self._cpu = {}
+        self.solved = 0
         self._pool = None
         if self.workers > 1:
             import multiprocessing as mp
@@ -357,15 +359,19 @@ class _BemPool:
         else:
             _worker_init(*self.args)
 
+    @property
+    def cpu_s(self) -> float:
+        return float(sum(self._cpu.values()))
+
     def solve(self, poses: np.ndarray) -> np.ndarray:
+        self.solved += len(poses)
         if self._pool is None:
-            K, cpu = _worker_solve(poses)
-            self.cpu_s += cpu
-            return K
+            return _worker_solve(poses)[0]
         parts = [p for p in np.array_split(poses, self.workers) if len(p)]
         out = list(self._pool.map(_worker_solve, parts))
-        self.cpu_s += sum(c for _, c in out)
-        return np.concatenate([K for K, _ in out])
+        for _, pid, cpu in out:
+            self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
+        return np.concatenate([K for K, _, _ in out])
 
     def close(self):
         if self._pool is not None:
@@ -375,14 +381,18 @@ class _BemPool:
 def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TARGET_RMS,
                    target_max: float = TARGET_MAX, wall_gap_m: float = 0.005, spacing_m: float = 0.01,
                    n_headings: int = 48, n_depths: int = 5, first: int = 60, per_round: int = 24,
-                   max_seconds: float = 270.0, bem_options: dict | None = None, sigma_S_per_m: float | None = None,
-                   workers: int = 2, warp_m: float = DEFAULT_WARP_M, progress=None) -> TankMap:
+                   max_seconds: float = 270.0, max_cpu_seconds: float | None = None, bem_options: dict | None = None,
+                   sigma_S_per_m: float | None = None, workers: int = 2, warp_m: float = DEFAULT_WARP_M,
+                   progress=None) -> TankMap:
     """Build (or resume, from ``path``) the map of ``sensor`` in ``tank`` at depth ``z_m`` (module doc).
 
     ``z_m``: a depth (m, tank frame) or ``(z_min, z_max)`` for a band (``n_depths`` candidate depths);
     ``target`` / ``target_max``: the RMS and largest estimated relative error of a receiver current over the
-    candidates at which the build stops; ``max_seconds``: wall-clock budget (the map is then saved as it
-    stands, its estimated error with it); ``workers``: processes solving the BEM.
+    candidates at which the build stops; ``max_cpu_seconds``: CPU budget of the whole build, every process
+    counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
+    same BEM poses and gives the same map); ``max_seconds``: wall-clock budget; at either the map is saved as it
+    stands, its estimated error with it (a round is not started that the CPU budget cannot pay for);
+    ``workers``: processes solving the BEM.
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import default_bem_options
@@ -390,6 +400,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
 
     say = progress or (lambda s: None)
     t0, c0 = time.perf_counter(), time.process_time()
+    max_cpu_seconds = workers * max_seconds if max_cpu_seconds is None else max_cpu_seconds
     objects = tuple(objects)
     options = default_bem_options(sensor, bem_options)
     code = code_version()
@@ -456,8 +467,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 f"(target {100 * target:.4f} % / {100 * target_max:.4f} %), {wall:.0f} s")
             if rms <= target and err.max() <= target_max:
                 break
-            if time.perf_counter() - t0 > max_seconds:
-                say(f"time budget of {max_seconds:.0f} s spent: the map is saved with its estimated error")
+            per_pose = (cpu - prior_cpu) / max(pool.solved, 1)   # set-up included: an upper estimate
+            if time.perf_counter() - t0 > max_seconds or cpu + per_round * per_pose > max_cpu_seconds:
+                say(f"time budget spent ({wall:.0f} s of {max_seconds:.0f} s wall, {cpu:.0f} s of "
+                    f"{max_cpu_seconds:.0f} s CPU): the map is saved with its estimated error")
                 break
             worst = np.argsort(err)[::-1][: 20 * per_round]
             solve(worst[_farthest_points(F[worst], per_round, m._X)])
