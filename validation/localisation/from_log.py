@@ -42,15 +42,18 @@ def model_summary(name, model, currents, poses, noise_rel) -> tuple[dict, np.nda
     if at is not None:
         C = cramer_rao(at[1], currents, noise_rel)
         crb = {"crb_position_rms_m": float(np.sqrt(np.mean(C[:, 0, 0] + C[:, 1, 1]))),
+               "crb_position_median_m": float(np.median(np.sqrt(C[:, 0, 0] + C[:, 1, 1]))),
                "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
                "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1])}
     rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")  # noqa: E731
     out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()),
            "converged": int(t.converged.sum()), "position_rms_m": rms(d_pos),
            "position_max_m": float(d_pos.max()) if len(d_pos) else float("nan"),
+           "position_median_m": float(np.median(d_pos)) if len(d_pos) else float("nan"),
            "heading_rms_rad": rms(d_yaw), "seconds": seconds,
            "crb_position_rms_m": None if crb is None else crb["crb_position_rms_m"],
            "crb_heading_rms_rad": None if crb is None else crb["crb_heading_rms_rad"],
+           "crb_position_median_m": None if crb is None else crb["crb_position_median_m"],
            "position_error_over_crb": None if crb is None else rms(d_pos) / crb["crb_position_rms_m"]}
     if crb is None:
         out["note"] = f"the {name} does not cover every logged pose: no bound"

@@ -187,6 +187,9 @@ def main(argv=None):
     ap.add_argument("--cylinder", action="store_true", help="a cylindrical tank (no localisation: box bench only)")
     ap.add_argument("--band", type=float, default=0.0, help="a band of depths of this height (m) around z")
     ap.add_argument("--skip-localisation", action="store_true")
+    ap.add_argument("--sensor", default=None, help="a preset or sensor file instead of a random sensor")
+    ap.add_argument("--tank", default=None, help="LX,LY,LZ (m, full) instead of a random box tank")
+    ap.add_argument("--z", type=float, default=None, help="the depth instead of a random one")
     ap.add_argument("-o", "--out", default=None)
     args = ap.parse_args(argv)
     folder = Path(args.out or tempfile.mkdtemp(prefix="tank-map-study-"))
@@ -196,6 +199,15 @@ def main(argv=None):
 
     rng = np.random.default_rng(args.seed)
     sensor, tank, z = random_scene(rng, args.cylinder)
+    if args.sensor:
+        from electrosense.meshes.sensor import load_sensor
+
+        sensor = load_sensor(args.sensor)
+    if args.tank:
+        from electrosense.meshes.tank import Tank
+
+        tank = Tank(tuple(float(v) for v in args.tank.split(",")))
+    z = z if args.z is None else args.z
     band = (z - args.band / 2, z + args.band / 2) if args.band else None
     print(f"sensor: {sensor.n_electrodes} electrodes, length {sensor.length_m:.3f} m, radius {sensor.radius_m:.4f} m, "
           f"emitter {sensor.emitter}; tank {tank}; z = {band or z} m; folder {folder}")
