@@ -57,8 +57,50 @@ def heading_error(a, b) -> np.ndarray:
     return (np.asarray(a) - np.asarray(b) + np.pi) % (2 * np.pi) - np.pi
 
 
+def _refine(model, q, target, w, max_iter, max_step, tol):
+    """Levenberg-Marquardt from ``q`` on the whitened residual w (I(q) - target); (q, cost, converged, iterations)
+    or None where the model does not cover ``q``."""
+    res = model(q[None])
+    if res is None:
+        return None
+    I, J = res[0][0], res[1][0]
+    r = w * (I - target)
+    cost = float(r @ r)
+    lam = 1e-3
+    converged, it = False, 0
+    while it < max_iter:
+        it += 1
+        A = w[:, None] * J
+        H, g = A.T @ A, A.T @ r
+        D = np.diag(np.maximum(np.diag(H), 1e-30))
+        accepted = False
+        step = np.zeros(3)
+        for _ in range(12):
+            try:
+                step = -np.linalg.solve(H + lam * D, g)
+            except np.linalg.LinAlgError:
+                lam *= 10
+                continue
+            step *= min(1.0, float(np.min(max_step / np.maximum(np.abs(step), 1e-300))))
+            res = model((q + step)[None])
+            if res is not None:
+                r_new = w * (res[0][0] - target)
+                c_new = float(r_new @ r_new)
+                if c_new <= cost:
+                    q, I, J, r, cost = q + step, res[0][0], res[1][0], r_new, c_new
+                    lam = max(lam / 10, 1e-9)
+                    accepted = True
+                    break
+            lam *= 10
+        converged = float(step @ H @ step) < tol**2
+        if not accepted or converged:
+            break
+    return q, cost, converged, it
+
+
 def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter: int = 30,
-          max_step=(0.01, 0.01, 0.1), tol: float = 1e-6) -> Track:
+          max_step=(0.01, 0.01, 0.1), tol: float = 1e-6, seeds=None, seed_currents=None, n_seeds: int = 8,
+          jump_chi2: float = 25.0) -> Track:
     """(x, y, heading) of each sample from its receiver currents (module doc).
 
     Parameters
@@ -76,6 +118,13 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     tol : float
         Converged when a step is this small in units of its own uncertainty (step^T H step < tol^2, H the
         Fisher information): far below what the noise lets the currents tell.
+    seeds, seed_currents : (G, 3), (G, m), optional
+        A coarse grid of poses over the whole tank and the model's currents there: each sample is also refined
+        from the ``n_seeds`` grid poses that fit its currents best, so that a track lost where the currents say
+        little (along a wall, mid-tank) is found again where they say more. The track leaves the minimum it
+        follows only for one that fits the currents better by ``jump_chi2`` (5 sigma by default: a model's own
+        error and a tank's mirror images, which give the same currents, do not make it jump); among those, the
+        nearest.
     """
     currents = np.asarray(currents, float)
     P = len(currents)
@@ -87,40 +136,22 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     max_step = np.asarray(max_step, float)
     for t in range(P):
         w = 1.0 / (noise_rel * np.abs(currents[t]))
-        res = model(q[None])
-        if res is None:   # the last estimate is outside what the model covers: no estimate for this sample
+        starts = [q]
+        if seeds is not None and len(seeds):
+            c = np.sum((w * (np.asarray(seed_currents) - currents[t])) ** 2, axis=1)
+            starts += list(np.asarray(seeds)[np.argsort(c)[:n_seeds]])
+        found = [_refine(model, s0.copy(), currents[t], w, max_iter, max_step, tol) for s0 in starts]
+        tracked = found[0]
+        found = [f for f in found if f is not None]
+        if not found:   # nothing the model covers: no estimate for this sample
             continue
-        I, J = res[0][0], res[1][0]
-        r = w * (I - currents[t])
-        cost = float(r @ r)
-        lam = 1e-3
-        for it in range(max_iter):
-            A = (w[:, None] * J)
-            H, g = A.T @ A, A.T @ r
-            D = np.diag(np.maximum(np.diag(H), 1e-30))
-            accepted = False
-            for _ in range(12):
-                try:
-                    step = -np.linalg.solve(H + lam * D, g)
-                except np.linalg.LinAlgError:
-                    lam *= 10
-                    continue
-                step *= min(1.0, float(np.min(max_step / np.maximum(np.abs(step), 1e-300))))
-                res = model((q + step)[None])
-                if res is not None:
-                    r_new = w * (res[0][0] - currents[t])
-                    c_new = float(r_new @ r_new)
-                    if c_new <= cost:
-                        q, I, J, r, cost = q + step, res[0][0], res[1][0], r_new, c_new
-                        lam = max(lam / 10, 1e-9)
-                        accepted = True
-                        break
-                lam *= 10
-            iterations[t] = it + 1
-            small = float(step @ H @ step) < tol**2
-            if not accepted or small:
-                converged[t] = small
-                break
+        best = min(f[1] for f in found)
+        pick = tracked
+        if tracked is None or best < tracked[1] - jump_chi2:
+            better = [f for f in found if f[1] <= best + jump_chi2]
+            d = [np.hypot(*(f[0][:2] - q[:2])) + 0.05 * abs(heading_error(f[0][2], q[2])) for f in better]
+            pick = better[int(np.argmin(d))]
+        q, cost, converged[t], iterations[t] = pick
         out[t], chi2[t] = q, cost
     return Track(out, converged, iterations, chi2)
 

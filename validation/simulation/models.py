@@ -392,10 +392,10 @@ def pose_evaluator(
             raise ModelError("the model 'map' needs a map file (tank_map=..., `--map FILE`)")
         tank_map = bem_options["tank_map"]
         tank_map = load_tank_map(tank_map) if isinstance(tank_map, (str, os.PathLike)) else tank_map
-        from electrosense.validation.simulation.tank_map import scene_record
+        from electrosense.validation.simulation.tank_map import same_scene, scene_record
 
-        if tank_map.sensor.to_dict() != sensor.to_dict() or tank is None or \
-                scene_record(tank_map.tank, tank_map.objects) != scene_record(tank, tuple(objects)):
+        if tank_map.sensor.to_dict() != sensor.to_dict() or \
+                not same_scene(tank_map.tank, tank_map.objects, tank, tuple(objects)):
             raise ModelError(f"the map is of {tank_map.sensor.name} in {scene_record(tank_map.tank)['tank']} with "
                              f"{len(tank_map.objects)} fixed object(s); the run asks for {sensor.name} in "
                              f"{None if tank is None else scene_record(tank)['tank']} with {len(tuple(objects))}")

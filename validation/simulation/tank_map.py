@@ -48,7 +48,7 @@ import numpy as np
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
-           "MAP_FORMAT", "scene_record", "scene_from_record"]
+           "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 2"
 
@@ -124,6 +124,30 @@ def scene_record(tank, objects=()) -> dict:
         d["conductivity_S_per_m"] = repr(float(o.conductivity_S_per_m))   # inf survives JSON as text
         objs.append({"shape": type(o).__name__.lower(), **d})
     return {"tank": t, "objects": objs}
+
+
+def same_scene(tank, objects, other_tank, other_objects, tol_m: float = 1e-5) -> bool:
+    """Whether two scenes are one, lengths compared to ``tol_m`` (a log's meta line keeps six digits).
+
+    >>> from electrosense.meshes.tank import Tank
+    >>> same_scene(Tank((0.6686797, 0.4, 0.3)), (), Tank((0.66868, 0.4, 0.3)), ())
+    True
+    """
+    if tank is None or other_tank is None:
+        return tank is other_tank
+    return _close(scene_record(tank, objects), scene_record(other_tank, other_objects), tol_m)
+
+
+def _close(a, b, tol: float) -> bool:
+    """Equal records, numbers to ``tol``."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_close(a[k], b[k], tol) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_close(u, v, tol) for u, v in zip(a, b))
+    numbers = (int, float)
+    if isinstance(a, numbers) and isinstance(b, numbers) and not isinstance(a, bool) and not isinstance(b, bool):
+        return abs(a - b) <= tol
+    return a == b
 
 
 def scene_from_record(record: dict):
@@ -429,8 +453,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             old = load_tank_map(path)
         except ValueError as exc:
             raise ValueError(f"{exc}; remove it or choose another output file") from None
-        same = (old.sensor.to_dict() == sensor.to_dict() and scene_record(old.tank, old.objects) ==
-                scene_record(tank, objects) and old.z_m == z_m and old.code == code and old.warp_m == warp_m
+        same = (old.sensor.to_dict() == sensor.to_dict() and same_scene(old.tank, old.objects, tank, objects, 1e-12)
+                and old.z_m == z_m and old.code == code and old.warp_m == warp_m
                 and old.bem_options == {k: v for k, v in options.items() if isinstance(v, (int, float, str))})
         if not same:
             raise ValueError(f"{path} holds a map of another scene, depth, BEM or code version; remove it or "
