@@ -26,19 +26,13 @@ from electrosense.validation.localisation.track import cramer_rao, heading_error
 
 __all__ = ["localise_log", "localise_observations", "model_summary"]
 
-#: the grid of poses each sample is also started from (m, headings per turn)
-SEED_SPACING_M = 0.025
-SEED_HEADINGS = 16
 
-
-def model_summary(name, model, currents, poses, noise_rel, seeds=None) -> tuple[dict, np.ndarray]:
-    """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose (and from the best of the
-    ``seeds`` = (grid poses (G, 3), the model's currents there), :func:`track`); errors against ``poses`` (P, 4)
-    and the Cramer-Rao bound at them; (summary, estimated (P, 3))."""
+def model_summary(name, model, currents, poses, noise_rel) -> tuple[dict, np.ndarray]:
+    """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose (:func:`track`); errors
+    against ``poses`` (P, 4) and the Cramer-Rao bound at them; (summary, estimated (P, 3))."""
     t0 = time.perf_counter()
     q_true = poses[:, [0, 1, 3]]
-    t = track(model, currents, q_true[0], noise_rel, seeds=None if seeds is None else seeds[0],
-              seed_currents=None if seeds is None else seeds[1])
+    t = track(model, currents, q_true[0], noise_rel)
     seconds = time.perf_counter() - t0
     ok = np.isfinite(t.poses[:, 0])
     d_pos = np.linalg.norm(t.poses[ok, :2] - q_true[ok, :2], axis=1)
@@ -99,19 +93,9 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     psm = calibrated_psm(obs.sensor) if psm is None else psm
     models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}}
-    # a coarse grid over the map's poses, to find a lost track again (each model's currents there, once)
-    from electrosense.validation.diagnosis.anchored import psm_usable
-    from electrosense.validation.simulation.tank_map import reachable_poses
-
-    grid = reachable_poses(tank_map.sensor, tank_map.tank, z_m, tank_map.wall_gap_m, SEED_SPACING_M, SEED_HEADINGS,
-                           tank_map.objects)
-    usable = {"map": np.ones(len(grid), bool), "psm": psm_usable(psm, grid, obs.tank)}
     for name, model in models.items():
         say(f"tracking with the {name}")
-        q = grid[usable[name]][:, [0, 1, 3]]
-        at = model(q) if len(q) else None
-        seeds = None if at is None else (q, at[0])
-        summary, est = model_summary(name, model, currents, obs.poses, noise_rel, seeds)
+        summary, est = model_summary(name, model, currents, obs.poses, noise_rel)
         result[name] = summary
         result["tracks"][name] = est
     return result
@@ -132,10 +116,8 @@ def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, prog
                "map": {k: v for k, v in res["map"].items() if not k.startswith("_")},
                "psm": {k: v for k, v in res["psm"].items() if not k.startswith("_")},
                "method": "per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the measured "
-                         "noise), each sample started from the previous estimate (the first from the logged first "
-                         "pose) and from the three poses of a coarse grid that fit its currents best; of equally "
-                         "good minima the one nearest the previous estimate; Cramer-Rao bound (J^T S^-1 J)^-1 of "
-                         "each model at the logged poses",
+                         "noise), each sample started from the previous estimate, the first from the logged first "
+                         "pose; Cramer-Rao bound (J^T S^-1 J)^-1 of each model at the logged poses",
                "map_estimated_error_rms": float(np.sqrt(np.mean(tank_map.estimated_error(obs.poses) ** 2)))}
     (outdir / "localise.json").write_text(json.dumps(summary, indent=2))
     np.savez(outdir / "localise_tracks.npz", logged=obs.poses, map=res["tracks"]["map"], psm=res["tracks"]["psm"])

@@ -99,8 +99,7 @@ def _refine(model, q, target, w, max_iter, max_step, tol):
 
 
 def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter: int = 30,
-          max_step=(0.01, 0.01, 0.1), tol: float = 1e-6, seeds=None, seed_currents=None, n_seeds: int = 8,
-          jump_chi2: float = 25.0) -> Track:
+          max_step=(0.01, 0.01, 0.1), tol: float = 1e-6) -> Track:
     """(x, y, heading) of each sample from its receiver currents (module doc).
 
     Parameters
@@ -118,13 +117,6 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     tol : float
         Converged when a step is this small in units of its own uncertainty (step^T H step < tol^2, H the
         Fisher information): far below what the noise lets the currents tell.
-    seeds, seed_currents : (G, 3), (G, m), optional
-        A coarse grid of poses over the whole tank and the model's currents there: each sample is also refined
-        from the ``n_seeds`` grid poses that fit its currents best, so that a track lost where the currents say
-        little (along a wall, mid-tank) is found again where they say more. The track leaves the minimum it
-        follows only for one that fits the currents better by ``jump_chi2`` (5 sigma by default: a model's own
-        error and a tank's mirror images, which give the same currents, do not make it jump); among those, the
-        nearest.
     """
     currents = np.asarray(currents, float)
     P = len(currents)
@@ -136,23 +128,11 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     max_step = np.asarray(max_step, float)
     for t in range(P):
         w = 1.0 / (noise_rel * np.abs(currents[t]))
-        starts = [q]
-        if seeds is not None and len(seeds):
-            c = np.sum((w * (np.asarray(seed_currents) - currents[t])) ** 2, axis=1)
-            starts += list(np.asarray(seeds)[np.argsort(c)[:n_seeds]])
-        found = [_refine(model, s0.copy(), currents[t], w, max_iter, max_step, tol) for s0 in starts]
-        tracked = found[0]
-        found = [f for f in found if f is not None]
-        if not found:   # nothing the model covers: no estimate for this sample
+        found = _refine(model, q.copy(), currents[t], w, max_iter, max_step, tol)
+        if found is None:   # the last estimate is outside what the model covers: no estimate for this sample
             continue
-        best = min(f[1] for f in found)
-        pick = tracked
-        if tracked is None or best < tracked[1] - jump_chi2:
-            better = [f for f in found if f[1] <= best + jump_chi2]
-            d = [np.hypot(*(f[0][:2] - q[:2])) + 0.05 * abs(heading_error(f[0][2], q[2])) for f in better]
-            pick = better[int(np.argmin(d))]
-        q, cost, converged[t], iterations[t] = pick
-        out[t], chi2[t] = q, cost
+        q, chi2[t], converged[t], iterations[t] = found
+        out[t] = q
     return Track(out, converged, iterations, chi2)
 
 
