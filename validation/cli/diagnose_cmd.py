@@ -81,13 +81,13 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
                                                                            or split_poses)) else {}
     baseline = None
     if map_file:
+        from electrosense.validation.cli._parsing import map_option
         from electrosense.validation.diagnosis.map_baseline import map_baseline
-        from electrosense.validation.simulation.tank_map import load_tank_map
 
         if model != "anchored":
             raise click.BadParameter(f"--map is the baseline; it does not go with --model {model}", param_hint="--map")
         try:
-            baseline = map_baseline(obs, load_tank_map(map_file))
+            baseline = map_baseline(obs, map_option(map_file))
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--map") from None
         model = "map"

@@ -133,12 +133,9 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
 @click.argument("map_file", type=click.Path(exists=True, dir_okay=False))
 def info(map_file):
     """What a map holds: scene, sensor, depth, BEM poses, estimated error, code version."""
-    from electrosense.validation.simulation.tank_map import load_tank_map
+    from electrosense.validation.cli._parsing import map_option
 
-    try:
-        m = load_tank_map(map_file)
-    except ValueError as exc:
-        raise click.ClickException(str(exc)) from None
+    m = map_option(map_file, "MAP_FILE")
     meta = m.meta()
     last = m.history[-1] if m.history else {}
     click.echo(f"sensor {m.sensor.name} ({m.sensor.n_electrodes} electrodes), tank {meta['tank']}, "

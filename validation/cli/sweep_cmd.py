@@ -169,15 +169,12 @@ def _sweep(o):
     if (model == "map") != bool(o.map_file):
         raise click.BadParameter("--model map and --map FILE go together", param_hint="--map")
     if model == "map":
+        from electrosense.validation.cli._parsing import map_option
         from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
-        from electrosense.validation.simulation.tank_map import load_tank_map
 
         if o.sensor_spec or o.scene_file or o.tank_text:
             raise click.BadParameter("with --model map the sensor and the tank are the map's", param_hint="--map")
-        try:
-            tank_map = load_tank_map(o.map_file)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--map") from None
+        tank_map = map_option(o.map_file)
         sensor, tank, objects = tank_map.sensor, tank_map.tank, tank_map.objects
         sigma = o.sigma or tank_map.sigma_S_per_m or NOMINAL_SIGMA_S_PER_M
         o.z_m = tank_map.z_range_m[0] if o.z_m is None else o.z_m

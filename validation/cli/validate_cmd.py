@@ -158,12 +158,9 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
     if ("map" in model_names) != bool(map_file):
         raise click.BadParameter("model map and --map FILE go together", param_hint="--map")
     if map_file:
-        from electrosense.validation.simulation.tank_map import load_tank_map
+        from electrosense.validation.cli._parsing import map_option
 
-        try:
-            tank_map = load_tank_map(map_file)
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--map") from None
+        tank_map = map_option(map_file)
     try:
         read = [read_bench_log(p) for p in logs]
     except BenchLogError as exc:
