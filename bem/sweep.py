@@ -254,7 +254,12 @@ class PoseSweep:
                 self.focus_m = np.concatenate([sensor_axis_points_m(Scene(self.sensor, Pose.from_array(p), self.tank), 9)
                                                for p in poses])
             h = default_tank_edge_length_m(self.sensor) if self.tank_edge_length_m is None else self.tank_edge_length_m
-            tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading)
+            if hasattr(self.tank, "radius_m"):   # a cylindrical tank (meshes.cylinder_tank)
+                from electrosense.meshes.cylinder_tank_mesh import mesh_cylinder_tank
+
+                tank_mesh = mesh_cylinder_tank(self.tank, (), h, self.focus_m, grading=self.tank_grading)
+            else:
+                tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading)
         object_meshes = tuple(mesh_object(o, None, region_name=f"object_{i}") for i, o in enumerate(self.objects, 1))
         if tank_mesh is None and not object_meshes:
             self.env_tris = None

@@ -27,6 +27,7 @@ _COMMANDS = {
     "demo_cmd": "demo",
     "study_cmd": "study",
     "map_cmd": "map_group",
+    "localise_cmd": "localise",
 }
 
 

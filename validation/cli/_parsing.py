@@ -134,6 +134,17 @@ def sensor_option(spec: str, option: str = "--sensor"):
         raise click.BadParameter(str(exc), param_hint=option) from None
 
 
+def map_option(path, option: str = "--map"):
+    """The tank map in ``path`` (:func:`electrosense.validation.simulation.tank_map.load_tank_map`), refused naming
+    the option."""
+    from electrosense.validation.simulation.tank_map import load_tank_map
+
+    try:
+        return load_tank_map(path)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint=option) from None
+
+
 def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unbounded=False, depth_m=None,
                        pose_text=None, sigma=None, edge_length_m=None, default_tank=None, **_ignored):
     """The one reader of the shared scene options: ``(Scene, sigma_S_per_m, scene-file settings)``.

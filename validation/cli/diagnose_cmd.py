@@ -37,8 +37,11 @@ from electrosense.validation.diagnosis.effects import EFFECT_NAMES
               help="Relative error of the effect model on what the tank does; samples where the tank matters most "
                    "(close to the walls) are weighted down accordingly (0: equal weights).")
 @click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")
+@click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Tank map of the logs' sensor, tank and depth (esense map build): the baseline is the map at the "
+                   "logged poses, with its estimated error; no new BEM.")
 def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, bem_correction_poses, max_effects,
-             model_error, no_figures):
+             model_error, no_figures, map_file):
     """Diagnose the gap between bench LOG(s) and the simulation.
 
     Fits every candidate effect (conductivity, temperature_drift,
@@ -76,11 +79,23 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
         raise click.ClickException(str(exc)) from None
     base_options = {"edge_length_m": edge_length_m} if (edge_length_m and (model != "psm" or bem_correction_poses
                                                                            or split_poses)) else {}
+    baseline = None
+    if map_file:
+        from electrosense.validation.cli._parsing import map_option
+        from electrosense.validation.diagnosis.map_baseline import map_baseline
+
+        if model != "anchored":
+            raise click.BadParameter(f"--map is the baseline; it does not go with --model {model}", param_hint="--map")
+        try:
+            baseline = map_baseline(obs, map_option(map_file))
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--map") from None
+        model = "map"
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
                       rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
                       model_error=model_error, bem_correction_poses=bem_correction_poses,
-                      progress=lambda s: click.echo(f"  {s}"))
+                      progress=lambda s: click.echo(f"  {s}"), baseline=baseline)
     page = write_report(d, outdir, figures=not no_figures)
     base = d.model_error.get("baseline_rms")
     click.echo(f"noise {100 * d.noise:.3f} %, baseline error "

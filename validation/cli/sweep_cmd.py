@@ -169,15 +169,15 @@ def _sweep(o):
     if (model == "map") != bool(o.map_file):
         raise click.BadParameter("--model map and --map FILE go together", param_hint="--map")
     if model == "map":
+        from electrosense.validation.cli._parsing import map_option
         from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
-        from electrosense.validation.simulation.tank_map import load_tank_map
 
         if o.sensor_spec or o.scene_file or o.tank_text:
             raise click.BadParameter("with --model map the sensor and the tank are the map's", param_hint="--map")
-        tank_map = load_tank_map(o.map_file)
-        sensor, tank, objects = tank_map.sensor, tank_map.tank, ()
+        tank_map = map_option(o.map_file)
+        sensor, tank, objects = tank_map.sensor, tank_map.tank, tank_map.objects
         sigma = o.sigma or tank_map.sigma_S_per_m or NOMINAL_SIGMA_S_PER_M
-        o.z_m = tank_map.z_m if o.z_m is None else o.z_m
+        o.z_m = tank_map.z_range_m[0] if o.z_m is None else o.z_m
     else:
         scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
                                              default_tank=Tank(NOMINAL_TANK_M))
@@ -221,7 +221,7 @@ def _sweep(o):
         "model": model,
         "sensor_name": sensor.name,
         "sensor": sensor.to_dict(),
-        "tank_m": None if tank is None else list(tank.size_m),
+        "tank_m": None if tank is None else _tank_extent_m(tank),
         "water_depth_m": None if tank is None else tank.water_depth_m,
         "objects": _objects_description(objects),
         "sigma_S_per_m": float(sigma),
@@ -248,7 +248,8 @@ def _sweep(o):
         n_left = sum(b - a for a, b in pending)
         if n_left < len(poses):
             click.echo(f"resuming {store_path}: {len(poses) - n_left} of {len(poses)} poses already computed")
-        click.echo(f"{model.upper()}: {sensor.name}, {'unbounded water' if tank is None else f'tank {tank.size_m} m'}, "
+        where = 'unbounded water' if tank is None else f'tank {_tank_extent_m(tank)} m'
+        click.echo(f"{model.upper()}: {sensor.name}, {where}, "
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
         result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
         C = result.conductance
@@ -266,7 +267,7 @@ def _sweep(o):
         meta = {
             "sensor": _sensor_spec_for_log(sensor, out),
             "emitter": sensor.emitter,
-            "tank_m": None if tank is None else list(tank.size_m),
+            "tank_m": None if tank is None else _tank_extent_m(tank),
             "sigma_S_per_m": float(sigma),
             "voltage_V": 1.0,
             "source": source,
@@ -292,3 +293,8 @@ def _sweep(o):
     if final is not None:
         remove_store(store_path)
     click.echo(f"wrote {out}")
+
+
+def _tank_extent_m(tank) -> list:
+    """A box tank's size, or a cylindrical tank's bounding box (diameter, diameter, height), in m."""
+    return list(getattr(tank, "size_m", (2 * getattr(tank, "radius_m", 0.0),) * 2 + (getattr(tank, "height_m", 0.0),)))

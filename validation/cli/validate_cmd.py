@@ -29,10 +29,11 @@ def _parse_models(text: str) -> tuple[str, ...]:
 
 
 def validate_logs(logs, models, psm=None, conductivity_correction=False, objects=(), stride=1, near_wall_m=None,
-                  near_object_m=None, edge_length_m=None, show_progress=True, bar=None):
+                  near_object_m=None, edge_length_m=None, show_progress=True, bar=None, tank_map=None):
     """Validate already-read logs (BenchLog objects); return the list of LogValidation results.
 
     ``psm``: a PSM (object or JSON path) for every log, a dict sensor name -> PSM, or None (calibrated, cached).
+    ``tank_map``: the map (object or file) that model ``"map"`` evaluates (no BEM).
     Shared by ``esense validate`` and ``esense demo``.
     """
     from electrosense.validation.comparison import NEAR_OBJECT_M, NEAR_WALL_M
@@ -40,7 +41,7 @@ def validate_logs(logs, models, psm=None, conductivity_correction=False, objects
     from electrosense.validation.simulation.models import EvaluatorCache
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
-    evaluators = EvaluatorCache(psm_model=psm, **bem_options)
+    evaluators = EvaluatorCache(psm_model=psm, tank_map=tank_map, **bem_options)
     results = []
     for log in logs:
         if stride > 1:
@@ -58,7 +59,7 @@ def validate_logs(logs, models, psm=None, conductivity_correction=False, objects
 
 def run_validation(logs, models, outdir, psm=None, conductivity_correction=False, objects=(), stride=1,
                    near_wall_m=None, near_object_m=None, potential=True, potential_n=81, edge_length_m=None,
-                   title="electrosense validation", footer="", show_progress=True):
+                   title="electrosense validation", footer="", show_progress=True, tank_map=None):
     """Validate logs and write the report (metrics.json, PNGs, index.html) into ``outdir``; return (results, paths)."""
     from tqdm.auto import tqdm
 
@@ -66,7 +67,7 @@ def run_validation(logs, models, outdir, psm=None, conductivity_correction=False
 
     with tqdm(total=len(logs) * (len(models) + 1), desc="validate", unit="step", disable=not show_progress) as bar:
         results = validate_logs(logs, models, psm, conductivity_correction, objects, stride, near_wall_m,
-                                near_object_m, edge_length_m, show_progress, bar)
+                                near_object_m, edge_length_m, show_progress, bar, tank_map)
         bar.set_description("figures")
         paths = write_validation_report(results, outdir, title=title, footer=footer, potential=potential,
                                         potential_n=potential_n, edge_length_m=edge_length_m, progress=bar)
@@ -112,8 +113,12 @@ def print_summary(results, paths, echo=click.echo) -> None:
 
 @click.command("validate")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False, path_type=Path))
-@click.option("--models", default="bem,psm", show_default=True,
-              help="Models to compare with the bench, comma-separated (bem, psm).")
+@click.option("--models", default=None,
+              help="Models to compare with the bench, comma-separated (bem, psm, map); default bem,psm, or map,psm "
+                   "with --map.")
+@click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Tank map of the logs' sensor, tank and depth (esense map build): model 'map', the BEM without "
+                   "new BEM solves.")
 @click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="PSM model file (JSON from `esense calibrate`); default: calibrate on the free-space BEM (cached).")
 @click.option("--conductivity-correction", is_flag=True,
@@ -133,7 +138,7 @@ def print_summary(results, paths, echo=click.echo) -> None:
 @click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False, path_type=Path),
               help="Output folder: metrics.json, index.html and the PNG figures.")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
-def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_length, stride, near_wall,
+def validate(logs, models, map_file, psm_file, conductivity_correction, scene_file, edge_length, stride, near_wall,
              near_object, no_potential, outdir, quiet):
     """Compare BEM and PSM receiver currents with bench LOGS (bench-log CSV files); write a report to OUTDIR."""
     from electrosense.validation.cli.transfer_logs import (  # transfer logs: their own comparison
@@ -148,7 +153,14 @@ def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_l
     from electrosense.meshes.render import offscreen_backend
     from electrosense.validation.bench.log import BenchLogError, read_bench_log
 
-    model_names = _parse_models(models)
+    model_names = _parse_models(models or ("map,psm" if map_file else "bem,psm"))
+    tank_map = None
+    if ("map" in model_names) != bool(map_file):
+        raise click.BadParameter("model map and --map FILE go together", param_hint="--map")
+    if map_file:
+        from electrosense.validation.cli._parsing import map_option
+
+        tank_map = map_option(map_file)
     try:
         read = [read_bench_log(p) for p in logs]
     except BenchLogError as exc:
@@ -173,7 +185,7 @@ def validate(logs, models, psm_file, conductivity_correction, scene_file, edge_l
             read, model_names, outdir, psm=psm_file, conductivity_correction=conductivity_correction,
             objects=objects, stride=stride, near_wall_m=near_wall, near_object_m=near_object,
             potential=not no_potential and "bem" in model_names, edge_length_m=edge_length,
-            footer="esense " + " ".join(sys.argv[1:]), show_progress=not quiet)
+            footer="esense " + " ".join(sys.argv[1:]), show_progress=not quiet, tank_map=tank_map)
     except ValueError as exc:  # model errors, impossible scenes: say what and stop
         raise click.ClickException(str(exc)) from None
     print_summary(results, paths)

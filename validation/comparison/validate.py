@@ -32,7 +32,7 @@ from electrosense.validation.simulation.models import EvaluatorCache
 
 __all__ = ["LogValidation", "validate_log", "validation_summary_rows", "MODEL_ORDER"]
 
-MODEL_ORDER = ("bem", "psm")
+MODEL_ORDER = ("bem", "psm", "map")
 
 
 @dataclass
@@ -138,7 +138,8 @@ def validate_log(
     Parameters
     ----------
     log : validation.bench.log.BenchLog
-    models : sequence of {"bem", "psm"}
+    models : sequence of {"bem", "psm", "map"}
+        ``"map"``: a tank map, given to ``evaluators`` (:class:`EvaluatorCache` ``tank_map=``).
     psm_model : PolySphericalModel or path to its JSON, optional
         ``None``: a PSM calibrated on the sensor's free-space BEM (cached).
     conductivity_correction : bool

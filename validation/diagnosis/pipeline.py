@@ -210,6 +210,7 @@ def diagnose(
     bem_check_poses: int = 12,
     statistical: bool = True,
     progress=None,
+    baseline=None,
 ) -> Diagnosis:
     """Diagnose the gap between ``obs`` and ``model``.
 
@@ -259,6 +260,9 @@ def diagnose(
         the baseline's BEM poses, when it holds a geometric effect or a contact impedance
         (:mod:`electrosense.validation.diagnosis.bem_check`; 0: skip).
     progress : callable(str), optional
+    baseline : AnchoredBaseline, optional
+        A baseline computed elsewhere with its estimated error, used as the anchored one (a tank map's:
+        :func:`electrosense.validation.diagnosis.map_baseline.map_baseline`).
     """
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
@@ -266,6 +270,10 @@ def diagnose(
     names = parse_effects(effects) if isinstance(effects, (str, type(None))) else list(effects) + (["none"] if "none" not in effects else [])
     anchored = None
     effect_name = getattr(effect_model, "name", type(effect_model).__name__) if effect_model is not None else None
+    if baseline is not None:   # a tank map's (or any precomputed) baseline, with its estimated error
+        anchored, K_base, noise0 = baseline, baseline.K, _prior_noise(obs, psm_model)
+        notes.append(f"baseline: a tank map ({baseline.n_cached} BEM poses, no new BEM); estimated error "
+                     f"{100 * baseline.rms_error:.4f} % RMS at the logged poses")
     if K_base is None and model == "anchored":
         from electrosense.validation.diagnosis.anchored import anchored_baseline
 

@@ -392,10 +392,13 @@ def pose_evaluator(
             raise ModelError("the model 'map' needs a map file (tank_map=..., `--map FILE`)")
         tank_map = bem_options["tank_map"]
         tank_map = load_tank_map(tank_map) if isinstance(tank_map, (str, os.PathLike)) else tank_map
-        if tank_map.sensor.to_dict() != sensor.to_dict() or tank_map.tank != tank or tuple(objects):
-            raise ModelError(f"the map is of {tank_map.sensor.name} in a {tank_map.tank.size_m} m tank (depth "
-                             f"{tank_map.tank.water_depth_m} m) without objects; the run asks for {sensor.name} in "
-                             f"{None if tank is None else tank.size_m}")
+        from electrosense.validation.simulation.tank_map import same_scene, scene_record
+
+        if tank_map.sensor.to_dict() != sensor.to_dict() or \
+                not same_scene(tank_map.tank, tank_map.objects, tank, tuple(objects)):
+            raise ModelError(f"the map is of {tank_map.sensor.name} in {scene_record(tank_map.tank)['tank']} with "
+                             f"{len(tank_map.objects)} fixed object(s); the run asks for {sensor.name} in "
+                             f"{None if tank is None else scene_record(tank)['tank']} with {len(tuple(objects))}")
         return MapEvaluator(tank_map, float(sigma_S_per_m))
     raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
 
@@ -464,9 +467,11 @@ class EvaluatorCache:
     of that scene.
     """
 
-    def __init__(self, psm_model=None, **bem_options):
-        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached)."""
+    def __init__(self, psm_model=None, tank_map=None, **bem_options):
+        """``psm_model``: a PSM (object or JSON path), a dict sensor name -> PSM, or None (calibrated, cached);
+        ``tank_map``: the tank map (object or file) that model ``"map"`` evaluates."""
         self.psm_model = psm_model
+        self.tank_map = tank_map
         self.bem_options = bem_options
         self._evaluators = {}
 
@@ -484,5 +489,7 @@ class EvaluatorCache:
                 if isinstance(psm, dict):  # one PSM per sensor name; a sensor without one gets the cached calibration
                     psm = psm.get(sensor.name)
                 options = {k: v for k, v in options.items() if k == "edge_length_m"}
+            if model == "map":
+                options = {"tank_map": self.tank_map}
             self._evaluators[key] = pose_evaluator(model, sensor, tank, sigma_S_per_m, tuple(objects), psm, **options)
         return self._evaluators[key]

@@ -1,0 +1,128 @@
+"""``esense localise``'s work: a bench log's track from its currents, by a tank map and by the PSM, with their bounds.
+
+For each model: the track (:func:`~electrosense.validation.localisation.track.track`), its error against the
+logged poses (``position_rms_m``, ``heading_rms_rad``), and the Cramer-Rao bound of that model at the logged
+poses with the noise measured on the log (``crb_position_rms_m``, ``crb_heading_rms_rad``); written to
+``localise.json`` with a figure of the tracks against the logged one (``localise.png``).
+
+The noise is measured from the log itself: second differences of log |I| along each pass
+(:func:`electrosense.validation.comparison.metrics.noise_level`), which a smooth path leaves to the noise.
+
+Example
+-------
+>>> summary = localise_log("run.csv", "tank.map.npz", "out/")  # doctest: +SKIP
+>>> summary["map"]["position_rms_m"] < 1.5 * summary["map"]["crb_position_rms_m"]  # doctest: +SKIP
+True
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from electrosense.validation.localisation.track import cramer_rao, heading_error, map_currents, psm_currents, track
+
+__all__ = ["localise_log", "localise_observations", "model_summary"]
+
+
+def model_summary(name, model, currents, poses, noise_rel) -> tuple[dict, np.ndarray]:
+    """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose (:func:`track`); errors
+    against ``poses`` (P, 4) and the Cramer-Rao bound at them; (summary, estimated (P, 3))."""
+    t0 = time.perf_counter()
+    q_true = poses[:, [0, 1, 3]]
+    t = track(model, currents, q_true[0], noise_rel)
+    seconds = time.perf_counter() - t0
+    ok = np.isfinite(t.poses[:, 0])
+    d_pos = np.linalg.norm(t.poses[ok, :2] - q_true[ok, :2], axis=1)
+    d_yaw = heading_error(t.poses[ok, 2], q_true[ok, 2])
+    at = model(q_true)
+    crb = None
+    if at is not None:
+        C = cramer_rao(at[1], currents, noise_rel)
+        crb = {"crb_position_rms_m": float(np.sqrt(np.mean(C[:, 0, 0] + C[:, 1, 1]))),
+               "crb_position_median_m": float(np.median(np.sqrt(C[:, 0, 0] + C[:, 1, 1]))),
+               "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
+               "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1])}
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")  # noqa: E731
+    out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()),
+           "converged": int(t.converged.sum()), "position_rms_m": rms(d_pos),
+           "position_max_m": float(d_pos.max()) if len(d_pos) else float("nan"),
+           "position_median_m": float(np.median(d_pos)) if len(d_pos) else float("nan"),
+           "heading_rms_rad": rms(d_yaw), "seconds": seconds,
+           "crb_position_rms_m": None if crb is None else crb["crb_position_rms_m"],
+           "crb_heading_rms_rad": None if crb is None else crb["crb_heading_rms_rad"],
+           "crb_position_median_m": None if crb is None else crb["crb_position_median_m"],
+           "position_error_over_crb": None if crb is None else rms(d_pos) / crb["crb_position_rms_m"]}
+    if crb is None:
+        out["note"] = f"the {name} does not cover every logged pose: no bound"
+    if not ok.all():
+        out["note"] = (f"the {name} lost the track at sample {int(np.argmin(ok))} of {len(ok)} (a pose it does not "
+                       "cover)")
+    out["_crb_position_m"] = None if crb is None else crb["crb_position_m"]
+    return out, t.poses
+
+
+def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = None, progress=None) -> dict:
+    """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and the
+    PSM; a dict of summaries, estimated tracks and the noise used."""
+    from electrosense.validation.comparison.metrics import noise_level
+    from electrosense.validation.simulation.models import calibrated_psm
+    from electrosense.validation.simulation.tank_map import same_scene, scene_record
+
+    say = progress or (lambda s: None)
+    if tank_map.sensor.to_dict() != obs.sensor.to_dict():
+        raise ValueError(f"the map is of sensor {tank_map.sensor.name!r}, the log of {obs.sensor.name!r}: build a map "
+                         "of the log's sensor")
+    if not same_scene(tank_map.tank, tank_map.objects, obs.tank, tuple(obs.objects)):
+        raise ValueError(f"the map is of the tank {scene_record(tank_map.tank)['tank']}, the log's is "
+                         f"{None if obs.tank is None else scene_record(obs.tank)['tank']}")
+    if obs.n_receivers < 3:
+        raise ValueError(f"{obs.n_receivers} receiver current(s) per sample cannot fix (x, y, heading): localisation "
+                         "needs a sensor with at least 3 receivers")
+    z = np.unique(np.round(obs.poses[:, 2], 6))
+    if len(z) > 1:
+        raise ValueError(f"the log's poses lie at {len(z)} depths; localisation is in the plane of one depth")
+    z_m = float(obs.poses[0, 2])
+    currents = obs.currents_A / obs.U_V[:, None]
+    if noise_rel is None:
+        noise_rel = noise_level(np.log(np.abs(currents)), obs.pass_indices())
+    say(f"{obs.n_poses} samples, measured noise {100 * noise_rel:.4f} %")
+    models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
+    psm = calibrated_psm(obs.sensor) if psm is None else psm
+    models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
+    result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}}
+    for name, model in models.items():
+        say(f"tracking with the {name}")
+        summary, est = model_summary(name, model, currents, obs.poses, noise_rel)
+        result[name] = summary
+        result["tracks"][name] = est
+    return result
+
+
+def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, progress=None) -> dict:
+    """Read a bench log and a map, track, write ``localise.json`` (and ``localise.png``); the summary."""
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.diagnosis.observations import from_bench_logs
+    from electrosense.validation.simulation.tank_map import load_tank_map
+
+    obs = from_bench_logs([read_bench_log(log_path)])
+    tank_map = load_tank_map(map_path)
+    res = localise_observations(obs, tank_map, psm, progress=progress)
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    summary = {"log": Path(log_path).name, "map_file": Path(map_path).name, "noise_rel": res["noise_rel"],
+               "map": {k: v for k, v in res["map"].items() if not k.startswith("_")},
+               "psm": {k: v for k, v in res["psm"].items() if not k.startswith("_")},
+               "method": "per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the measured "
+                         "noise), each sample started from the previous estimate, the first from the logged first "
+                         "pose; Cramer-Rao bound (J^T S^-1 J)^-1 of each model at the logged poses",
+               "map_estimated_error_rms": float(np.sqrt(np.mean(tank_map.estimated_error(obs.poses) ** 2)))}
+    (outdir / "localise.json").write_text(json.dumps(summary, indent=2))
+    np.savez(outdir / "localise_tracks.npz", logged=obs.poses, map=res["tracks"]["map"], psm=res["tracks"]["psm"])
+    if figure:
+        from electrosense.validation.localisation.figure import track_figure
+
+        track_figure(obs, res, outdir / "localise.png")
+    return summary

@@ -1,0 +1,186 @@
+"""The coordinates a tank map interpolates in: poses folded by the tank's symmetry, cap centres warped near walls.
+
+Two facts make the BEM's K far easier to interpolate than it looks in (x, y, heading):
+
+1. **symmetry**: the sensor is a body of revolution, so a mirror plane of the
+   tank through its axis maps a pose onto one with the same K. A box tank
+   has two (x -> -x with heading -> pi - heading, y -> -y with heading ->
+   -heading), a square one a third (x <-> y); a cylindrical tank is invariant
+   under every rotation about its axis and one mirror, which leaves two
+   numbers per depth: the sensor's centre in the frame of its own axis,
+   (x', |y'|). Every pose is *folded* into the fundamental domain before it
+   is interpolated, which quarters (box) the space the BEM must cover, or
+   takes away a dimension (cylinder). Fixed objects break the symmetry: a
+   scene with objects is not folded.
+2. **the walls**: K changes fastest where a cap comes near a wall (tens of
+   percent between 5 mm and 2 cm). The features are the two end caps' centres,
+   each coordinate *warped* so that distance from the nearest wall counts
+   logarithmically below a scale ``warp_m``: u -> +-(c log(1 + h/c) -
+   c log(1 + s/c)) with s the distance from the nearer wall (caps' radius
+   taken off) and h half the span. Odd, smooth, with slope 1 / (1 + s/c).
+
+Folded and warped, a cubic RBF on 60 BEM poses of a 4-electrode sensor in a
+0.6 x 0.5 x 0.4 m box came 10x closer to the BEM at fresh poses (tips 5 mm to
+17 cm from a wall) than on the bare tip positions: 0.54 % RMS against 5.6 %.
+
+Example
+-------
+>>> import numpy as np
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.tank import Tank
+>>> frame = MapFrame(preset("angels-4"), Tank((1.0, 1.0, 1.0)))
+>>> P = np.array([[0.2, 0.1, 0.0, 0.3], [-0.2, 0.1, 0.0, np.pi - 0.3], [0.1, 0.2, 0.0, np.pi / 2 - 0.3]])
+>>> F = frame.features(P)
+>>> bool(np.allclose(F[0], F[1]) and np.allclose(F[0], F[2]))   # mirror images and the square's swap
+True
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["MapFrame", "warp", "DEFAULT_WARP_M"]
+
+#: the warp's length scale (m): below it, distance from a wall counts logarithmically (chosen on BEM data: the
+#: error at fresh poses was flat from 0.3 to 1 mm and grew above: 0.54, 0.66, 0.78 % RMS at 1, 3, 5 mm, 1.1 % at
+#: 10 mm, 4.0 % at 100 mm)
+DEFAULT_WARP_M = 0.001
+
+
+def warp(u: np.ndarray, lo, hi, c: float) -> tuple[np.ndarray, np.ndarray]:
+    """The warped coordinate of ``u`` in [lo, hi] and its derivative (module doc); 0 at the middle.
+
+    >>> w, dw = warp(np.array([0.0, 0.5, 0.999]), -1.0, 1.0, 0.01)
+    >>> w.round(4).tolist(), dw.round(4).tolist()
+    ([0.0, 0.0068, 0.0452], [0.0099, 0.0196, 0.9091])
+    """
+    u = np.asarray(u, float)
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    h = 0.5 * (hi - lo)
+    s_lo, s_hi = np.maximum(u - lo, 0.0), np.maximum(hi - u, 0.0)
+    top = c * np.log1p(h / c)
+    lower = u <= lo + h
+    w = np.where(lower, c * np.log1p(s_lo / c) - top, top - c * np.log1p(s_hi / c))
+    dw = 1.0 / (1.0 + np.where(lower, s_lo, s_hi) / c)
+    return w, dw
+
+
+@dataclass(frozen=True)
+class MapFrame:
+    """Folding and features of poses for one sensor in one tank (box or cylinder) with fixed ``objects``.
+
+    ``band``: the map covers a band of depths (z is then a feature, warped
+    towards the floor and the free surface); ``warp_m``: the warp's scale.
+    """
+
+    sensor: object
+    tank: object
+    objects: tuple = ()
+    band: bool = False
+    warp_m: float = DEFAULT_WARP_M
+
+    @property
+    def cylinder(self) -> bool:
+        return hasattr(self.tank, "radius_m")
+
+    @property
+    def symmetric(self) -> bool:
+        """Folded by the tank's mirror planes (not with fixed objects, which break them)."""
+        return not self.objects
+
+    @property
+    def n_features(self) -> int:
+        return 4 + int(self.band)
+
+    def _cap_offset_m(self) -> float:
+        return 0.5 * self.sensor.length_m - self.sensor.radius_m
+
+    def features(self, poses, jacobian: bool = False):
+        """(P, d) features of ``poses`` (P, 4); with ``jacobian`` also d features / d(x, y, yaw), (P, d, 3)."""
+        p = np.asarray(poses, float).reshape(-1, 4)
+        x, y, z, yaw = p.T
+        a, r = self._cap_offset_m(), self.sensor.radius_m
+        c = self.warp_m
+        P = len(p)
+        if self.cylinder:
+            if self.symmetric:   # the sensor's own frame: rotated by -yaw, mirrored to y' >= 0
+                cs, sn = np.cos(yaw), np.sin(yaw)
+                u, v = x * cs + y * sn, -x * sn + y * cs
+                sgn = np.where(v < 0, -1.0, 1.0)
+                v = sgn * v
+                # d(u, v)/d(x, y, yaw)
+                du = np.stack([cs, sn, v * sgn], axis=-1)
+                dv = sgn[:, None] * np.stack([-sn, cs, -u], axis=-1)
+                centres = [(u + a, v), (u - a, v)]
+                d_centres = [(du, dv), (du, dv)]
+            else:
+                cs, sn = np.cos(yaw), np.sin(yaw)
+                centres = [(x + a * cs, y + a * sn), (x - a * cs, y - a * sn)]
+                one, zero = np.ones(P), np.zeros(P)
+                d_centres = [(np.stack([one, zero, -a * sn], -1), np.stack([zero, one, a * cs], -1)),
+                             (np.stack([one, zero, a * sn], -1), np.stack([zero, one, -a * cs], -1))]
+            R = np.asarray(self.tank.radius_at(z), float) - r
+            R = np.broadcast_to(R, (P,))
+            cols, dcols = [], []
+            for (px, py), (dpx, dpy) in zip(centres, d_centres):
+                rho = np.hypot(px, py)
+                w, dw = warp(rho, -R, R, c)   # odd in rho: w(0) = 0
+                g = np.where(rho > 1e-12, w / np.maximum(rho, 1e-12), dw)   # scale factor w / rho
+                # d(g p)/dp = g I + p p^T (dw - g) / rho^2
+                k = np.where(rho > 1e-12, (dw - g) / np.maximum(rho, 1e-12) ** 2, 0.0)
+                cols += [g * px, g * py]
+                if jacobian:
+                    Jx = (g + k * px * px)[:, None] * dpx + (k * px * py)[:, None] * dpy
+                    Jy = (k * px * py)[:, None] * dpx + (g + k * py * py)[:, None] * dpy
+                    dcols += [Jx, Jy]
+        else:
+            lo, hi = self.tank.water_bounds_m
+            sx = sy = np.ones(P)
+            swap = np.zeros(P, bool)
+            if self.symmetric:
+                sx, sy = np.where(x < 0, -1.0, 1.0), np.where(y < 0, -1.0, 1.0)
+                x, y = sx * x, sy * y
+                yaw = np.where(sx < 0, np.pi - yaw, yaw)
+                yaw = np.where(sy < 0, -yaw, yaw)
+                if abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:
+                    swap = y > x
+                    x, y = np.where(swap, y, x), np.where(swap, x, y)
+                    yaw = np.where(swap, 0.5 * np.pi - yaw, yaw)
+            cs, sn = np.cos(yaw), np.sin(yaw)
+            cols, dcols = [], []
+            for sign in (1.0, -1.0):
+                wx, dwx = warp(x + sign * a * cs, lo[0] + r, hi[0] - r, c)
+                wy, dwy = warp(y + sign * a * sn, lo[1] + r, hi[1] - r, c)
+                cols += [wx, wy]
+                if jacobian:   # in the folded pose's coordinates (x, y, yaw)
+                    zero = np.zeros(P)
+                    dcols += [dwx[:, None] * np.stack([np.ones(P), zero, -sign * a * sn], -1),
+                              dwy[:, None] * np.stack([zero, np.ones(P), sign * a * cs], -1)]
+            if jacobian:   # back to the original pose: the fold is linear, d(folded)/d(pose) per pose
+                T = np.zeros((P, 3, 3))
+                T[:, 0, 0], T[:, 1, 1] = sx, sy
+                T[:, 2, 2] = np.where(sx * sy < 0, -1.0, 1.0)
+                S = np.tile(np.eye(3), (P, 1, 1))
+                S[swap] = np.array([[0.0, 1, 0], [1, 0, 0], [0, 0, -1]])
+                T = S @ T
+                dcols = [np.einsum("pk,pkj->pj", d, T) for d in dcols]
+        if self.band:
+            lo_z = self.tank.floor_z_m + r
+            hi_z = self.tank.free_surface_z_m - r
+            wz, _ = warp(z, lo_z, hi_z, c)
+            cols.append(wz)
+            dcols.append(np.zeros((P, 3)))
+        # one scale for every feature (distances keep their ratios): O(1) values keep the RBF well conditioned
+        scale = 1.0 / self.feature_scale_m
+        F = scale * np.stack(cols, axis=-1)
+        if not jacobian:
+            return F
+        return F, scale * np.stack(dcols, axis=1)
+
+    @property
+    def feature_scale_m(self) -> float:
+        """The warped half-span of the tank's widest dimension (features are divided by it)."""
+        lo, hi = self.tank.water_bounds_m
+        h = 0.5 * float(np.max(hi - lo))
+        return float(self.warp_m * np.log1p(h / self.warp_m))

@@ -1,0 +1,303 @@
+"""Tank map study: a map of a random unseen sensor in a random tank, against fresh BEM solves, timed, localising.
+
+Goals (issue 23), printed beside every figure:
+
+* the map within a third of the bench noise of the BEM at random poses it was not built on (0.017 % RMS,
+  0.05 % at most), sensor tips 5 mm to 20 cm from a wall, the BEM solved on another tank mesh (graded towards the
+  test poses);
+* built in under 5 minutes on 2 cores from an empty cache (wall and CPU time);
+* 10 000 poses/s or more with the pose Jacobian on one core, and through ``esense sweep --model map``;
+* on a virtual-bench log (BEM physics, 0.05 % noise) passing 2 cm from a wall: the map's position error within
+  1.5x its Cramer-Rao bound and under 1 mm RMS, the PSM's beside it.
+
+Also written: ``map_vs_psm.png``, the map's and the PSM's error against the BEM on a line from wall to wall
+(the README's figure), and ``localise.png``.
+
+Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [-o DIR]``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
+
+GOALS = {"rms": 1.7e-4, "max": 5e-4, "build_s": 300.0, "poses_per_s": 1e4, "loc_over_crb": 1.5, "loc_rms_m": 1e-3}
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and its finished children (the BEM workers)."""
+    a, b = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return a.ru_utime + a.ru_stime + b.ru_utime + b.ru_stime
+
+
+def _line(label, value, goal, fmt="{:.4g}", better="below"):
+    ok = value <= goal if better == "below" else value >= goal
+    print(f"  {label:<58s} {fmt.format(value):>12s}   goal {'<=' if better == 'below' else '>='} "
+          f"{fmt.format(goal):<10s} {'ok' if ok else 'MISSED'}")
+    return ok
+
+
+def random_scene(rng, cylinder: bool):
+    from electrosense.meshes.cylinder_tank import CylinderTank
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.diagnosis.unseen import random_sensor
+
+    sensor = random_sensor(rng, int(rng.integers(4, 6)), name="study-sensor")
+    if cylinder:
+        r, h = float(rng.uniform(0.3, 0.45)), float(rng.uniform(0.3, 0.5))
+        tank = CylinderTank(r, h, h * float(rng.uniform(0.75, 0.95)))
+    else:
+        lx, ly, lz = rng.uniform(0.5, 0.8), rng.uniform(0.4, 0.65), rng.uniform(0.3, 0.45)   # to the mm, as typed
+        tank = Tank((round(lx, 3), round(ly, 3), round(lz, 3)), round(lz * rng.uniform(0.75, 0.95), 3))
+    z_mid = 0.5 * (tank.floor_z_m + tank.free_surface_z_m)
+    z = z_mid + float(rng.uniform(-0.2, 0.2)) * (tank.free_surface_z_m - tank.floor_z_m)
+    return sensor, tank, round(z, 4)
+
+
+def test_poses(sensor, tank, z, rng, n, band=None):
+    """``n`` random poses with the tips 5 mm to 20 cm from the nearest wall (surface gap >= 5 mm)."""
+    from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
+
+    lo, hi = tank.water_bounds_m
+    out = []
+    while len(out) < n:
+        zz = z if band is None else rng.uniform(*band)
+        p = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), zz, rng.uniform(-np.pi, np.pi)])
+        g = sensor_wall_gap_m(sensor, tank, p[None])[0]
+        if 0.005 <= g <= 0.2:
+            out.append(p)
+    return np.array(out)
+
+
+def check_accuracy(m, sensor, tank, P, options):
+    """Receiver-current errors of the map against the BEM at ``P`` on a tank mesh graded towards ``P``."""
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.scene_mesh import trajectory_focus_m
+
+    sweep = PoseSweep(sensor, tank, (), 1.0, focus_m=trajectory_focus_m(sensor, P), **options)
+    K = sweep.conductance(P).K_S
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    err = m.conductance(P)[:, r, e] / K[:, r, e] - 1
+    return err, K
+
+
+def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
+    """The map's and the PSM's error against the BEM on a line from wall to wall (tips 5 mm from each), heading 0."""
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.scene_mesh import trajectory_focus_m
+    from electrosense.validation.diagnosis.anchored import psm_usable
+    from electrosense.validation.report.style import colour_of, new_figure, save
+    from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
+
+    lo, hi = tank.water_bounds_m
+    half = 0.5 * sensor.length_m
+    x = np.linspace(lo[0] + half + 0.005, hi[0] - half - 0.005, n)
+    y0 = 0.5 * (lo[1] + hi[1]) if not hasattr(tank, "radius_m") else 0.0
+    P = np.c_[x, np.full(n, y0), np.full(n, z), np.zeros(n)]
+    K = PoseSweep(sensor, tank, (), 1.0, focus_m=trajectory_focus_m(sensor, P), **m.bem_options).conductance(P).K_S
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    err_map = np.abs(m.conductance(P)[:, r, e] / K[:, r, e] - 1).max(axis=1)
+    psm = calibrated_psm(sensor)
+    ok = psm_usable(psm, P, tank)
+    err_psm = np.full(n, np.nan)
+    if ok.any():
+        Kp = pose_evaluator("psm", sensor, tank, 1.0, psm_model=psm).conductance(P[ok]).K_S
+        err_psm[ok] = np.abs(Kp[:, r, e] / K[ok][:, r, e] - 1).max(axis=1)
+    fig, axes = new_figure(1, 1, panel_size_in=(5.6, 3.4))
+    ax = axes[0, 0]
+    gap = np.minimum(x - half - lo[0], hi[0] - half - x) * 1e3
+    ax.semilogy(x, 100 * err_map, "o-", ms=3, color=colour_of("map", 0), label="tank map")
+    ax.semilogy(x, 100 * err_psm, "s-", ms=3, color=colour_of("psm", 1), label="PSM (complete images)")
+    ax.axhline(100 * GOALS["rms"], color="0.5", ls="--", lw=1, label="a third of the bench noise")
+    ax.axhline(0.05, color="0.3", ls=":", lw=1, label="bench noise")
+    ax.set_xlabel("x of the sensor centre (m); heading along x")
+    ax.set_ylabel("largest |model / BEM - 1| (%)")
+    ax.set_title(f"{sensor.n_electrodes}-electrode sensor, tips {gap.min():.0f} mm to "
+                 f"{gap.max():.0f} mm from the end walls")
+    ax.legend(fontsize=7)
+    save(fig, out, vector=None)
+    return {"x_m": x.tolist(), "map": err_map.tolist(), "psm": err_psm.tolist()}
+
+
+def sweep_speed(map_path: Path, tank, z, folder: Path):
+    """``esense sweep --model map`` over a 100 x 100 grid of poses: poses/s of the run and of the whole command."""
+    from click.testing import CliRunner
+
+    from electrosense.validation.cli import main
+
+    lo, hi = tank.water_bounds_m
+    pad = 0.15
+    grid = f"{lo[0] + pad:.4f}:{hi[0] - pad:.4f}:100,{lo[1] + pad:.4f}:{hi[1] - pad:.4f}:100"
+    out = folder / "sweep.zarr"
+    t0 = time.perf_counter()
+    res = CliRunner().invoke(main, ["sweep", "--model", "map", "--map", str(map_path), "--grid", grid, "--z", str(z),
+                                    "--workers", "1", "-o", str(out), "--quiet"])
+    wall = time.perf_counter() - t0
+    if res.exit_code != 0:
+        raise RuntimeError(res.output)
+    line = [s for s in res.output.splitlines() if s.startswith("computed")]
+    run_s = float(line[0].split(" in ")[1].split(" s")[0]) if line else wall
+    return 1e4 / run_s, 1e4 / wall
+
+
+def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int):
+    """A virtual-bench log (BEM physics, bench noise) along a wall at a 2 cm gap, heading along it."""
+    from click.testing import CliRunner
+
+    from electrosense.meshes.sensor import save_sensor
+    from electrosense.validation.cli import main
+
+    lo, hi = tank.water_bounds_m
+    y = hi[1] - sensor.radius_m - 0.02
+    if hasattr(tank, "radius_m"):   # a chord of the cylinder 2 cm from its wall
+        y = tank.radius_m - sensor.radius_m - 0.02 - 0.5 * sensor.length_m ** 2 / (4 * tank.radius_m)
+    xe = np.sqrt(max((hi[1] - 0.03) ** 2 - y ** 2, 0.0)) - 0.5 * sensor.length_m if hasattr(tank, "radius_m") \
+        else hi[0] - 0.5 * sensor.length_m - 0.03
+    save_sensor(sensor, folder / "sensor.json")   # named in the log's meta line relative to the log's folder
+    tank_text = (f"{tank.size_m[0]},{tank.size_m[1]},{tank.size_m[2]}" if not hasattr(tank, "radius_m") else None)
+    if tank_text is None:
+        raise NotImplementedError("the virtual bench has box tanks only")
+    args = ["bench-sim", "-o", "wall.csv", "--overwrite", "--sensor", "sensor.json",
+            "--tank", tank_text, "--depth", str(tank.water_depth_m), "--sigma", "0.0354",
+            "--path", f"line:{-xe},{y},{z},0:{xe},{y},{z},0:{n}", "--seed", str(seed)]
+    here = Path.cwd()
+    try:
+        os.chdir(folder)
+        res = CliRunner().invoke(main, args)
+    finally:
+        os.chdir(here)
+    if res.exit_code != 0:
+        raise RuntimeError(res.output[-2000:])
+    return folder / "wall.csv"
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--minutes", type=float, default=4.5, help="the build's wall-clock budget")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--test-poses", type=int, default=20)
+    ap.add_argument("--log-poses", type=int, default=31)
+    ap.add_argument("--cylinder", action="store_true", help="a cylindrical tank (no localisation: box bench only)")
+    ap.add_argument("--band", type=float, default=0.0, help="a band of depths of this height (m) around z")
+    ap.add_argument("--skip-localisation", action="store_true")
+    ap.add_argument("--sensor", default=None, help="a preset or sensor file instead of a random sensor")
+    ap.add_argument("--tank", default=None, help="LX,LY,LZ (m, full) instead of a random box tank")
+    ap.add_argument("--z", type=float, default=None, help="the depth instead of a random one")
+    ap.add_argument("-o", "--out", default=None)
+    args = ap.parse_args(argv)
+    folder = Path(args.out or tempfile.mkdtemp(prefix="tank-map-study-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    os.environ["ESENSE_CACHE_DIR"] = str(folder / "cache")   # an empty cache: everything from scratch
+    from electrosense.validation.simulation.tank_map import build_tank_map, load_tank_map
+
+    rng = np.random.default_rng(args.seed)
+    sensor, tank, z = random_scene(rng, args.cylinder)
+    if args.sensor:
+        from electrosense.meshes.sensor import load_sensor
+
+        sensor = load_sensor(args.sensor)
+    if args.tank:
+        from electrosense.meshes.tank import Tank
+
+        tank = Tank(tuple(float(v) for v in args.tank.split(",")))
+    z = z if args.z is None else args.z
+    band = (z - args.band / 2, z + args.band / 2) if args.band else None
+    print(f"sensor: {sensor.n_electrodes} electrodes, length {sensor.length_m:.3f} m, radius {sensor.radius_m:.4f} m, "
+          f"emitter {sensor.emitter}; tank {tank}; z = {band or z} m; folder {folder}")
+    results = {"sensor": sensor.to_dict(), "tank": repr(tank), "z_m": band or z}
+    # ---------------------------------------------------------------- build
+    path = folder / "study.map.npz"
+    w0, c0 = time.perf_counter(), _cpu_s()
+    # the budget in CPU seconds (workers x minutes): on a busy machine the same map, in more wall-clock time
+    m = build_tank_map(sensor, tank, band or z, path=path, max_seconds=6 * 60 * args.minutes,
+                       max_cpu_seconds=args.workers * 60 * args.minutes, workers=args.workers,
+                       progress=lambda s: print("  build:", s, flush=True))
+    build_wall, build_cpu = time.perf_counter() - w0, _cpu_s() - c0
+    t0 = time.perf_counter()
+    for _ in range(5):
+        m = load_tank_map(path)
+    load_ms = 1e3 * (time.perf_counter() - t0) / 5
+    est = m.history[-1]
+    results["build"] = {"wall_s": build_wall, "cpu_s": build_cpu, "bem_poses": len(m.nodes), "load_ms": load_ms,
+                        "estimated_rms": est["rms_error"], "estimated_max": est["max_error"]}
+    save = lambda: (folder / "study.json").write_text(json.dumps(results, indent=1, default=float))  # noqa: E731
+    save()
+    # ---------------------------------------------------------------- accuracy
+    print(f"BEM at {args.test_poses} random poses (tips 5 mm to 20 cm from a wall), on a tank mesh graded to them")
+    P = test_poses(sensor, tank, z, rng, args.test_poses, band)
+    err, _ = check_accuracy(m, sensor, tank, P, m.bem_options)
+    err_est = m.estimated_error(P)
+    results["accuracy"] = {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
+                           "estimated_rms": float(np.sqrt(np.mean(err_est**2))),
+                           "poses": P.tolist(), "errors": err.tolist()}
+    save()
+    # ---------------------------------------------------------------- speed
+    Q = test_poses(sensor, tank, z, rng, 2000, band)
+    Q = np.repeat(Q, 50, axis=0)
+    m.conductance(Q[:100], jacobian=True)
+    t, c = time.perf_counter(), time.process_time()
+    m.conductance(Q, jacobian=True)
+    wall, cpu = time.perf_counter() - t, time.process_time() - c
+    results["speed"] = {"poses_per_s_jacobian_cpu": len(Q) / cpu, "poses_per_s_jacobian_wall": len(Q) / wall}
+    if band is None:
+        run_rate, cmd_rate = sweep_speed(path, tank, z, folder)
+        results["speed"].update({"sweep_poses_per_s": run_rate, "sweep_command_poses_per_s": cmd_rate})
+    save()
+    # ---------------------------------------------------------------- figure
+    if band is None:
+        print("the map and the PSM against the BEM from wall to wall")
+        results["line"] = map_vs_psm_figure(m, sensor, tank, z, folder / "map_vs_psm.png")
+    save()
+    # ---------------------------------------------------------------- localisation
+    if not (args.skip_localisation or args.cylinder or band):
+        from electrosense.validation.localisation.from_log import localise_log
+
+        print(f"virtual-bench log of {args.log_poses} poses 2 cm from a wall (BEM physics), then esense localise")
+        log = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed)
+        results["localise"] = localise_log(log, path, folder / "localise", progress=lambda s: print(" ", s))
+    save()
+    # ---------------------------------------------------------------- summary
+    print("\nfigure                                                            measured   goal")
+    b, a = results["build"], results["accuracy"]
+    _line("map vs BEM at fresh poses (another tank mesh), RMS", a["rms"], GOALS["rms"], "{:.3%}")
+    _line("map vs BEM at fresh poses, max", a["max"], GOALS["max"], "{:.3%}")
+    print(f"  (the map's own estimate there: {a['estimated_rms']:.3%} RMS; at build end over all reachable poses "
+          f"{b['estimated_rms']:.3%} RMS, {b['estimated_max']:.3%} max; {b['bem_poses']} BEM poses)")
+    _line(f"build, wall s ({args.workers} workers, empty cache)", b["wall_s"], GOALS["build_s"], "{:.0f}")
+    print(f"  build CPU s (all processes): {b['cpu_s']:.0f} (on {args.workers} free cores: about "
+          f"{b['cpu_s'] / args.workers:.0f} s wall); loading the map: {b['load_ms']:.1f} ms")
+    s = results["speed"]
+    _line("poses/s with the pose Jacobian, one core (CPU time)", s["poses_per_s_jacobian_cpu"], GOALS["poses_per_s"],
+          "{:.0f}", "above")
+    if "sweep_poses_per_s" in s:
+        _line("esense sweep --model map, poses/s (the run)", s["sweep_poses_per_s"], GOALS["poses_per_s"], "{:.0f}",
+              "above")
+        print(f"  the whole command, start-up and store included: {s['sweep_command_poses_per_s']:.0f} poses/s")
+    if "localise" in results:
+        lm, lp = results["localise"]["map"], results["localise"]["psm"]
+        if lm["crb_position_rms_m"]:
+            _line("localisation, map: position RMS / its Cramer-Rao bound", lm["position_rms_m"] /
+                  lm["crb_position_rms_m"], GOALS["loc_over_crb"], "{:.2f}")
+        _line("localisation, map: position RMS (m)", lm["position_rms_m"], GOALS["loc_rms_m"], "{:.2e}")
+        print(f"  map: heading {lm['heading_rms_rad']:.2e} rad RMS, bound {lm['crb_position_rms_m']} m / "
+              f"{lm['crb_heading_rms_rad']} rad; PSM: position {lp['position_rms_m']:.2e} m RMS, heading "
+              f"{lp['heading_rms_rad']:.2e} rad, bound {lp['crb_position_rms_m']} m; noise "
+              f"{results['localise']['noise_rel']:.3%}")
+    print(f"wrote {folder / 'study.json'}")
+    return results
+
+
+if __name__ == "__main__":
+    main()
