@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from electrosense.bem.block_cache import cache_root
-from electrosense.meshes.tank import TANK_REGIONS
+from electrosense.meshes.tank import TANK_REGIONS, Tank
 from electrosense.validation.diagnosis.forward import receiver_currents
 
 __all__ = ["RBFInterpolant", "AnchorStore", "AnchoredBaseline", "anchored_baseline", "pose_features", "same_pose_groups",
@@ -403,8 +403,9 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     K_bem[exact >= 0] = cached_K[exact[exact >= 0]]
     # the shape derivatives at the BEM poses (:mod:`electrosense.bem.shape_derivative`): of the walls (for the
     # wall effects) and, with nothing else in the tank, of the sensor's pose (for the pose effects)
-    derivative_shapes = {} if tank is None else {"dK_dwall_S_per_m": (len(TANK_REGIONS), n, n)}
-    if tank is not None and not objects:
+    box = isinstance(tank, Tank)   # a cylindrical tank's regions are others: its derivatives are not asked for
+    derivative_shapes = {"dK_dwall_S_per_m": (len(TANK_REGIONS), n, n)} if box else {}
+    if box and not objects:
         derivative_shapes["dK_dpose"] = (3, n, n)
     regions_ok = entry is not None and tuple(str(r) for r in entry.get("wall_regions", ())) == TANK_REGIONS
     derivatives, cached_derivatives = {}, {}
