@@ -5,23 +5,29 @@ for a sensor with sectors (:mod:`electrosense.meshes.sensor`). The rings along t
 are those of a whole sensor (graded towards every axial electrode edge);
 what changes is where the vertices sit around each ring:
 
-* **Symmetry.** The mesh is built in one wedge of angle ``2 pi / M``
-  and copied ``M`` times by rotation about +x, so it is exactly
-  invariant under rotations by ``2 pi / M`` (triangle ``t`` of wedge ``w`` has
-  index ``w T + t``, which the BEM's symmetric solver uses). ``M`` is the least
-  common multiple of the sector counts when that is at most
-  :data:`MAX_SYMMETRY_ORDER`, else their greatest common divisor (a split
-  cap's wedges end on its sector edges, else they are centred on +y): every
-  rotation that maps the sensor onto itself and its sectors onto sectors maps
-  the mesh onto itself, so sectors that physics makes equal get equal currents.
-* **Sector edges.** The rings of a split electrode, and those within half a
-  far edge length of it along the axis, carry one azimuthal vertex set: every
-  sector edge is a vertex, and between edges the spacing is graded as along
-  the axis, ``h = min(h_band, h_edge + (grading - 1) d)`` with ``d`` the
-  distance along the circumference to the nearest sector edge,
-  ``h_band = edge_length / azimuthal_refinement`` and
-  ``h_edge = edge_length / sector_refinement``. The edges are straight lines
-  of the mesh, so no triangle straddles one.
+* **Symmetry.** The mesh is built in one wedge of angle ``2 pi / M`` and
+  copied ``M`` times by rotation about +x, so it is exactly invariant under
+  rotations by ``2 pi / M`` (triangle ``t`` of wedge ``w`` has index
+  ``w T + t``, which the BEM's symmetric solver uses). ``M`` is the greatest
+  common divisor of the sector counts. Beyond that, the rings of a split
+  electrode are invariant under all of its own sector rotations, and the
+  other rings under those of every split electrode (their vertex counts are
+  multiples of the least common multiple of the sector counts, when that is at
+  most :data:`MAX_SYMMETRY_ORDER`): sectors that the sensor's symmetry makes
+  equal get equal currents, up to the effect of the other electrodes' gaps,
+  which break it physically too. The wedges end on sector edges (a split
+  cap's first, else those of the electrode with the most sectors).
+* **Sector edges.** The rings of a split ring carry one azimuthal vertex set
+  (and its half-step staggered copy, ring by ring): every sector edge is a
+  vertex, and between edges the spacing is graded as along the axis,
+  ``h = min(h_band, h_edge + (sector_grading - 1) d)`` with ``d`` the distance
+  along the circumference to the nearest sector edge,
+  ``h_band = edge_length / (1.25 azimuthal_refinement)`` and
+  ``h_edge = edge_length / sector_refinement``. The edges are lines of the
+  mesh, so no triangle straddles one. Rings beside a split electrode, and the
+  smaller rings of a split cap, are graded the same way with ``h_edge`` grown
+  by ``(sector_grading - 1)`` times their axial distance from the electrode,
+  until the grading dies out.
 * **Other rings** have as many equally spaced vertices as the whole sensor's
   rings, rounded up to a multiple of ``M``; rings of different vertex sets are
   zipped by angle, which keeps every vertex shared by both rings on a mesh edge.
@@ -54,12 +60,18 @@ MAX_SYMMETRY_ORDER = 24
 
 
 def symmetry_order(sensor: SensorDescription) -> int:
-    """Order ``M`` of the rotations about +x that map a sector sensor's mesh onto itself."""
+    """Order ``M`` of the rotations about +x that map a sector sensor's mesh onto itself: the greatest common
+    divisor of the sector counts (each split electrode's own rings are symmetric under all its sector rotations)."""
     counts = [e.sectors for e in sensor.electrodes if e.is_split]
-    if not counts:
-        return 1
-    lcm = math.lcm(*counts)
-    return lcm if lcm <= MAX_SYMMETRY_ORDER else math.gcd(*counts)
+    return math.gcd(*counts) if counts else 1
+
+
+def _plain_order(sensor: SensorDescription) -> int:
+    """Vertex counts of the rings away from split electrodes are multiples of this (the least common multiple of
+    the sector counts, if at most :data:`MAX_SYMMETRY_ORDER`)."""
+    counts = [e.sectors for e in sensor.electrodes if e.is_split]
+    lcm = math.lcm(*counts) if counts else 1
+    return lcm if lcm <= MAX_SYMMETRY_ORDER else symmetry_order(sensor)
 
 
 def wedge_triangles(mesh: LabelledMesh, order: int) -> int:
@@ -81,29 +93,53 @@ def _sector_edges_rad(electrode, radius_m: float) -> np.ndarray:
     return edges
 
 
-def _graded_angles(edges_rad, theta0, width, radius_m, h_band, h_edge, grading):
-    """Angles in [theta0, theta0 + width] (ends included): every sector edge inside, graded towards all of them."""
+def _graded_angles(edges_rad, theta0, period, radius_m, h_band, h_edge, grading, width):
+    """Angles in [theta0, theta0 + width] (ends included) of a ring beside or on a split electrode.
+
+    The electrode's pattern is periodic with its sector pitch ``period``: every
+    sector edge is a vertex and the spacing is graded towards all of them. The
+    pattern is laid around the ring and cut to the wedge at points of its own.
+    """
     from electrosense.meshes.sensor_mesh import _ring_positions
 
-    images = np.concatenate([edges_rad + 2 * np.pi * k for k in (-2, -1, 0, 1, 2)])
-    inside = images[(images > theta0 + 1e-12) & (images < theta0 + width - 1e-12)]
-    breaks = np.concatenate([[theta0], inside, [theta0 + width]]) * radius_m
-    near = images[(images > theta0 - np.pi) & (images < theta0 + width + np.pi)] * radius_m
-    positions, _ = _ring_positions(breaks, near, h_band, h_edge, grading)
-    angles = positions / radius_m
-    angles[0], angles[-1] = theta0, theta0 + width
-    for e in inside:   # the edges exactly (the same float in every ring that carries this set)
-        angles[np.argmin(np.abs(angles - e))] = e
-    return angles
+    tol = 1e-9
+    edges = np.sort(np.asarray(edges_rad) % (2 * np.pi))
+    e0 = edges[0]
+    folded = np.sort((edges - e0) % period)
+    folded = folded[(folded > tol) & (folded < period - tol)]
+    folded = folded[np.concatenate([[True], np.diff(folded) > tol])] if folded.size else folded
+    edge_offsets = np.concatenate([[0.0], folded])
+    images = np.concatenate([edge_offsets + period * k for k in range(-int(np.ceil(np.pi / period)) - 1,
+                                                                      int(np.ceil(np.pi / period)) + 2)])
+    # the wedge's end, and its images under the electrode's own sector rotations, are vertices of the pattern
+    # too: the pattern stays periodic (each sector meshed alike) and no wedge end cuts it
+    end = (theta0 - e0) % period
+    extra = [end] if tol < end < period - tol and np.min(np.abs(folded - end), initial=np.inf) > tol else []
+    breaks = np.sort(np.concatenate([edge_offsets, extra, [period]]))
+    positions, _ = _ring_positions(breaks * radius_m, images * radius_m, h_band, h_edge, grading)
+    pattern = positions[:-1] / radius_m
+    pattern[np.searchsorted(pattern, breaks[:-1] - tol)] = breaks[:-1]    # the breakpoints exactly
+    first = int(np.floor((theta0 - e0) / period)) - 1
+    copies = int(np.ceil(width / period)) + 3
+    ring = np.concatenate([e0 + pattern + period * k for k in range(first, first + copies)])
+    if width >= 2 * np.pi - tol:   # the whole turn: the pattern itself, closed, nothing cut
+        keep = (ring >= e0 - tol) & (ring < e0 + 2 * np.pi - tol)
+        return np.concatenate([ring[keep], [ring[keep][0] + 2 * np.pi]])
+    keep = (ring > theta0 + tol) & (ring < theta0 + width - tol)
+    return np.concatenate([[theta0], ring[keep], [theta0 + width]])
 
 
-def _staggered(angles, edges_rad):
-    """The midpoints of a ring's intervals, with its ends and sector edges: zipped with the set itself it gives
-    isosceles triangles (the whole sensor's half-step offset) instead of split quadrilaterals."""
-    fixed = [angles[0], angles[-1]] + [a for a in angles if np.min(np.abs((a - edges_rad + np.pi) % (2 * np.pi)
-                                                                          - np.pi)) < 1e-12]
-    out = np.unique(np.concatenate([fixed, 0.5 * (angles[1:] + angles[:-1])]))
-    return out
+def _breakpoints(angles, edges_rad, theta0, period):
+    """Which of a pattern's angles are sector edges or images of the wedge's end (kept by :func:`_staggered`)."""
+    marks = np.concatenate([np.asarray(edges_rad), [theta0]])
+    off = (angles[:, None] - marks[None, :] + 0.5 * period) % period - 0.5 * period
+    return np.min(np.abs(off), axis=1) < 1e-9
+
+
+def _staggered(angles, fixed):
+    """The midpoints of a ring's intervals, with its ``fixed`` points (sector edges, wedge ends): zipped with the
+    set itself it gives isosceles triangles (the whole sensor's half-step offset), not split quadrilaterals."""
+    return np.unique(np.concatenate([angles[fixed], 0.5 * (angles[1:] + angles[:-1])]))
 
 
 def _zip_open(a_idx, a_ang, b_idx, b_ang):
@@ -162,45 +198,55 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
     profile, x_rings, r_rings, counts = _ring_layout(sensor, edge_length_m, grading, edge_refinement, max_aspect,
                                                      azimuthal_refinement, uniform_cylinder)
     M = symmetry_order(sensor)
+    plain = _plain_order(sensor)
     width = 2 * np.pi / M
     theta0 = -0.5 * width
-    caps = [e for e in sensor.electrodes if e.is_split and e.kind == "cap"]
-    if caps:   # a wedge's end on a cap's sector edge: no needle at the tip, where every ring shrinks to a point
-        half = sector_azimuths_rad(caps[0], sensor.radius_m)[1]
-        theta0 = (-half + 0.5 * width) % width - 0.5 * width
+    # the wedge's ends on sector edges (of a split cap first: no needle at the tip, where its rings shrink to a
+    # point; else of the electrode with the most sectors), so that they cut no graded pattern
+    split = sorted((e for e in sensor.electrodes if e.is_split), key=lambda e: (e.kind != "cap", -e.sectors))
+    half = sector_azimuths_rad(split[0], sensor.radius_m)[1]
+    theta0 = (-half + 0.5 * width) % width - 0.5 * width
     R = sensor.radius_m
     h_band = h_far / (1.25 * azimuthal_refinement)   # a little finer than whole rings: no half-step offset
     h_edge = min(h_far / sector_refinement, h_band)
     band_sets, staggered = {}, {}
     for index, e in enumerate(sensor.electrodes):
         if e.is_split:
-            band_sets[index] = _graded_angles(_sector_edges_rad(e, R), theta0, width, R, h_band, h_edge,
-                                              sector_grading)
-            staggered[index] = _staggered(band_sets[index], _sector_edges_rad(e, R))
+            band_sets[index] = _graded_angles(_sector_edges_rad(e, R), theta0, 2 * np.pi / e.sectors, R, h_band,
+                                              h_edge, sector_grading, width)
+            period = 2 * np.pi / e.sectors
+            fixed = _breakpoints(band_sets[index], _sector_edges_rad(e, R), theta0, period)
+            fixed[[0, -1]] = True
+            staggered[index] = _staggered(band_sets[index], fixed)
+
+    reach = (h_band - h_edge) / (sector_grading - 1.0)   # axial distance at which the grading has died out
 
     def band_of(x):
-        best, dist = None, 0.5 * h_far
+        """The split electrode nearest to axial position ``x`` within ``reach``, and the distance to it."""
+        best, dist = None, reach
         for index, e in enumerate(sensor.electrodes):
             if index in band_sets:
                 d = max(e.x_min_m - x, x - e.x_max_m, 0.0)
-                if d <= dist + 1e-15:
-                    best, dist = index, d - 1e-15
-        return best
+                if d < dist:
+                    best, dist = index, d
+        return best, dist
 
     ring_angles = []
     for k, (x, r, m) in enumerate(zip(x_rings, r_rings, counts)):
         if m == 1:
             ring_angles.append(None)
             continue
-        index = band_of(x)
-        if index is not None and r < R * (1 - 1e-9):   # on a cap: fewer vertices on smaller rings
+        index, d = band_of(x)
+        if index is not None and (d > 0 or r < R * (1 - 1e-9)):
+            # beside a split electrode, or on a split cap (smaller rings, fewer vertices): graded towards the
+            # sector edges' lines, less and less finely further away along the axis
             e = sensor.electrodes[index]
-            ring_angles.append(_graded_angles(_sector_edges_rad(e, R), theta0, width, r, h_band, h_edge,
-                                              sector_grading))
-        elif index is not None:   # on the cylinder: the band's set and its staggered copy, ring by ring
+            ring_angles.append(_graded_angles(_sector_edges_rad(e, R), theta0, 2 * np.pi / e.sectors, r, h_band,
+                                              h_edge + (sector_grading - 1.0) * d, sector_grading, width))
+        elif index is not None:   # on a split ring: the band's set and its staggered copy, ring by ring
             ring_angles.append(band_sets[index] if k % 2 == 0 else staggered[index])
         else:
-            per_wedge = max(1, int(np.ceil(m / M)))
+            per_wedge = max(1, int(np.ceil(m / plain))) * (plain // M)
             ring_angles.append(theta0 + width * np.arange(per_wedge + 1) / per_wedge)
 
     # vertices: ring by ring, wedge by wedge
@@ -220,33 +266,41 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
         per_ring.append(M * m)
         n_vertices += M * m
 
-    # triangles of wedge 0, as (ring, local index) triples, local index m = the next wedge's first vertex
-    wedge, labels_x, phis = [], [], []
-    for k in range(len(x_rings) - 1):
-        a, b = ring_angles[k], ring_angles[k + 1]
-        a_idx = [(k, 0)] if a is None else [(k, j) for j in range(len(a))]
-        b_idx = [(k + 1, 0)] if b is None else [(k + 1, j) for j in range(len(b))]
-        tris = _zip_open(a_idx, a, b_idx, b)
-        x_mid = 0.5 * (x_rings[k] + x_rings[k + 1])
-        for t in tris:
-            angs = [ring_angles[ring][j] for ring, j in t if ring_angles[ring] is not None]
-            wedge.append(t)
-            labels_x.append(x_mid)
-            phis.append(float(np.mean(angs)))
+    if M == 1:   # one wedge, the whole turn: closed rings zipped by angle (no wedge end to cut the patterns)
+        from electrosense.meshes.sensor_mesh import _zip
 
-    faces, labels = [], []
-    for w in range(M):
-        for t, x_mid, phi in zip(wedge, labels_x, phis):
-            tri = []
-            for ring, j in t:
-                n = per_ring[ring]
-                m = n // M
-                tri.append(base[ring] if n == 1 else base[ring] + (w * m + j) % n)
-            faces.append(tri)
-            labels.append(_label(sensor, x_mid, phi + w * width))
+        faces, x_mids = [], []
+        for k in range(len(x_rings) - 1):
+            rings = [np.arange(base[q], base[q] + per_ring[q]) for q in (k, k + 1)]
+            angles = [np.zeros(1) if ring_angles[q] is None else ring_angles[q][:-1] for q in (k, k + 1)]
+            tris = _zip(rings[0], angles[0], rings[1], angles[1])
+            faces.extend(tris)
+            x_mids.extend([0.5 * (x_rings[k] + x_rings[k + 1])] * len(tris))
+    else:
+        # triangles of wedge 0 as (ring, local index) pairs (local index m: the next wedge's first vertex),
+        # then the same for every wedge
+        wedge, wedge_x = [], []
+        for k in range(len(x_rings) - 1):
+            a, b = ring_angles[k], ring_angles[k + 1]
+            a_idx = [(k, 0)] if a is None else [(k, j) for j in range(len(a))]
+            b_idx = [(k + 1, 0)] if b is None else [(k + 1, j) for j in range(len(b))]
+            tris = _zip_open(a_idx, a, b_idx, b)
+            wedge.extend(tris)
+            wedge_x.extend([0.5 * (x_rings[k] + x_rings[k + 1])] * len(tris))
+        faces, x_mids = [], []
+        for w in range(M):
+            for t in wedge:
+                faces.append([base[ring] if per_ring[ring] == 1
+                              else base[ring] + (w * (per_ring[ring] // M) + j) % per_ring[ring] for ring, j in t])
+            x_mids.extend(wedge_x)
+    vertices = np.concatenate(vertices)
+    faces = np.asarray(faces, dtype=np.int64)
+    centre = vertices[faces].mean(axis=1)
+    phis = np.arctan2(centre[:, 2], centre[:, 1])
+    labels = [_label(sensor, x_mid, phi) for x_mid, phi in zip(x_mids, phis)]
     return LabelledMesh(
-        vertices_m=np.concatenate(vertices),
-        faces=np.asarray(faces, dtype=np.int64),
+        vertices_m=vertices,
+        faces=faces,
         electrode=np.asarray(labels, dtype=np.int64),
         region=np.zeros(len(faces), dtype=np.int64),
         region_names=("sensor",),

@@ -1,0 +1,145 @@
+"""The collocation BEM of a rotationally symmetric sensor alone in unbounded water, mode by mode.
+
+A sector sensor's mesh (:mod:`electrosense.meshes.sector_mesh`) is ``M`` copies of one
+wedge rotated about the x axis, triangle ``t`` of wedge ``w`` at index
+``w T + t``. The collocation integrals depend only on the relative position
+of target and source, so the single and double layer are *block circulant*:
+the block from wedge ``a``'s targets to wedge ``b``'s sources is the block from
+wedge 0 to wedge ``b - a``.
+
+The mixed system (:mod:`electrosense.bem.system`) keeps that structure under every
+rotation that maps each triangle's boundary-condition type (insulator,
+electrode, contact impedance) onto the same type: rotations by ``2 pi / G``,
+``G`` the largest divisor of ``M`` for which that holds (every rotation of the
+mesh when the sectors touch, since a gap of 0 leaves the types the same all
+round; the rotations that map the gaps onto gaps otherwise). The electrode
+*numbers* need not be invariant: only the right-hand sides (one per
+electrode) are not, and they are any vectors. With ``G`` blocks of
+``n = N / G`` triangles, the discrete Fourier transform over the blocks turns
+the ``N x N`` system into ``G`` independent ``n x n`` complex systems (the
+azimuthal modes ``m = 0 .. G-1``; ``m`` and ``G - m`` are complex conjugates,
+so ``G // 2 + 1`` are solved)::
+
+    A_m = sum_d C_d exp(+2 pi i m d / G),   A_m x_m = r_m,   r_m = sum_a r_a exp(-2 pi i m a / G),
+
+``C_d`` the block from block 0's targets to block ``d``'s sources. Only block
+0's rows are assembled (``N^2 / G`` pairs instead of ``N^2``) and the solve
+costs ``(G / 2 + 1) (8/3) n^3`` real operations instead of ``(2/3) N^3``: with
+``G = 4`` about 4 times less assembly and 10 times less factorisation. The
+answer is the full collocation's, to rounding (``tests/test_sector_bem.py``).
+
+With ``G = 1`` (sector counts whose gaps share no rotation) nothing is gained
+and :func:`solve_symmetric` returns the full collocation.
+
+Example
+-------
+>>> from electrosense.meshes import preset
+>>> from electrosense.meshes.sensor_mesh import mesh_sensor
+>>> from electrosense.bem.boundary_conditions import WaterBoundary
+>>> s = preset("angels-2").with_sectors({1: 2}, gap_m=0.002)
+>>> wb = WaterBoundary.from_meshes(mesh_sensor(s, 0.012), allow_touching=True)
+>>> sol = solve_symmetric(wb, 1.0, order=2, emitter=s.emitter)
+>>> sol.info["method"], sol.info["blocks"]
+('symmetric blocks', 2)
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
+from electrosense.bem.conductance import check_conductivity
+from electrosense.bem.linear_solve import solve_dense
+from electrosense.bem.system import BemSystem, column_coefficients, contact_impedances
+
+__all__ = ["solve_symmetric", "type_symmetry_blocks", "is_rotation_symmetric"]
+
+
+def is_rotation_symmetric(boundary: WaterBoundary, order: int, rtol: float = 1e-9) -> bool:
+    """True when the triangles are ``order`` equal blocks, block ``a`` block 0 turned by ``2 pi a / order`` about +x."""
+    tri = boundary.triangles_m
+    if order < 1 or len(tri) % order:
+        return False
+    n = len(tri) // order
+    scale = np.abs(tri).max()
+    for a in range(1, order):
+        c, s = np.cos(2 * np.pi * a / order), np.sin(2 * np.pi * a / order)
+        t0 = tri[:n]
+        turned = np.stack([t0[..., 0], c * t0[..., 1] - s * t0[..., 2], s * t0[..., 1] + c * t0[..., 2]], axis=-1)
+        if np.abs(turned - tri[a * n:(a + 1) * n]).max() > rtol * scale:
+            return False
+    return True
+
+
+def type_symmetry_blocks(c_single: np.ndarray, c_double: np.ndarray, order: int) -> int:
+    """Largest divisor ``G`` of ``order`` such that shifting the triangles by ``N / G`` keeps every column's type."""
+    N = len(c_single)
+    for G in sorted((d for d in range(1, order + 1) if order % d == 0), reverse=True):
+        shift = N // G
+        if np.array_equal(np.roll(c_single, shift), c_single) and np.array_equal(np.roll(c_double, shift), c_double):
+            return G
+    return 1
+
+
+def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
+                    emitter: int | None = None, order: int = 1):
+    """Unit solutions of a mesh made of ``order`` rotated copies of one wedge, alone in unbounded water.
+
+    Returns a :class:`electrosense.bem.solution.BemSolution` equal (to rounding) to
+    :func:`electrosense.bem.solution.solve`'s; ``info["blocks"]`` is the ``G`` used.
+    """
+    from electrosense.bem.operators import FAR, TriangleSet, layer_matrices
+    from electrosense.bem.solution import solve, unit_solutions
+
+    t0 = time.perf_counter()
+    sigma_S_per_m = check_conductivity(sigma_S_per_m)
+    if not boundary.unbounded or boundary.n_conductors or len(boundary.part_names) != 1:
+        raise BoundaryError("the symmetric solve is for a lone sensor in unbounded water")
+    if not is_rotation_symmetric(boundary, order):
+        raise BoundaryError(f"the sensor mesh is not {order} rotated copies of one wedge")
+    n_el = boundary.n_electrodes
+    emitter = n_el if emitter is None else int(emitter)
+    z_c = contact_impedances(contact_impedance_ohm_m2, n_el)
+    tris = TriangleSet(boundary.triangles_m)
+    scale = float(np.sqrt(np.mean(tris.areas)))
+    cs, cd, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
+    G = type_symmetry_blocks(cs, cd, order)
+    if G == 1:
+        solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+        solution.info.update(method="full collocation (no symmetry of the boundary conditions)", blocks=1)
+        return solution
+    N = len(tris)
+    n = N // G
+    own = np.arange(n)
+    S0, H0 = layer_matrices(tris.centroids[:n], tris, own, far=FAR)
+    H0[own, own] += 0.5
+    # right-hand sides of every block: block a's rows see the labels turned back by a blocks
+    labels = boundary.electrode
+    rhs = np.empty((G, n, n_el))
+    for a in range(G):
+        turned = np.roll(labels, -a * n)
+        onehot = np.zeros((N, n_el))
+        on = turned > 0
+        onehot[np.flatnonzero(on), turned[on] - 1] = 1.0
+        rhs[a] = -(H0 @ onehot)
+    S0 *= cs[None, :]
+    S0 += H0 * cd[None, :]
+    del H0
+    blocks = S0.reshape(n, G, n).transpose(1, 0, 2)          # C_d: block 0's targets x block d's sources
+    modes = G * np.fft.ifft(blocks, axis=0)
+    rhs_hat = np.fft.fft(rhs, axis=0)
+    t1 = time.perf_counter()
+    x_hat = np.empty((G, n, n_el), dtype=complex)
+    rconds = []
+    for m in range(G // 2 + 1):
+        x_hat[m], rcond, _ = solve_dense(modes[m], rhs_hat[m], what=f"BEM system of mode {m}")
+        rconds.append(rcond)
+        if 0 < m < G - m:
+            x_hat[G - m] = np.conj(x_hat[m])
+    x = np.fft.ifft(x_hat, axis=0).real.reshape(N, n_el)
+    t2 = time.perf_counter()
+    system = BemSystem(matrix=None, rhs=None, scale_m=scale, z_c=z_c, n_conductors=0)
+    return unit_solutions(boundary, sigma_S_per_m, system, x, emitter,
+                          {"assembly_s": t1 - t0, "solve_s": t2 - t1, "method": "symmetric blocks", "blocks": G,
+                           "rcond": float(min(rconds))})
