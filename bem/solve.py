@@ -102,8 +102,10 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     if edge_correction and not isinstance(scene, LabelledMesh) and not scene.electrodes:
         t1 = time.perf_counter()
         free_K = solution.K_S if solved_axisymmetric and not scene.objects and scene.tank is None else None
+        if sectors and not scene.objects and scene.tank is None:
+            free_K = solution.K_S
         dK = free_space_correction(scene.sensor, sigma_S_per_m, contact_impedance_ohm_m2, sm.sensor,
-                                   surface_K_S=free_K)
+                                   surface_K_S=free_K, mesh_options=_sensor_options(mesh_options, edge_length_m))
         solution.info["edge_correction_max_relative"] = float(np.max(np.abs(dK)) / np.max(np.abs(solution.K_S)))
         solution.K_correction_S = dK
         solution.info["edge_correction_s"] = time.perf_counter() - t1
@@ -111,6 +113,12 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     if contact_impedance_ohm_m2 is not None:
         solution.info["contact_impedance_ohm_m2"] = solution.z_c.tolist()
     return solution
+
+
+def _sensor_options(mesh_options: dict, edge_length_m) -> dict:
+    """The options of :func:`electrosense.meshes.scene_mesh.mesh_scene` that go to the sensor's mesh."""
+    scene_only = {"tank_edge_length_m", "tank_grading", "tank_focus_m", "object_edge_length_m", "check"}
+    return {**{k: v for k, v in mesh_options.items() if k not in scene_only}, "edge_length_m": edge_length_m}
 
 
 def conductance_matrix(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None,

@@ -166,7 +166,9 @@ class PoseSweep:
 
             t0 = time.perf_counter()
             self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
-                                                       self.sensor_mesh, surface_K_S=self._free_K)
+                                                       self.sensor_mesh, surface_K_S=self._free_K,
+                                                       mesh_options=dict(sensor_mesh_options,
+                                                                         edge_length_m=edge_length_m))
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _prepare_free(self):

@@ -55,6 +55,11 @@ from electrosense.meshes.sensor import SensorDescription, sector_azimuths_rad
 
 __all__ = ["mesh_sector_sensor", "symmetry_order", "MAX_SYMMETRY_ORDER", "wedge_triangles"]
 
+#: far edge length over the spacing at a sector edge, by default
+DEFAULT_SECTOR_REFINEMENT = 12.0
+#: growth ratio of the spacings away from a sector edge, by default
+DEFAULT_SECTOR_GRADING = 1.3
+
 #: largest rotational symmetry order a sector mesh is built with (every ring then has a multiple of it vertices)
 MAX_SYMMETRY_ORDER = 24
 
@@ -177,8 +182,8 @@ def _label(sensor: SensorDescription, x_mid: float, phi: float) -> int:
 
 def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = None, grading: float = 1.15,
                        edge_refinement: float = 30.0, max_aspect: float = 3.0, azimuthal_refinement: float = 2.5,
-                       ring_radius: str = "area", uniform_cylinder: bool = False, sector_refinement: float = 12.0,
-                       sector_grading: float = 1.3) -> LabelledMesh:
+                       ring_radius: str = "area", uniform_cylinder: bool = False, sector_refinement: float = DEFAULT_SECTOR_REFINEMENT,
+                       sector_grading: float = DEFAULT_SECTOR_GRADING) -> LabelledMesh:
     """Closed, graded, labelled, exactly symmetric mesh of a sector sensor in its own frame.
 
     Parameters are those of :func:`electrosense.meshes.sensor_mesh.mesh_sensor`, plus
