@@ -51,7 +51,7 @@ import numpy as np
 from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
 from electrosense.bem.conductance import check_conductivity
 from electrosense.bem.linear_solve import solve_dense
-from electrosense.bem.system import BemSystem, column_coefficients, contact_impedances
+from electrosense.bem.system import BemSystem, assemble_system, column_coefficients, contact_impedances
 
 __all__ = ["solve_symmetric", "type_symmetry_blocks", "is_rotation_symmetric"]
 
@@ -83,11 +83,20 @@ def type_symmetry_blocks(c_single: np.ndarray, c_double: np.ndarray, order: int)
 
 
 def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
-                    emitter: int | None = None, order: int = 1):
+                    emitter: int | None = None, order: int = 1, incident_potential_V=None):
     """Unit solutions of a mesh made of ``order`` rotated copies of one wedge, alone in unbounded water.
 
     Returns a :class:`electrosense.bem.solution.BemSolution` equal (to rounding) to
     :func:`electrosense.bem.solution.solve`'s; ``info["blocks"]`` is the ``G`` used.
+
+    ``incident_potential_V`` (F, r), optional: ``r`` incident potentials at the
+    triangles' centroids (harmonic fields with no source near the sensor, e.g.
+    ``-y`` for a unit field along +y). With every electrode held at 0 V the
+    total potential ``u = u_inc + u_scattered`` satisfies
+    ``(1/2 + D) u - S q = u_inc`` on the boundary (Green's identity for
+    ``u_inc`` inside the body), the same system with ``u_inc`` as right-hand
+    side; ``info["incident_currents_A"]`` (n, r) holds the currents then
+    leaving each electrode into the water.
     """
     from electrosense.bem.operators import FAR, TriangleSet, layer_matrices
     from electrosense.bem.solution import solve, unit_solutions
@@ -105,24 +114,45 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     scale = float(np.sqrt(np.mean(tris.areas)))
     cs, cd, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
     G = type_symmetry_blocks(cs, cd, order)
-    if G == 1:
-        solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
-        solution.info.update(method="full collocation (no symmetry of the boundary conditions)", blocks=1)
-        return solution
     N = len(tris)
+    labels = boundary.electrode
+    incident = np.zeros((N, 0)) if incident_potential_V is None else np.asarray(incident_potential_V, float)
+    incident = incident.reshape(N, -1)
+
+    def with_incident(solution, x_incident):
+        if incident.shape[1]:
+            on_e = labels > 0
+            currents = np.zeros((n_el, incident.shape[1]))
+            np.add.at(currents, labels[on_e] - 1, (sigma_S_per_m / scale) * tris.areas[on_e, None] * x_incident[on_e])
+            solution.info["incident_currents_A"] = currents.tolist()
+        return solution
+
+    if G == 1:
+        method = "full collocation (no symmetry of the boundary conditions)"
+        if not incident.shape[1]:
+            solution = solve(boundary, sigma_S_per_m, contact_impedance_ohm_m2, emitter)
+            solution.info.update(method=method, blocks=1)
+            return solution
+        system = assemble_system(boundary, sigma_S_per_m, contact_impedance_ohm_m2)
+        t1 = time.perf_counter()
+        x, rcond, _ = solve_dense(system.matrix, np.hstack([system.rhs, incident]))
+        solution = unit_solutions(boundary, sigma_S_per_m, system, x[:, :n_el], emitter,
+                                  {"assembly_s": t1 - t0, "solve_s": time.perf_counter() - t1, "method": method,
+                                   "blocks": 1, "rcond": rcond})
+        return with_incident(solution, x[:, n_el:])
     n = N // G
     own = np.arange(n)
     S0, H0 = layer_matrices(tris.centroids[:n], tris, own, far=FAR)
     H0[own, own] += 0.5
     # right-hand sides of every block: block a's rows see the labels turned back by a blocks
-    labels = boundary.electrode
-    rhs = np.empty((G, n, n_el))
+    rhs = np.empty((G, n, n_el + incident.shape[1]))
     for a in range(G):
         turned = np.roll(labels, -a * n)
         onehot = np.zeros((N, n_el))
         on = turned > 0
         onehot[np.flatnonzero(on), turned[on] - 1] = 1.0
-        rhs[a] = -(H0 @ onehot)
+        rhs[a, :, :n_el] = -(H0 @ onehot)
+        rhs[a, :, n_el:] = incident[a * n:(a + 1) * n]
     S0 *= cs[None, :]
     S0 += H0 * cd[None, :]
     del H0
@@ -130,16 +160,17 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     modes = G * np.fft.ifft(blocks, axis=0)
     rhs_hat = np.fft.fft(rhs, axis=0)
     t1 = time.perf_counter()
-    x_hat = np.empty((G, n, n_el), dtype=complex)
+    x_hat = np.empty(rhs.shape, dtype=complex)
     rconds = []
     for m in range(G // 2 + 1):
         x_hat[m], rcond, _ = solve_dense(modes[m], rhs_hat[m], what=f"BEM system of mode {m}")
         rconds.append(rcond)
         if 0 < m < G - m:
             x_hat[G - m] = np.conj(x_hat[m])
-    x = np.fft.ifft(x_hat, axis=0).real.reshape(N, n_el)
+    x = np.fft.ifft(x_hat, axis=0).real.reshape(N, -1)
     t2 = time.perf_counter()
     system = BemSystem(matrix=None, rhs=None, scale_m=scale, z_c=z_c, n_conductors=0)
-    return unit_solutions(boundary, sigma_S_per_m, system, x, emitter,
-                          {"assembly_s": t1 - t0, "solve_s": t2 - t1, "method": "symmetric blocks", "blocks": G,
-                           "rcond": float(min(rconds))})
+    solution = unit_solutions(boundary, sigma_S_per_m, system, x[:, :n_el], emitter,
+                              {"assembly_s": t1 - t0, "solve_s": t2 - t1, "method": "symmetric blocks",
+                               "blocks": G, "rcond": float(min(rconds))})
+    return with_incident(solution, x[:, n_el:])
