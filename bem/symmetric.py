@@ -96,7 +96,8 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     ``(1/2 + D) u - S q = u_inc`` on the boundary (Green's identity for
     ``u_inc`` inside the body), the same system with ``u_inc`` as right-hand
     side; ``info["incident_currents_A"]`` (n, r) holds the currents then
-    leaving each electrode into the water.
+    leaving each electrode into the water, and ``solution.incident_unknowns``
+    (F, r) the unknowns (potential on insulators, ``l q`` on electrodes).
     """
     from electrosense.bem.operators import FAR, TriangleSet, layer_matrices
     from electrosense.bem.solution import solve, unit_solutions
@@ -125,6 +126,7 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
             currents = np.zeros((n_el, incident.shape[1]))
             np.add.at(currents, labels[on_e] - 1, (sigma_S_per_m / scale) * tris.areas[on_e, None] * x_incident[on_e])
             solution.info["incident_currents_A"] = currents.tolist()
+            solution.incident_unknowns = x_incident     # (F, r): as ``unknowns``, every electrode at 0 V
         return solution
 
     if G == 1:

@@ -26,13 +26,15 @@ image sources and object dipoles) and adds what a sector needs: the field
   sector's current leaves from one side of the body, and the insulating body
   nearly doubles the dipole that a point source on its surface would have.
   Leaving that dipole out gives about half the lateral signal near a wall.
+* **The body's polarisation.** The returned field's gradient also
+  polarises the insulating body: each region sends a further dipole
+  ``Pi[m] grad phi_r(c_m)`` (from three incident-field BEM solves).
 * **Self-consistency, as the PSM.** With ``x = V - R phi_r(c)`` (the
   potentials the electrodes act with), ``I = K0 x + G . grad phi_r(c)``,
-  monopoles ``J = R^T I``, dipoles ``B``, and ``[phi_r(c); grad phi_r(c)] = Psi [J; B]``
-  (``Psi``: the images' and objects' reflection between the regions'
-  centres, per pose), the currents solve a (2n)-square linear system per pose.
-  The field the body itself induces by the returned field (its
-  polarisability) is left out: it is second order in the reflection.
+  monopoles ``J = R^T I``, dipoles ``B = -G^T x + Pi grad phi_r(c)``, and
+  ``[phi_r(c); grad phi_r(c)] = Psi [J; B]`` (``Psi``: the images' and
+  objects' reflection between the regions' centres, per pose), the currents
+  solve a square linear system of ``2 n + 3 M`` unknowns per pose.
 
 For whole electrodes this is the PSM with an exact free-space part and
 dipoles. ``validation/studies/sector_sensor.py`` measures it against the BEM
@@ -89,6 +91,9 @@ class SectorModel:
         The regions' centres, sensor frame (on the axis).
     region_of_electrode : (n,)
         Region (0-based) of each electrode.
+    dipole_response_S_m2 : (M, 3, 3) or None
+        ``Pi``: current dipole (A m) each region sends per unit gradient (V/m) of the returned potential at
+        its centre (the insulating body's polarisation), sensor frame; None: left out.
     sigma_S_per_m : float
         The conductivity ``K0`` and ``G`` were computed at (both scale with it).
     emitter : int
@@ -104,6 +109,7 @@ class SectorModel:
     sigma_S_per_m: float
     emitter: int = 0
     info: dict = field(default_factory=dict)
+    dipole_response_S_m2: np.ndarray | None = None
 
     def __post_init__(self):
         K0 = np.asarray(self.K0_S, float)
@@ -120,8 +126,13 @@ class SectorModel:
         region = np.asarray(self.region_of_electrode, dtype=np.int64).reshape(-1)
         if region.shape != (n,) or region.min() < 0 or region.max() >= M:
             raise ValueError(f"region_of_electrode must give each of the {n} electrodes a region 0..{M - 1}")
+        Pi = self.dipole_response_S_m2
+        if Pi is not None:
+            Pi = np.asarray(Pi, float)
+            if Pi.shape != (M, 3, 3) or not np.all(np.isfinite(Pi)):
+                raise ValueError(f"dipole_response_S_m2 must be finite with shape {(M, 3, 3)}, got {Pi.shape}")
         for name, value in (("K0_S", K0), ("gradient_response_S_m", G), ("region_centres_m", centres),
-                            ("region_of_electrode", region)):
+                            ("region_of_electrode", region), ("dipole_response_S_m2", Pi)):
             object.__setattr__(self, name, value)
         object.__setattr__(self, "sigma_S_per_m", check_conductivity(self.sigma_S_per_m))
         emitter = n if self.emitter == 0 else int(self.emitter)
@@ -142,7 +153,7 @@ class SectorModel:
         """From a :class:`electrosense.bem.lateral.FreeSpaceResponse`."""
         g = response.conductance
         return cls(g.K_S, response.gradient_response, response.region_centres_m, response.region_of_electrode,
-                   g.sigma_S_per_m, emitter or g.emitter, dict(info or {}))
+                   g.sigma_S_per_m, emitter or g.emitter, dict(info or {}), response.dipole_response)
 
     # -------------------------------------------------------------------- JSON
     def to_json_dict(self) -> dict:
@@ -152,6 +163,8 @@ class SectorModel:
                 "K0_S": self.K0_S.tolist(), "gradient_response_S_m": self.gradient_response_S_m.tolist(),
                 "region_centres_m": self.region_centres_m.tolist(),
                 "region_of_electrode": self.region_of_electrode.tolist(),
+                "dipole_response_S_m2": None if self.dipole_response_S_m2 is None
+                else self.dipole_response_S_m2.tolist(),
                 "sigma_S_per_m": self.sigma_S_per_m, "emitter": self.emitter, "info": self.info}
 
     @classmethod
@@ -161,7 +174,8 @@ class SectorModel:
         try:
             return cls(np.array(d["K0_S"]), np.array(d["gradient_response_S_m"]), np.array(d["region_centres_m"]),
                        np.array(d["region_of_electrode"]), float(d["sigma_S_per_m"]), int(d.get("emitter", 0)),
-                       dict(d.get("info", {})))
+                       dict(d.get("info", {})),
+                       None if d.get("dipole_response_S_m2") is None else np.array(d["dipole_response_S_m2"]))
         except KeyError as exc:
             raise ValueError(f"sector model lacks the key {exc}") from None
 
@@ -181,17 +195,18 @@ def _to_tank(points_m: np.ndarray, poses: np.ndarray) -> np.ndarray:
                      z + poses[:, 2, None] + 0 * c], axis=-1)
 
 
-def reflected_potential(targets_m: np.ndarray, sources_m: np.ndarray, images, obj_centres, obj_coef) -> np.ndarray:
+def reflected_potential(targets_m: np.ndarray, sources_m: np.ndarray, images, obj_centres, obj_coef,
+                        include_images: bool = True) -> np.ndarray:
     """``4 pi sigma`` times the potential the environment returns to each target per unit current at each source.
 
     targets_m (P, T, 3), sources_m (P, S, 3) in the tank frame; images an
     :class:`electrosense.psm.images.ImageSet` (the source itself excluded); objects as in
     :func:`electrosense.psm.objects.object_terms`. Returns (P, T, S): the images'
-    ``sum_k w_k / |x - image_k(c)|`` plus each object's dipole term
+    ``sum_k w_k / |x - image_k(c)|`` (unless ``include_images`` is False) plus each object's dipole term
     ``-chi b^3 grad G(y_o, x) . grad G(y_o, c)`` (``G`` with the images), as in the PSM's kernel.
     """
     out = np.zeros(targets_m.shape[:2] + sources_m.shape[1:2])
-    if len(images):
+    if len(images) and include_images:
         for p in range(targets_m.shape[0]):
             img = images.signs[None] * sources_m[p][:, None] + images.offsets_m[None]          # (S, K, 3)
             for start in range(0, targets_m.shape[1], 64):
@@ -201,9 +216,11 @@ def reflected_potential(targets_m: np.ndarray, sources_m: np.ndarray, images, ob
     for y0, coef in zip(obj_centres, obj_coef):
         def grad(points):   # (P, Q, 3) -> grad_y G(y0, x) at y = y0, (P, Q, 3)
             g = -(y0 - points) / np.linalg.norm(y0 - points, axis=-1, keepdims=True) ** 3
-            for k in range(len(images)):
-                im = images.signs[k] * points + images.offsets_m[k]
-                g = g - images.weights[k] * (y0 - im) / np.linalg.norm(y0 - im, axis=-1, keepdims=True) ** 3
+            if len(images):
+                im = images.signs[:, None, None] * points[None] + images.offsets_m[:, None, None]   # (K, P, Q, 3)
+                dif = y0 - im
+                g = g - np.einsum("k,kpqd->pqd", images.weights,
+                                  dif / np.linalg.norm(dif, axis=-1, keepdims=True) ** 3)
             return g
         out += coef * np.einsum("ptd,psd->pts", grad(targets_m), grad(sources_m))
     return out
@@ -216,21 +233,64 @@ def _stencil(centres: np.ndarray) -> np.ndarray:
     return (centres[:, None] + steps[None]).reshape(-1, 3)
 
 
+def _image_kernel(c: np.ndarray, images) -> np.ndarray:
+    """The images' part of ``4 pi sigma Psi`` at one pose, tank-frame components: (M, 4, M, 4).
+
+    For targets ``t`` and sources ``s`` at the region centres ``c`` (M, 3), with
+    ``d = t - image_k(s)``: potential per unit current ``sum w / r``, its
+    gradient ``-sum w d / r^3``; per unit current dipole ``b`` at ``s`` (imaged
+    as ``signs * b``): potential ``sum w (signs * b) . d / r^3`` and gradient
+    ``sum w [(signs * b) / r^3 - 3 d (d . (signs * b)) / r^5]``.
+    """
+    M = len(c)
+    img = images.signs[None] * c[:, None] + images.offsets_m[None]           # (M src, K, 3)
+    d = c[:, None, None] - img[None]                                        # (M tgt, M src, K, 3)
+    r2 = np.sum(d * d, axis=-1)
+    w1 = images.weights / np.sqrt(r2)
+    w3 = w1 / r2
+    w5 = w3 / r2
+    out = np.empty((M, 4, M, 4))
+    out[:, 0, :, 0] = w1.sum(axis=-1)
+    out[:, 1:, :, 0] = -np.einsum("tsk,tskf->tfs", w3, d)
+    out[:, 0, :, 1:] = np.einsum("tsk,ke,tske->tse", w3, images.signs, d)
+    hess = -3 * np.einsum("tsk,tskf,tske,ke->tfse", w5, d, d, images.signs)
+    hess += np.einsum("tsk,ke,fe->tfse", w3, images.signs, np.eye(3))
+    out[:, 1:, :, 1:] = hess
+    return out
+
+
 def reflection_kernel(centres_m: np.ndarray, poses: np.ndarray, sigma: float, images, obj_centres, obj_coef):
     """``Psi`` (P, 4M, 4M): [potential; gradient (x, y, z)] the environment returns at each region's centre per
     [unit current; unit current dipole along x, y, z] at each region's centre (sensor-frame components)."""
     M = len(centres_m)
     h = FIELD_STEP_M
-    points = _to_tank(_stencil(centres_m), poses)                   # (P, 7M, 3)
-    phi = reflected_potential(points, points, images, obj_centres, obj_coef) / (4 * np.pi * sigma)
-    phi = phi.reshape(len(poses), M, 7, M, 7)
+    P = len(poses)
+    psi = np.zeros((P, M, 4, M, 4))
+    c = _to_tank(centres_m, poses)
+    if len(images):
+        for p in range(P):
+            psi[p] = _image_kernel(c[p], images)
+    if len(obj_coef):   # objects: central differences of their (imaged) dipole terms
+        points = _to_tank(_stencil(centres_m), poses)               # (P, 7M, 3)
+        phi = reflected_potential(points, points, images, obj_centres, obj_coef, include_images=False)
+        phi = phi.reshape(P, M, 7, M, 7)
 
-    def taylor(a):   # (..., 7) stencil values -> (..., 4): value and central differences along x, y, z
-        return np.stack([a[..., 0], (a[..., 1] - a[..., 2]) / (2 * h), (a[..., 3] - a[..., 4]) / (2 * h),
-                         (a[..., 5] - a[..., 6]) / (2 * h)], axis=-1)
+        def taylor(a):   # (..., 7) stencil values -> (..., 4): value and central differences along x, y, z
+            return np.stack([a[..., 0], (a[..., 1] - a[..., 2]) / (2 * h), (a[..., 3] - a[..., 4]) / (2 * h),
+                             (a[..., 5] - a[..., 6]) / (2 * h)], axis=-1)
 
-    psi = taylor(taylor(phi).transpose(0, 1, 3, 4, 2))             # (P, M tgt, M src, 4 src, 4 tgt)
-    return psi.transpose(0, 1, 4, 2, 3).reshape(len(poses), 4 * M, 4 * M)
+        obj = taylor(taylor(phi).transpose(0, 1, 3, 4, 2))           # (P, M tgt, M src, 4 src, 4 tgt), sensor frame
+        # the stencil is in the sensor frame already: turn the image part's tank-frame components to it below
+        obj = obj.transpose(0, 1, 4, 2, 3)
+    else:
+        obj = 0.0
+    # tank -> sensor frame components (rotation about z by the yaw) for the images' part
+    cy, sy = np.cos(poses[:, 3]), np.sin(poses[:, 3])
+    rot = np.zeros((P, 4, 4))
+    rot[:, 0, 0] = rot[:, 3, 3] = 1.0
+    rot[:, 1, 1], rot[:, 1, 2], rot[:, 2, 1], rot[:, 2, 2] = cy, sy, -sy, cy      # sensor = R^T tank
+    psi = np.einsum("pab,pmbnc,pdc->pmand", rot, psi, rot) + obj
+    return psi.reshape(P, 4 * M, 4 * M) / (4 * np.pi * sigma)
 
 
 def sector_conductance(model: SectorModel, poses, sigma_S_per_m: float, tank=None, images: str = "complete",
@@ -252,22 +312,31 @@ def sector_conductance(model: SectorModel, poses, sigma_S_per_m: float, tank=Non
     n, M, P = model.n, model.n_regions, len(poses)
     R = np.zeros((n, M))
     R[np.arange(n), model.region_of_electrode] = 1.0
-    # unknowns [x; I]: x = V - R phi, I = K0 x + G grad phi; sources J = R^T I (monopoles), B = -G^T x (dipoles)
+    Pi = np.zeros((M, 3, 3)) if model.dipole_response_S_m2 is None else model.dipole_response_S_m2 * scale
+    Pi_full = np.zeros((3 * M, 3 * M))
+    for m in range(M):
+        Pi_full[3 * m:3 * m + 3, 3 * m:3 * m + 3] = Pi[m]
+    # unknowns [x; I; B]: x = V - R phi (effective potentials), I = K0 x + G grad phi (currents),
+    # B = -G^T x + Pi grad phi (current dipoles); monopoles J = R^T I; [phi; grad phi] = Psi [J; B]
     potential = np.arange(M) * 4                                          # rows/columns of Psi: potential ...
     gradient = (np.arange(M)[:, None] * 4 + np.arange(1, 4)[None]).ravel()   # ... and gradient, region-major
     K = np.empty((P, n, n))
-    eye = np.eye(n)
+    eye_n, eye_b = np.eye(n), np.eye(3 * M)
     for start in range(0, P, 8):
         chunk = slice(start, min(P, start + 8))
         psi = reflection_kernel(model.region_centres_m, poses[chunk], sigma, imgs, obj_centres, obj_coef)
         p_J, p_B = psi[:, potential][:, :, potential], psi[:, potential][:, :, gradient]   # potential from J, B
         g_J, g_B = psi[:, gradient][:, :, potential], psi[:, gradient][:, :, gradient]     # gradient from J, B
-        # x + R (p_J R^T I - p_B G^T x) = V ;  I - K0 x - G (g_J R^T I - g_B G^T x) = 0
-        top = np.concatenate([eye - R @ p_B @ G.T, R @ p_J @ R.T], axis=2)
-        bottom = np.concatenate([-K0 + G @ g_B @ G.T, eye - G @ g_J @ R.T], axis=2)
-        A = np.concatenate([top, bottom], axis=1)
-        rhs = np.concatenate([np.broadcast_to(eye, (A.shape[0], n, n)), np.zeros((A.shape[0], n, n))], axis=1)
-        Kp = np.linalg.solve(A, rhs)[:, n:]
+        c = psi.shape[0]
+        rows = [
+            [np.broadcast_to(eye_n, (c, n, n)), R @ p_J @ R.T, R @ p_B],
+            [np.broadcast_to(-K0, (c, n, n)), eye_n - G @ g_J @ R.T, -G @ g_B],
+            [np.broadcast_to(G.T, (c, 3 * M, n)), -Pi_full @ g_J @ R.T, eye_b - Pi_full @ g_B],
+        ]
+        A = np.concatenate([np.concatenate(r, axis=2) for r in rows], axis=1)
+        rhs = np.zeros((c, 2 * n + 3 * M, n))
+        rhs[:, :n] = eye_n
+        Kp = np.linalg.solve(A, rhs)[:, n:2 * n]
         K[chunk] = 0.5 * (Kp + np.swapaxes(Kp, 1, 2))
     info = {"model": "psm-sectors", "images": "none" if tank is None else images, "objects": len(obj_coef),
             "image_shells": image_shells if tank is not None and images == "complete" else None}
