@@ -87,7 +87,7 @@ def sensor_regions(sensor, max_length_m: float | None = None):
     L = REGION_LENGTH_RADII * sensor.radius_m if max_length_m is None else float(max_length_m)
     half = 0.5 * sensor.length_m
     breaks, of = [half], []
-    for j, e in enumerate(sensor.electrodes):
+    for e in sensor.electrodes:
         top = breaks[-1]
         if e.x_max_m < top - 1e-12:        # the insulator above this electrode, in pieces
             pieces = int(np.ceil((top - e.x_max_m) / L))

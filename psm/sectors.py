@@ -213,16 +213,16 @@ def reflected_potential(targets_m: np.ndarray, sources_m: np.ndarray, images, ob
                 t = targets_m[p, start:start + 64]
                 d = np.linalg.norm(t[:, None, None] - img[None], axis=-1)                     # (T, S, K)
                 out[p, start:start + 64] = (1.0 / d) @ images.weights
+    def grad(y0, points):   # (P, Q, 3) -> grad_y G(y0, x) at y = y0, (P, Q, 3)
+        g = -(y0 - points) / np.linalg.norm(y0 - points, axis=-1, keepdims=True) ** 3
+        if len(images):
+            im = images.signs[:, None, None] * points[None] + images.offsets_m[:, None, None]   # (K, P, Q, 3)
+            dif = y0 - im
+            g = g - np.einsum("k,kpqd->pqd", images.weights, dif / np.linalg.norm(dif, axis=-1, keepdims=True) ** 3)
+        return g
+
     for y0, coef in zip(obj_centres, obj_coef):
-        def grad(points):   # (P, Q, 3) -> grad_y G(y0, x) at y = y0, (P, Q, 3)
-            g = -(y0 - points) / np.linalg.norm(y0 - points, axis=-1, keepdims=True) ** 3
-            if len(images):
-                im = images.signs[:, None, None] * points[None] + images.offsets_m[:, None, None]   # (K, P, Q, 3)
-                dif = y0 - im
-                g = g - np.einsum("k,kpqd->pqd", images.weights,
-                                  dif / np.linalg.norm(dif, axis=-1, keepdims=True) ** 3)
-            return g
-        out += coef * np.einsum("ptd,psd->pts", grad(targets_m), grad(sources_m))
+        out += coef * np.einsum("ptd,psd->pts", grad(y0, targets_m), grad(y0, sources_m))
     return out
 
 
@@ -242,20 +242,12 @@ def _image_kernel(c: np.ndarray, images) -> np.ndarray:
     as ``signs * b``): potential ``sum w (signs * b) . d / r^3`` and gradient
     ``sum w [(signs * b) / r^3 - 3 d (d . (signs * b)) / r^5]``.
     """
-    M = len(c)
-    img = images.signs[None] * c[:, None] + images.offsets_m[None]           # (M src, K, 3)
-    d = c[:, None, None] - img[None]                                        # (M tgt, M src, K, 3)
-    r2 = np.sum(d * d, axis=-1)
-    w1 = images.weights / np.sqrt(r2)
-    w3 = w1 / r2
-    w5 = w3 / r2
-    out = np.empty((M, 4, M, 4))
-    out[:, 0, :, 0] = w1.sum(axis=-1)
-    out[:, 1:, :, 0] = -np.einsum("tsk,tskf->tfs", w3, d)
-    out[:, 0, :, 1:] = np.einsum("tsk,ke,tske->tse", w3, images.signs, d)
-    hess = -3 * np.einsum("tsk,tskf,tske,ke->tfse", w5, d, d, images.signs)
-    hess += np.einsum("tsk,ke,fe->tfse", w3, images.signs, np.eye(3))
-    out[:, 1:, :, 1:] = hess
+    from electrosense.psm.kernels import multipole_image_kernel
+
+    out = np.empty((len(c), 4, len(c), 4))
+    multipole_image_kernel(np.ascontiguousarray(c, float), np.ascontiguousarray(images.signs, float),
+                           np.ascontiguousarray(images.offsets_m, float), np.ascontiguousarray(images.weights, float),
+                           out)
     return out
 
 
