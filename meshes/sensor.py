@@ -193,6 +193,33 @@ class SensorDescription:
             emitter = split.numbers_of(base.emitter - 1)[0]
         return replace(split, emitter=int(emitter))
 
+    def lateral_weights(self) -> tuple[tuple[int, ...], np.ndarray]:
+        """The lateral signal "left minus right" of every split electrode whose sectors are all receivers.
+
+        Returns the indices (0-based, into ``electrodes``) of those electrodes
+        and ``W`` (len, n_electrodes): ``W @ I`` is, for each, the sum of its
+        sectors' currents weighted by ``cos(phi_k)``, ``phi_k`` the sector's
+        centre azimuth from +y (the left side when the head points forward and
+        +z is up). For 2 or 4 sectors that is sector 1 minus the opposite one.
+
+        Example
+        -------
+        >>> s = preset("angels-4").with_sectors({2: 4})
+        >>> s.lateral_weights()[1][0].round(6).tolist()
+        [0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+        """
+        rows, split = [], []
+        for j, e in enumerate(self.electrodes):
+            numbers = self.numbers_of(j)
+            if not e.is_split or self.emitter in numbers:
+                continue
+            w = np.zeros(self.n_electrodes)
+            w[np.asarray(numbers) - 1] = np.cos(sector_azimuths_rad(e, self.radius_m)[0])
+            w[np.abs(w) < 1e-12] = 0.0
+            rows.append(w)
+            split.append(j)
+        return tuple(split), np.array(rows).reshape(len(rows), self.n_electrodes)
+
     @property
     def electrode_labels(self) -> tuple[str, ...]:
         """A short name per electrode number: ``"3"`` for a whole electrode, ``"2.1"`` for sector 1 of the second."""

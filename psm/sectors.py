@@ -71,7 +71,7 @@ __all__ = ["SectorModel", "sector_conductance", "reflected_potential", "reflecti
            "FIELD_STEP_M"]
 
 #: outer shell of the (Richardson-extrapolated) complete image series
-IMAGE_SHELLS = 8
+IMAGE_SHELLS = 4
 #: step of the central differences that give the transverse field (m)
 FIELD_STEP_M = 1e-4
 
