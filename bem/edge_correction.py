@@ -194,7 +194,7 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     Returns zeros when ``sensor_mesh`` is not what ``mesh_options`` make (a mesh of the caller's own).
     """
     from electrosense.bem.symmetric import solve_symmetric
-    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, DEFAULT_SECTOR_REFINEMENT, symmetry_order
+    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, DEFAULT_SECTOR_REFINEMENT, block_symmetry
     from electrosense.meshes.sensor_mesh import mesh_sensor
 
     options = dict(mesh_options)
@@ -205,11 +205,11 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     companion = mesh_sensor(sensor, sector_refinement=max(1.0, refinement / 2), sector_grading=1 + 2 * (grading - 1),
                             **options)
     z_list = z if z is None or np.ndim(z) == 0 else list(z)
-    order = symmetry_order(sensor)
+    order, mirror = block_symmetry(sensor)
 
     def surface_K(mesh):
         wb = WaterBoundary.from_meshes(mesh, emitter=sensor.emitter, allow_touching=sensor.sectors_touch)
-        return solve_symmetric(wb, sigma, z_list, sensor.emitter, order=order).K_S
+        return solve_symmetric(wb, sigma, z_list, sensor.emitter, order=order, mirror=mirror).K_S
 
     K = surface_K(sensor_mesh) if surface_K_S is None else np.asarray(surface_K_S, float)
     dK = (K - surface_K(companion)) / (2.0 ** SECTOR_EDGE_ORDER - 1.0)

@@ -185,15 +185,16 @@ def free_space_response(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2=N
     ``Z`` and ``G`` are the surface solution's (not edge-corrected), like the
     BEM's own K in a tank beyond the free-space correction.
     """
-    from electrosense.meshes.sector_mesh import symmetry_order
+    from electrosense.meshes.sector_mesh import block_symmetry
     from electrosense.meshes.sensor_mesh import mesh_sensor
 
     mesh = mesh_sensor(sensor, edge_length_m=edge_length_m, **mesh_options)
     wb = WaterBoundary.from_meshes(mesh, emitter=sensor.emitter, allow_touching=sensor.sectors_touch)
     centroids = wb.triangles_m.mean(axis=1)
     incident = -centroids                    # unit fields along +x, +y, +z: potentials -x, -y, -z
-    solution = solve_symmetric(wb, sigma_S_per_m, contact_impedance_ohm_m2, sensor.emitter,
-                               order=symmetry_order(sensor), incident_potential_V=incident)
+    order, mirror = block_symmetry(sensor)
+    solution = solve_symmetric(wb, sigma_S_per_m, contact_impedance_ohm_m2, sensor.emitter, order=order,
+                               incident_potential_V=incident, mirror=mirror)
     grounded = np.asarray(solution.info.pop("incident_currents_A"))
     c = solution.currents_A.sum(axis=1)     # every electrode at 1 V, grounded
     uniform = grounded - np.outer(c, grounded.sum(axis=0)) / c.sum()   # isolated

@@ -86,10 +86,11 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     sectors = not isinstance(scene, LabelledMesh) and scene.sensor.has_sectors
     solved_axisymmetric = axisymmetric and not sectors and is_axisymmetric_sensor(own_frame)
     if axisymmetric and sectors:   # rotationally symmetric, not axisymmetric: mode by mode (bem/symmetric.py)
-        from electrosense.meshes.sector_mesh import symmetry_order
+        from electrosense.meshes.sector_mesh import block_symmetry
 
-        solution = solve_symmetric(own_frame, sigma_S_per_m, contact_impedance_ohm_m2, emitter,
-                                   order=symmetry_order(scene.sensor))
+        order, mirror = block_symmetry(scene.sensor)
+        solution = solve_symmetric(own_frame, sigma_S_per_m, contact_impedance_ohm_m2, emitter, order=order,
+                                   mirror=mirror)
         solution.boundary = boundary
     elif solved_axisymmetric:
         # 16 collocation points per ring class: K within 6e-6 of all of them (angels-4), 25 % faster

@@ -179,10 +179,11 @@ class PoseSweep:
         self.sensor_boundary = wb
         if self.sensor.has_sectors:
             from electrosense.bem.symmetric import solve_symmetric
-            from electrosense.meshes.sector_mesh import symmetry_order
+            from electrosense.meshes.sector_mesh import block_symmetry
 
+            order, mirror = block_symmetry(self.sensor)
             solution = solve_symmetric(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter,
-                                       order=symmetry_order(self.sensor))
+                                       order=order, mirror=mirror)
         elif is_axisymmetric_sensor(wb):
             solution = solve_axisymmetric(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter,
                                           targets_per_class=AXISYMMETRIC_TARGETS_PER_CLASS)

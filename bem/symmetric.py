@@ -28,8 +28,12 @@ costs ``(G / 2 + 1) (8/3) n^3`` real operations instead of ``(2/3) N^3``: with
 ``G = 4`` about 4 times less assembly and 10 times less factorisation. The
 answer is the full collocation's, to rounding (``tests/test_sector_bem.py``).
 
-With ``G = 1`` (sector counts whose gaps share no rotation) nothing is gained
-and :func:`solve_symmetric` returns the full collocation.
+Modes 0 and ``G / 2`` are real and solved in real arithmetic. The same
+algebra holds for two blocks that are mirror images (``mirror=True``: a
+sensor that no rotation maps onto itself, :func:`electrosense.meshes.sector_mesh.block_symmetry`).
+With ``G = 1`` (boundary conditions with no symmetry, e.g. contact
+impedances that differ between mirror-image sectors) nothing is gained and
+:func:`solve_symmetric` returns the full collocation.
 
 Example
 -------
@@ -72,6 +76,21 @@ def is_rotation_symmetric(boundary: WaterBoundary, order: int, rtol: float = 1e-
     return True
 
 
+def is_mirror_symmetric(boundary: WaterBoundary, rtol: float = 1e-9) -> bool:
+    """True when the triangles are two equal blocks, block 1 block 0's mirror image in the x-y plane (z -> -z)."""
+    tri = boundary.triangles_m
+    if len(tri) % 2:
+        return False
+    n = len(tri) // 2
+    c0, c1 = tri[:n].mean(axis=1), tri[n:].mean(axis=1)
+    scale = np.abs(tri).max()
+    n0 = np.cross(tri[:n, 1] - tri[:n, 0], tri[:n, 2] - tri[:n, 0])
+    n1 = np.cross(tri[n:, 1] - tri[n:, 0], tri[n:, 2] - tri[n:, 0])
+    flip = np.array([1.0, 1.0, -1.0])
+    return bool(np.abs(c1 - c0 * flip).max() <= rtol * scale
+                and np.abs(n1 - n0 * flip).max() <= rtol * scale**2)
+
+
 def type_symmetry_blocks(c_single: np.ndarray, c_double: np.ndarray, order: int) -> int:
     """Largest divisor ``G`` of ``order`` such that shifting the triangles by ``N / G`` keeps every column's type."""
     N = len(c_single)
@@ -83,7 +102,7 @@ def type_symmetry_blocks(c_single: np.ndarray, c_double: np.ndarray, order: int)
 
 
 def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
-                    emitter: int | None = None, order: int = 1, incident_potential_V=None):
+                    emitter: int | None = None, order: int = 1, incident_potential_V=None, mirror: bool = False):
     """Unit solutions of a mesh made of ``order`` rotated copies of one wedge, alone in unbounded water.
 
     Returns a :class:`electrosense.bem.solution.BemSolution` equal (to rounding) to
@@ -91,7 +110,10 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
 
     ``incident_potential_V`` (F, r), optional: ``r`` incident potentials at the
     triangles' centroids (harmonic fields with no source near the sensor, e.g.
-    ``-y`` for a unit field along +y). With every electrode held at 0 V the
+    ``-y`` for a unit field along +y). ``mirror``: the two blocks (``order``
+    2) are mirror images in the x-y plane instead of turned by pi (the same
+    algebra: any isometry of order two makes the matrix 2-block circulant).
+    With every electrode held at 0 V the
     total potential ``u = u_inc + u_scattered`` satisfies
     ``(1/2 + D) u - S q = u_inc`` on the boundary (Green's identity for
     ``u_inc`` inside the body), the same system with ``u_inc`` as right-hand
@@ -106,7 +128,10 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     sigma_S_per_m = check_conductivity(sigma_S_per_m)
     if not boundary.unbounded or boundary.n_conductors or len(boundary.part_names) != 1:
         raise BoundaryError("the symmetric solve is for a lone sensor in unbounded water")
-    if not is_rotation_symmetric(boundary, order):
+    if mirror:
+        if order != 2 or not is_mirror_symmetric(boundary):
+            raise BoundaryError("the sensor mesh is not two mirror-image halves (z -> -z)")
+    elif not is_rotation_symmetric(boundary, order):
         raise BoundaryError(f"the sensor mesh is not {order} rotated copies of one wedge")
     n_el = boundary.n_electrodes
     emitter = n_el if emitter is None else int(emitter)
@@ -165,7 +190,11 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     x_hat = np.empty(rhs.shape, dtype=complex)
     rconds = []
     for m in range(G // 2 + 1):
-        x_hat[m], rcond, _ = solve_dense(modes[m], rhs_hat[m], what=f"BEM system of mode {m}")
+        if m == 0 or 2 * m == G:   # real modes: real arithmetic
+            x, rcond, _ = solve_dense(modes[m].real.copy(), rhs_hat[m].real.copy(), what=f"BEM system of mode {m}")
+            x_hat[m] = x
+        else:
+            x_hat[m], rcond, _ = solve_dense(modes[m], rhs_hat[m], what=f"BEM system of mode {m}")
         rconds.append(rcond)
         if 0 < m < G - m:
             x_hat[G - m] = np.conj(x_hat[m])

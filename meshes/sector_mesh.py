@@ -16,7 +16,11 @@ what changes is where the vertices sit around each ring:
   most :data:`MAX_SYMMETRY_ORDER`): sectors that the sensor's symmetry makes
   equal get equal currents, up to the effect of the other electrodes' gaps,
   which break it physically too. The wedges end on sector edges (a split
-  cap's first, else those of the electrode with the most sectors).
+  cap's first, else those of the electrode with the most sectors). When no
+  rotation maps the sensor onto itself (``M`` = 1: say 2 and 3 sectors), the
+  mesh is a half turn ``[0, pi]`` and its mirror image in the x-y plane
+  (every sector pattern is symmetric about +y), the mirrored triangles after
+  the others: still two blocks for the symmetric solver.
 * **Sector edges.** The rings of a split ring carry one azimuthal vertex set
   (and its half-step staggered copy, ring by ring): every sector edge is a
   vertex, and between edges the spacing is graded as along the axis,
@@ -53,7 +57,7 @@ import numpy as np
 from electrosense.meshes.labelled_mesh import LabelledMesh
 from electrosense.meshes.sensor import SensorDescription, sector_azimuths_rad
 
-__all__ = ["mesh_sector_sensor", "symmetry_order", "MAX_SYMMETRY_ORDER", "wedge_triangles"]
+__all__ = ["mesh_sector_sensor", "symmetry_order", "block_symmetry", "MAX_SYMMETRY_ORDER", "wedge_triangles"]
 
 #: far edge length over the spacing at a sector edge, by default
 DEFAULT_SECTOR_REFINEMENT = 12.0
@@ -69,6 +73,13 @@ def symmetry_order(sensor: SensorDescription) -> int:
     divisor of the sector counts (each split electrode's own rings are symmetric under all its sector rotations)."""
     counts = [e.sectors for e in sensor.electrodes if e.is_split]
     return math.gcd(*counts) if counts else 1
+
+
+def block_symmetry(sensor: SensorDescription) -> tuple[int, bool]:
+    """(number of copies, mirror) of the block structure of a sector sensor's mesh: ``M`` rotated wedges, or,
+    when no rotation maps the sensor onto itself (``M`` = 1), a half turn and its mirror image (z -> -z)."""
+    M = symmetry_order(sensor)
+    return (2, True) if M == 1 else (M, False)
 
 
 def _plain_order(sensor: SensorDescription) -> int:
@@ -103,7 +114,9 @@ def _graded_angles(edges_rad, theta0, period, radius_m, h_band, h_edge, grading,
 
     The electrode's pattern is periodic with its sector pitch ``period``: every
     sector edge is a vertex and the spacing is graded towards all of them. The
-    pattern is laid around the ring and cut to the wedge at points of its own.
+    pattern is laid around the ring and cut to the wedge at points of its own
+    (the wedge's ends and their images under the sector rotations are
+    vertices of every period).
     """
     from electrosense.meshes.sensor_mesh import _ring_positions
 
@@ -118,8 +131,10 @@ def _graded_angles(edges_rad, theta0, period, radius_m, h_band, h_edge, grading,
                                                                       int(np.ceil(np.pi / period)) + 2)])
     # the wedge's end, and its images under the electrode's own sector rotations, are vertices of the pattern
     # too: the pattern stays periodic (each sector meshed alike) and no wedge end cuts it
-    end = (theta0 - e0) % period
-    extra = [end] if tol < end < period - tol and np.min(np.abs(folded - end), initial=np.inf) > tol else []
+    extra = []
+    for end in {(theta0 - e0) % period, (theta0 + width - e0) % period}:
+        if tol < end < period - tol and np.min(np.abs(folded - end), initial=np.inf) > tol:
+            extra.append(end)
     breaks = np.sort(np.concatenate([edge_offsets, extra, [period]]))
     positions, _ = _ring_positions(breaks * radius_m, images * radius_m, h_band, h_edge, grading)
     pattern = positions[:-1] / radius_m
@@ -127,16 +142,13 @@ def _graded_angles(edges_rad, theta0, period, radius_m, h_band, h_edge, grading,
     first = int(np.floor((theta0 - e0) / period)) - 1
     copies = int(np.ceil(width / period)) + 3
     ring = np.concatenate([e0 + pattern + period * k for k in range(first, first + copies)])
-    if width >= 2 * np.pi - tol:   # the whole turn: the pattern itself, closed, nothing cut
-        keep = (ring >= e0 - tol) & (ring < e0 + 2 * np.pi - tol)
-        return np.concatenate([ring[keep], [ring[keep][0] + 2 * np.pi]])
     keep = (ring > theta0 + tol) & (ring < theta0 + width - tol)
     return np.concatenate([[theta0], ring[keep], [theta0 + width]])
 
 
-def _breakpoints(angles, edges_rad, theta0, period):
-    """Which of a pattern's angles are sector edges or images of the wedge's end (kept by :func:`_staggered`)."""
-    marks = np.concatenate([np.asarray(edges_rad), [theta0]])
+def _breakpoints(angles, edges_rad, theta0, period, width):
+    """Which of a pattern's angles are sector edges or images of the wedge's ends (kept by :func:`_staggered`)."""
+    marks = np.concatenate([np.asarray(edges_rad), [theta0, theta0 + width]])
     off = (angles[:, None] - marks[None, :] + 0.5 * period) % period - 0.5 * period
     return np.min(np.abs(off), axis=1) < 1e-9
 
@@ -148,7 +160,7 @@ def _staggered(angles, fixed):
 
 
 def _zip_open(a_idx, a_ang, b_idx, b_ang):
-    """Triangles joining two open polylines of a wedge (A at larger x), advancing by angle."""
+    """Triangles joining two open polylines of a wedge (A at larger x), advancing by the shorter diagonal."""
     if len(a_idx) == 1:   # tip
         return [(a_idx[0], b_idx[j], b_idx[j + 1]) for j in range(len(b_idx) - 1)]
     if len(b_idx) == 1:
@@ -156,7 +168,13 @@ def _zip_open(a_idx, a_ang, b_idx, b_ang):
     tris, i, j = [], 0, 0
     m, n = len(a_idx) - 1, len(b_idx) - 1
     while i < m or j < n:
-        if j >= n or (i < m and a_ang[i + 1] <= b_ang[j + 1]):
+        # the shorter new diagonal (in angle) wins; ties go to the ring whose next vertex comes first. A vertex
+        # that both rings share (a sector edge) is never straddled: the diagonal across it is the longer one.
+        if i < m and j < n:
+            advance_a = (a_ang[i + 1] - b_ang[j], a_ang[i + 1]) < (b_ang[j + 1] - a_ang[i], b_ang[j + 1])
+        else:
+            advance_a = i < m
+        if advance_a:
             tris.append((a_idx[i], b_idx[j], a_idx[i + 1]))
             i += 1
         else:
@@ -204,13 +222,16 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
                                                      azimuthal_refinement, uniform_cylinder)
     M = symmetry_order(sensor)
     plain = _plain_order(sensor)
-    width = 2 * np.pi / M
-    theta0 = -0.5 * width
-    # the wedge's ends on sector edges (of a split cap first: no needle at the tip, where its rings shrink to a
-    # point; else of the electrode with the most sectors), so that they cut no graded pattern
-    split = sorted((e for e in sensor.electrodes if e.is_split), key=lambda e: (e.kind != "cap", -e.sectors))
-    half = sector_azimuths_rad(split[0], sensor.radius_m)[1]
-    theta0 = (-half + 0.5 * width) % width - 0.5 * width
+    mirror = M == 1
+    if mirror:   # no rotation: the half turn [0, pi] (every sector pattern is symmetric about 0 and pi), mirrored
+        width, theta0 = np.pi, 0.0
+    else:
+        # the wedge's ends on sector edges (of a split cap first: no needle at the tip, where its rings shrink
+        # to a point; else of the electrode with the most sectors), so that they cut no graded pattern
+        width = 2 * np.pi / M
+        split = sorted((e for e in sensor.electrodes if e.is_split), key=lambda e: (e.kind != "cap", -e.sectors))
+        half = sector_azimuths_rad(split[0], sensor.radius_m)[1]
+        theta0 = (-half + 0.5 * width) % width - 0.5 * width
     R = sensor.radius_m
     h_band = h_far / (1.25 * azimuthal_refinement)   # a little finer than whole rings: no half-step offset
     h_edge = min(h_far / sector_refinement, h_band)
@@ -220,7 +241,7 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
             band_sets[index] = _graded_angles(_sector_edges_rad(e, R), theta0, 2 * np.pi / e.sectors, R, h_band,
                                               h_edge, sector_grading, width)
             period = 2 * np.pi / e.sectors
-            fixed = _breakpoints(band_sets[index], _sector_edges_rad(e, R), theta0, period)
+            fixed = _breakpoints(band_sets[index], _sector_edges_rad(e, R), theta0, period, width)
             fixed[[0, -1]] = True
             staggered[index] = _staggered(band_sets[index], fixed)
 
@@ -250,11 +271,16 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
                                               h_edge + (sector_grading - 1.0) * d, sector_grading, width))
         elif index is not None:   # on a split ring: the band's set and its staggered copy, ring by ring
             ring_angles.append(band_sets[index] if k % 2 == 0 else staggered[index])
+        elif mirror:   # 2 m vertices, a multiple of every sector count, 0 and pi among them
+            even = math.lcm(2, plain)
+            per_wedge = max(1, int(np.ceil(m / even))) * even // 2
+            ring_angles.append(theta0 + width * np.arange(per_wedge + 1) / per_wedge)
         else:
             per_wedge = max(1, int(np.ceil(m / plain))) * (plain // M)
             ring_angles.append(theta0 + width * np.arange(per_wedge + 1) / per_wedge)
 
-    # vertices: ring by ring, wedge by wedge
+    # vertices: ring by ring, wedge by wedge (mirror: the half turn, then its mirror image z -> -z)
+    copies = 2 if mirror else M
     vertices, base, per_ring = [], [], []
     n_vertices = 0
     for x, r, angles in zip(x_rings, r_rings, ring_angles):
@@ -265,39 +291,42 @@ def mesh_sector_sensor(sensor: SensorDescription, edge_length_m: float | None = 
             n_vertices += 1
             continue
         m = len(angles) - 1
-        rho = r * np.sqrt(2 * np.pi / (M * np.sum(np.sin(np.diff(angles)))))
-        phi = (angles[:-1][None, :] + width * np.arange(M)[:, None]).ravel()
-        vertices.append(np.column_stack([np.full(M * m, x), rho * np.cos(phi), rho * np.sin(phi)]))
-        per_ring.append(M * m)
-        n_vertices += M * m
+        rho = r * np.sqrt(2 * np.pi / (copies * np.sum(np.sin(np.diff(angles)))))
+        if mirror:
+            phi = np.concatenate([angles, -angles[-2:0:-1]])
+        else:
+            phi = (angles[:-1][None, :] + width * np.arange(M)[:, None]).ravel()
+        vertices.append(np.column_stack([np.full(copies * m, x), rho * np.cos(phi), rho * np.sin(phi)]))
+        if mirror:   # exactly mirrored coordinates
+            vertices[-1][m + 1:, 2] = -vertices[-1][m - 1:0:-1, 2]
+            vertices[-1][m + 1:, :2] = vertices[-1][m - 1:0:-1, :2]
+        per_ring.append(copies * m)
+        n_vertices += copies * m
 
-    if M == 1:   # one wedge, the whole turn: closed rings zipped by angle (no wedge end to cut the patterns)
-        from electrosense.meshes.sensor_mesh import _zip
+    # triangles of wedge 0 as (ring, local index) pairs (local index m: the wedge's far end), then every copy
+    wedge, wedge_x = [], []
+    for k in range(len(x_rings) - 1):
+        a, b = ring_angles[k], ring_angles[k + 1]
+        a_idx = [(k, 0)] if a is None else [(k, j) for j in range(len(a))]
+        b_idx = [(k + 1, 0)] if b is None else [(k + 1, j) for j in range(len(b))]
+        tris = _zip_open(a_idx, a, b_idx, b)
+        wedge.extend(tris)
+        wedge_x.extend([0.5 * (x_rings[k] + x_rings[k + 1])] * len(tris))
 
-        faces, x_mids = [], []
-        for k in range(len(x_rings) - 1):
-            rings = [np.arange(base[q], base[q] + per_ring[q]) for q in (k, k + 1)]
-            angles = [np.zeros(1) if ring_angles[q] is None else ring_angles[q][:-1] for q in (k, k + 1)]
-            tris = _zip(rings[0], angles[0], rings[1], angles[1])
-            faces.extend(tris)
-            x_mids.extend([0.5 * (x_rings[k] + x_rings[k + 1])] * len(tris))
-    else:
-        # triangles of wedge 0 as (ring, local index) pairs (local index m: the next wedge's first vertex),
-        # then the same for every wedge
-        wedge, wedge_x = [], []
-        for k in range(len(x_rings) - 1):
-            a, b = ring_angles[k], ring_angles[k + 1]
-            a_idx = [(k, 0)] if a is None else [(k, j) for j in range(len(a))]
-            b_idx = [(k + 1, 0)] if b is None else [(k + 1, j) for j in range(len(b))]
-            tris = _zip_open(a_idx, a, b_idx, b)
-            wedge.extend(tris)
-            wedge_x.extend([0.5 * (x_rings[k] + x_rings[k + 1])] * len(tris))
-        faces, x_mids = [], []
-        for w in range(M):
-            for t in wedge:
-                faces.append([base[ring] if per_ring[ring] == 1
-                              else base[ring] + (w * (per_ring[ring] // M) + j) % per_ring[ring] for ring, j in t])
-            x_mids.extend(wedge_x)
+    def vertex(ring, j, w):
+        n = per_ring[ring]
+        if n == 1:
+            return base[ring]
+        if mirror:
+            return base[ring] + (j if w == 0 or j in (0, n // 2) else n - j)
+        return base[ring] + (w * (n // M) + j) % n
+
+    faces, x_mids = [], []
+    for w in range(copies):
+        for t in wedge:
+            tri = [vertex(ring, j, w) for ring, j in t]
+            faces.append(tri[::-1] if mirror and w == 1 else tri)   # a mirror image keeps its normal outwards
+        x_mids.extend(wedge_x)
     vertices = np.concatenate(vertices)
     faces = np.asarray(faces, dtype=np.int64)
     centre = vertices[faces].mean(axis=1)
