@@ -189,7 +189,11 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     edges twice as coarse (``sector_refinement / 2``, ``sector_grading - 1``
     doubled; the rings, and so the axial edges, unchanged). With the error of
     order :data:`SECTOR_EDGE_ORDER` in that spacing, the limit is
-    ``K + (K - K_companion) / (2^p - 1)``; returns that term (S, zero row sums).
+    ``K + (K - K_companion) / (2^p - 1)``; returns that term (S, zero row sums),
+    less its part in the sums over the sectors of any electrode that has no
+    sector edge to the insulator (whole, or split with no gap): there the two
+    meshes differ by noise only, and the whole electrode's K stays that of
+    the axial correction.
     Both K are free-space surface solutions, by :func:`electrosense.bem.symmetric.solve_symmetric`.
     Returns zeros when ``sensor_mesh`` is not what ``mesh_options`` make (a mesh of the caller's own).
     """
@@ -214,6 +218,15 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     K = surface_K(sensor_mesh) if surface_K_S is None else np.asarray(surface_K_S, float)
     dK = (K - surface_K(companion)) / (2.0 ** SECTOR_EDGE_ORDER - 1.0)
     dK = 0.5 * (dK + dK.T)
+    dK = dK - np.diag(dK.sum(axis=1))
+    # an electrode with no sector edge to the insulator (whole, or split with no gap) has no such error: what
+    # the two meshes give its sectors together differs by the meshes' noise only. Take it out, shared by arc.
+    W = sensor.merge_matrix()
+    F = sector_shares(sensor)
+    F = F / (W.T @ F).diagonal()[None, :]
+    plain = np.array([not e.is_split or e.sector_gap_m == 0 for e in sensor.electrodes])
+    mask = plain[:, None] | plain[None, :]
+    dK = dK - F @ ((W.T @ dK @ W) * mask) @ F.T
     return dK - np.diag(dK.sum(axis=1))
 
 
