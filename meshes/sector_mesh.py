@@ -77,7 +77,10 @@ def symmetry_order(sensor: SensorDescription) -> int:
 
 def block_symmetry(sensor: SensorDescription) -> tuple[int, bool]:
     """(number of copies, mirror) of the block structure of a sector sensor's mesh: ``M`` rotated wedges, or,
-    when no rotation maps the sensor onto itself (``M`` = 1), a half turn and its mirror image (z -> -z)."""
+    when no rotation maps the sensor onto itself (``M`` = 1), a half turn and its mirror image (z -> -z).
+    A sensor without sectors (meshed ring by ring, :func:`electrosense.meshes.sensor_mesh.mesh_sensor`): (1, False)."""
+    if not sensor.has_sectors:
+        return 1, False
     M = symmetry_order(sensor)
     return (2, True) if M == 1 else (M, False)
 
