@@ -175,31 +175,35 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     rhs = np.empty((G, n, n_el + incident.shape[1]))
     for a in range(G):
         turned = np.roll(labels, -a * n)
-        onehot = np.zeros((N, n_el))
-        on = turned > 0
-        onehot[np.flatnonzero(on), turned[on] - 1] = 1.0
-        rhs[a, :, :n_el] = -(H0 @ onehot)
+        for g in range(n_el):
+            rhs[a, :, g] = -H0[:, turned == g + 1].sum(axis=1)
         rhs[a, :, n_el:] = incident[a * n:(a + 1) * n]
     S0 *= cs[None, :]
     S0 += H0 * cd[None, :]
     del H0
-    blocks = S0.reshape(n, G, n).transpose(1, 0, 2)          # C_d: block 0's targets x block d's sources
-    modes = G * np.fft.ifft(blocks, axis=0)
+    blocks = S0.reshape(n, G, n)                             # blocks[:, d]: block 0's targets x block d's sources
     rhs_hat = np.fft.fft(rhs, axis=0)
     t1 = time.perf_counter()
     x_hat = np.empty(rhs.shape, dtype=complex)
     rconds = []
     for m in range(G // 2 + 1):
+        # A_m = sum_d C_d exp(2 pi i m d / G), summed directly in real arithmetic (an FFT over a short, strided
+        # axis of a large array is several times slower)
+        angle = 2 * np.pi * m * np.arange(G) / G
+        real = sum(np.cos(a) * blocks[:, d] for d, a in enumerate(angle))
         if m == 0 or 2 * m == G:   # real modes: real arithmetic
-            x, rcond, _ = solve_dense(modes[m].real.copy(), rhs_hat[m].real.copy(), what=f"BEM system of mode {m}")
+            x, rcond, _ = solve_dense(real, rhs_hat[m].real.copy(), what=f"BEM system of mode {m}")
             x_hat[m] = x
         else:
-            x_hat[m], rcond, _ = solve_dense(modes[m], rhs_hat[m], what=f"BEM system of mode {m}")
+            mode = real + 1j * sum(np.sin(a) * blocks[:, d] for d, a in enumerate(angle))
+            del real
+            x_hat[m], rcond, _ = solve_dense(mode, rhs_hat[m], what=f"BEM system of mode {m}")
         rconds.append(rcond)
         if 0 < m < G - m:
             x_hat[G - m] = np.conj(x_hat[m])
     x = np.fft.ifft(x_hat, axis=0).real.reshape(N, -1)
     t2 = time.perf_counter()
+    del S0, blocks
     system = BemSystem(matrix=None, rhs=None, scale_m=scale, z_c=z_c, n_conductors=0)
     solution = unit_solutions(boundary, sigma_S_per_m, system, x[:, :n_el], emitter,
                               {"assembly_s": t1 - t0, "solve_s": t2 - t1, "method": "symmetric blocks",

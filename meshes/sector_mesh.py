@@ -135,8 +135,9 @@ def _graded_angles(edges_rad, theta0, period, radius_m, h_band, h_edge, grading,
     # the wedge's end, and its images under the electrode's own sector rotations, are vertices of the pattern
     # too: the pattern stays periodic (each sector meshed alike) and no wedge end cuts it
     extra = []
-    for end in {(theta0 - e0) % period, (theta0 + width - e0) % period}:
-        if tol < end < period - tol and np.min(np.abs(folded - end), initial=np.inf) > tol:
+    for end in ((theta0 - e0) % period, (theta0 + width - e0) % period):
+        known = np.concatenate([folded, extra])
+        if tol < end < period - tol and np.min(np.abs(known - end), initial=np.inf) > tol:
             extra.append(end)
     breaks = np.sort(np.concatenate([edge_offsets, extra, [period]]))
     positions, _ = _ring_positions(breaks * radius_m, images * radius_m, h_band, h_edge, grading)

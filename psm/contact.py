@@ -38,7 +38,10 @@ __all__ = ["electrode_areas_m2", "series_resistance_ohm"]
 
 
 def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
-    """Wetted area (m^2) of each real electrode of ``sensor``, electrode 1 first."""
+    """Wetted area (m^2) of each real electrode of ``sensor``, electrode 1 first (a sector: its share of its
+    electrode's area, ``w / pi`` of it for half-angle ``w``)."""
+    from electrosense.meshes.sensor import sector_azimuths_rad
+
     r = sensor.radius_m
     areas = []
     for e in sensor.electrodes:
@@ -46,9 +49,11 @@ def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
         if e.kind == "cap":
             cap = min(h, r)  # spherical cap of height h (a hemisphere when h >= r) ...
             collar = max(h - r, 0.0)  # ... plus the cylindrical collar beyond it
-            areas.append(2 * np.pi * r * cap + 2 * np.pi * r * collar)
+            whole = 2 * np.pi * r * cap + 2 * np.pi * r * collar
         else:
-            areas.append(2 * np.pi * r * h)
+            whole = 2 * np.pi * r * h
+        share = 1.0 if not e.is_split else sector_azimuths_rad(e, r)[1] / np.pi
+        areas.extend([whole * share] * e.sectors)
     return np.array(areas)
 
 

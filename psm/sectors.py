@@ -94,6 +94,11 @@ class SectorModel:
     dipole_response_S_m2 : (M, 3, 3) or None
         ``Pi``: current dipole (A m) each region sends per unit gradient (V/m) of the returned potential at
         its centre (the insulating body's polarisation), sensor frame; None: left out.
+    electrode_areas_m2 : (n,) or None
+        Wetted area of each electrode, for a contact impedance in series (:mod:`electrosense.psm.contact`).
+    body_radius_m : float
+        The sensor body's radius: the model's electrodes are "spheres" of that radius at their regions'
+        centres where a placement is checked (:attr:`centres_m`, :attr:`radii_m`).
     sigma_S_per_m : float
         The conductivity ``K0`` and ``G`` were computed at (both scale with it).
     emitter : int
@@ -110,6 +115,8 @@ class SectorModel:
     emitter: int = 0
     info: dict = field(default_factory=dict)
     dipole_response_S_m2: np.ndarray | None = None
+    electrode_areas_m2: np.ndarray | None = None
+    body_radius_m: float = 0.0
 
     def __post_init__(self):
         K0 = np.asarray(self.K0_S, float)
@@ -131,8 +138,14 @@ class SectorModel:
             Pi = np.asarray(Pi, float)
             if Pi.shape != (M, 3, 3) or not np.all(np.isfinite(Pi)):
                 raise ValueError(f"dipole_response_S_m2 must be finite with shape {(M, 3, 3)}, got {Pi.shape}")
+        areas = self.electrode_areas_m2
+        if areas is not None:
+            areas = np.asarray(areas, float).reshape(-1)
+            if areas.shape != (n,) or not np.all(areas > 0):
+                raise ValueError(f"electrode_areas_m2 must be {n} positive areas")
         for name, value in (("K0_S", K0), ("gradient_response_S_m", G), ("region_centres_m", centres),
-                            ("region_of_electrode", region), ("dipole_response_S_m2", Pi)):
+                            ("region_of_electrode", region), ("dipole_response_S_m2", Pi),
+                            ("electrode_areas_m2", areas)):
             object.__setattr__(self, name, value)
         object.__setattr__(self, "sigma_S_per_m", check_conductivity(self.sigma_S_per_m))
         emitter = n if self.emitter == 0 else int(self.emitter)
@@ -148,12 +161,27 @@ class SectorModel:
     def n_regions(self) -> int:
         return self.region_centres_m.shape[0]
 
+    @property
+    def centres_m(self) -> np.ndarray:
+        """(n, 3) the centre of each electrode's region, sensor frame (as a PSM's sphere centres)."""
+        return self.region_centres_m[self.region_of_electrode]
+
+    @property
+    def radii_m(self) -> np.ndarray:
+        """(n,) the body's radius for every electrode (how far the sensor reaches around a centre)."""
+        return np.full(self.n, float(self.body_radius_m))
+
     @classmethod
-    def from_response(cls, response, emitter: int = 0, info: dict | None = None) -> "SectorModel":
-        """From a :class:`electrosense.bem.lateral.FreeSpaceResponse`."""
+    def from_response(cls, response, emitter: int = 0, info: dict | None = None, sensor=None) -> "SectorModel":
+        """From a :class:`electrosense.bem.lateral.FreeSpaceResponse` (``sensor``: for the areas and radius)."""
         g = response.conductance
+        areas, radius = None, 0.0
+        if sensor is not None:
+            from electrosense.psm.contact import electrode_areas_m2
+
+            areas, radius = electrode_areas_m2(sensor), float(sensor.radius_m)
         return cls(g.K_S, response.gradient_response, response.region_centres_m, response.region_of_electrode,
-                   g.sigma_S_per_m, emitter or g.emitter, dict(info or {}), response.dipole_response)
+                   g.sigma_S_per_m, emitter or g.emitter, dict(info or {}), response.dipole_response, areas, radius)
 
     # -------------------------------------------------------------------- JSON
     def to_json_dict(self) -> dict:
@@ -165,6 +193,8 @@ class SectorModel:
                 "region_of_electrode": self.region_of_electrode.tolist(),
                 "dipole_response_S_m2": None if self.dipole_response_S_m2 is None
                 else self.dipole_response_S_m2.tolist(),
+                "electrode_areas_m2": None if self.electrode_areas_m2 is None else self.electrode_areas_m2.tolist(),
+                "body_radius_m": self.body_radius_m,
                 "sigma_S_per_m": self.sigma_S_per_m, "emitter": self.emitter, "info": self.info}
 
     @classmethod
@@ -175,7 +205,9 @@ class SectorModel:
             return cls(np.array(d["K0_S"]), np.array(d["gradient_response_S_m"]), np.array(d["region_centres_m"]),
                        np.array(d["region_of_electrode"]), float(d["sigma_S_per_m"]), int(d.get("emitter", 0)),
                        dict(d.get("info", {})),
-                       None if d.get("dipole_response_S_m2") is None else np.array(d["dipole_response_S_m2"]))
+                       None if d.get("dipole_response_S_m2") is None else np.array(d["dipole_response_S_m2"]),
+                       None if d.get("electrode_areas_m2") is None else np.array(d["electrode_areas_m2"]),
+                       float(d.get("body_radius_m", 0.0)))
         except KeyError as exc:
             raise ValueError(f"sector model lacks the key {exc}") from None
 
@@ -286,11 +318,14 @@ def reflection_kernel(centres_m: np.ndarray, poses: np.ndarray, sigma: float, im
 
 
 def sector_conductance(model: SectorModel, poses, sigma_S_per_m: float, tank=None, images: str = "complete",
-                       objects=(), image_shells: int = IMAGE_SHELLS) -> ConductanceMatrix:
+                       objects=(), image_shells: int = IMAGE_SHELLS,
+                       contact_impedance_ohm_m2=None) -> ConductanceMatrix:
     """Conductance matrices (P, n, n) of the sector model at every pose, as a ConductanceMatrix.
 
-    Parameters as :func:`electrosense.psm.conductance` (no contact impedance: ``K0`` is that of
-    the free-space BEM, which may carry one).
+    Parameters as :func:`electrosense.psm.conductance`. A contact impedance is a
+    resistance ``z / A`` in series with each electrode, as the PSM's
+    (:mod:`electrosense.psm.contact`; it needs the model's ``electrode_areas_m2``):
+    ``K' = (1 + K diag(z / A))^-1 K``, on top of whatever ``K0`` carries.
     """
     if images not in IMAGE_KINDS:
         raise ValueError(f"images={images!r}: expected one of {', '.join(IMAGE_KINDS)}")
@@ -330,6 +365,14 @@ def sector_conductance(model: SectorModel, poses, sigma_S_per_m: float, tank=Non
         rhs[:, :n] = eye_n
         Kp = np.linalg.solve(A, rhs)[:, n:2 * n]
         K[chunk] = 0.5 * (Kp + np.swapaxes(Kp, 1, 2))
+    if contact_impedance_ohm_m2 is not None:
+        from electrosense.psm.contact import series_resistance_ohm
+
+        if model.electrode_areas_m2 is None:
+            raise ValueError("a contact impedance needs the sector model's electrode_areas_m2")
+        Zs = np.diag(series_resistance_ohm(contact_impedance_ohm_m2, model.electrode_areas_m2))
+        K = np.linalg.solve(np.eye(n)[None] + K @ Zs, K)
+        K = 0.5 * (K + np.swapaxes(K, 1, 2))
     info = {"model": "psm-sectors", "images": "none" if tank is None else images, "objects": len(obj_coef),
             "image_shells": image_shells if tank is not None and images == "complete" else None}
     return ConductanceMatrix(K, model.emitter, float(sigma), info)

@@ -148,6 +148,8 @@ def geometric_psm(sensor: SensorDescription, calibrated=None):
         from electrosense.validation.simulation.models import calibrated_psm
 
         calibrated = calibrated_psm(sensor)
+    if sensor.has_sectors:   # the sector model's currents already leave where the electrodes are
+        return calibrated
     return PolySphericalModel(
         radii_m=np.asarray(calibrated.radii_m, float), centres_m=sensor.electrode_centres_m,
         emitter=sensor.emitter, electrode_areas_m2=electrode_areas_m2(sensor),
@@ -190,6 +192,11 @@ class PSMEffectModel:
 
         self.calls += 1
         poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        if self.sensor.has_sectors:   # the sector PSM (psm.sectors): a fixed image series already
+            from electrosense.psm.sectors import sector_conductance
+
+            return sector_conductance(self.model, poses, self.sigma_S_per_m, tank=tank, objects=tuple(objects),
+                                      contact_impedance_ohm_m2=contact_impedance_ohm_m2).K_S
         K, info = conductance_array(
             self.model, poses, self.sigma_S_per_m, tank=tank, objects=tuple(objects),
             contact_impedance_ohm_m2=contact_impedance_ohm_m2, sensor=self.sensor,

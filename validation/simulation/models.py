@@ -202,6 +202,7 @@ class SectorPSMEvaluator:
     tank: Tank | None = None
     objects: tuple = ()
     images: str = "complete"
+    contact_impedance_ohm_m2: object = None
     info: dict = field(default_factory=dict, compare=False)
 
     def conductance(self, poses, progress: bool = False) -> ConductanceMatrix:
@@ -209,25 +210,22 @@ class SectorPSMEvaluator:
         from electrosense.psm.sectors import sector_conductance
 
         return sector_conductance(self.model, poses_array(poses), self.sigma_S_per_m, tank=self.tank,
-                                  images=self.images, objects=tuple(self.objects))
+                                  images=self.images, objects=tuple(self.objects),
+                                  contact_impedance_ohm_m2=self.contact_impedance_ohm_m2)
 
     def for_poses(self, poses, max_probes: int = 24) -> "SectorPSMEvaluator":
         return self   # a fixed image series: every chunk is computed as one call would
 
 
-def calibrated_sector_psm(sensor: SensorDescription, edge_length_m: float | None = None,
-                          contact_impedance_ohm_m2=None, cache: bool = True):
+def calibrated_sector_psm(sensor: SensorDescription, edge_length_m: float | None = None, cache: bool = True):
     """The sector PSM of ``sensor`` (:class:`electrosense.psm.sectors.SectorModel`) from its free-space BEM, computed once.
 
     :func:`electrosense.bem.lateral.free_space_response` at 1 S/m (K with the edge correction,
-    the regions' responses), cached as JSON in :func:`psm_cache_dir`, keyed as :func:`calibrated_psm`
-    (and the contact impedance).
+    the regions' responses), cached as JSON in :func:`psm_cache_dir`, keyed as :func:`calibrated_psm`.
     """
     from electrosense.psm.sectors import SectorModel
 
-    z = contact_impedance_ohm_m2
-    z_key = None if z is None else np.atleast_1d(np.asarray(z, float)).tolist()
-    key = _psm_cache_key(sensor, edge_length_m, {"sectors": True, "contact_impedance_ohm_m2": z_key})
+    key = _psm_cache_key(sensor, edge_length_m, {"sectors": True})
     path = psm_cache_dir() / f"psm-sectors-{key}.json"
     if cache and path.exists():
         try:
@@ -236,10 +234,11 @@ def calibrated_sector_psm(sensor: SensorDescription, edge_length_m: float | None
             path.unlink(missing_ok=True)
     from electrosense.bem.lateral import free_space_response
 
-    response = free_space_response(sensor, 1.0, contact_impedance_ohm_m2, edge_length_m=edge_length_m)
+    response = free_space_response(sensor, 1.0, edge_length_m=edge_length_m)
     model = SectorModel.from_response(response, sensor.emitter,
                                       info={"sensor": sensor.to_dict(), "bem_edge_length_m": edge_length_m,
-                                            "triangles": response.conductance.info.get("triangles")})
+                                            "triangles": response.conductance.info.get("triangles")},
+                                      sensor=sensor)
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
@@ -347,10 +346,13 @@ def calibrated_psm(
 
     Returns
     -------
-    psm.PolySphericalModel
+    psm.PolySphericalModel, or for a sensor with sectors :class:`electrosense.psm.sectors.SectorModel`
+    (:func:`calibrated_sector_psm`)
     """
     from electrosense.psm import PolySphericalModel
 
+    if sensor.has_sectors:   # no spheres describe sectors: the sector model (its calibration has no layout)
+        return calibrated_sector_psm(sensor, edge_length_m, cache=cache)
     layout = calibration_layout(sensor, symmetric)
     # the file name is a hash only: a sensor's name is a user's label, never part of a path
     path = psm_cache_dir() / f"psm-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
@@ -455,14 +457,12 @@ def pose_evaluator(
                 f"{', '.join(_PSM_CALIBRATION_OPTIONS)} (of the calibration BEM) is used"
             )
         calibrated = psm_model is None
-        if sensor.has_sectors:
+        if sensor.has_sectors:   # the contact impedance in series, as the PSM's
             if calibrated:
-                psm_model = calibrated_sector_psm(sensor, bem_options.get("edge_length_m"), contact_impedance_ohm_m2)
-            elif contact_impedance_ohm_m2 is not None:
-                raise ModelError("a given sector PSM carries its own contact impedance (that of its calibration)")
+                psm_model = calibrated_sector_psm(sensor, bem_options.get("edge_length_m"))
             info = {"model": "psm-sectors", "images": images, "calibrated_on_free_space_bem": calibrated}
             return SectorPSMEvaluator(_load_sector_psm(psm_model, sensor), float(sigma_S_per_m), tank, objects,
-                                      images, info=info)
+                                      images, contact_impedance_ohm_m2, info=info)
         if calibrated:
             psm_model = calibrated_psm(sensor, edge_length_m=bem_options.get("edge_length_m"))
         psm_model = _load_psm(psm_model)
