@@ -226,24 +226,32 @@ def calibrated_sector_psm(sensor: SensorDescription, edge_length_m: float | None
     from electrosense.psm.sectors import SectorModel
 
     key = _psm_cache_key(sensor, edge_length_m, {"sectors": True})
-    path = psm_cache_dir() / f"psm-sectors-{key}.json"
+
+    def compute():
+        from electrosense.bem.lateral import free_space_response
+
+        response = free_space_response(sensor, 1.0, edge_length_m=edge_length_m)
+        return SectorModel.from_response(response, sensor.emitter,
+                                         info={"sensor": sensor.to_dict(), "bem_edge_length_m": edge_length_m,
+                                               "triangles": response.conductance.info.get("triangles")},
+                                         sensor=sensor)
+
+    return _cached_model(psm_cache_dir() / f"psm-sectors-{key}.json", SectorModel.load, compute, cache)
+
+
+def _cached_model(path: Path, load, compute, cache: bool):
+    """``load(path)`` if the cache holds it, else ``compute()``, written to ``path`` atomically."""
     if cache and path.exists():
         try:
-            return SectorModel.load(path)
+            return load(path)
         except Exception:  # a damaged cache entry is recomputed, never trusted
             path.unlink(missing_ok=True)
-    from electrosense.bem.lateral import free_space_response
-
-    response = free_space_response(sensor, 1.0, edge_length_m=edge_length_m)
-    model = SectorModel.from_response(response, sensor.emitter,
-                                      info={"sensor": sensor.to_dict(), "bem_edge_length_m": edge_length_m,
-                                            "triangles": response.conductance.info.get("triangles")},
-                                      sensor=sensor)
+    model = compute()
     if cache:
         path.parent.mkdir(parents=True, exist_ok=True)
         partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
         model.save(partial)
-        os.replace(partial, path)
+        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
     return model
 
 
@@ -356,22 +364,14 @@ def calibrated_psm(
     layout = calibration_layout(sensor, symmetric)
     # the file name is a hash only: a sensor's name is a user's label, never part of a path
     path = psm_cache_dir() / f"psm-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
-    if cache and path.exists():
-        try:
-            return PolySphericalModel.load(path)
-        except Exception:  # a damaged cache entry is recomputed, never trusted
-            path.unlink(missing_ok=True)
 
-    from electrosense.psm.calibration import calibrate
+    def compute():
+        from electrosense.psm.calibration import calibrate
 
-    reference = free_space_bem(sensor, edge_length_m)
-    model = calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
-    if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
-        model.save(partial)
-        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
-    return model
+        reference = free_space_bem(sensor, edge_length_m)
+        return calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
+
+    return _cached_model(path, PolySphericalModel.load, compute, cache)
 
 
 def _load_psm(psm_model):
