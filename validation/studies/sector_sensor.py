@@ -15,9 +15,10 @@ tail cap, which emits. Printed, each beside its goal:
 4. the time of ``esense conductance --unbounded`` from an empty cache (wall
    and CPU), for this sensor (4-fold symmetric) and for one that no rotation
    maps onto itself (a ring in 4 sectors, one in 3: two mirror-image blocks);
-5. refinement: the free-space K at three mesh sizes (edge length x 1.4, 1,
-   1/1.4), the observed order, and the default mesh's distance from the
-   Richardson limit, with and without the edge corrections;
+5. refinement: the sector edges' spacing halved three times (the rings
+   unchanged), the observed order of the surface K and the corrected default's
+   distance from the Richardson limit; and the whole mesh refined (edge
+   length x 1.4, 1, 1/1.4): how much the corrected K still moves;
 6. the PSM against the BEM in the 1 m tank: passes along x, 3, 5, 7 and
    10 cm from the +y wall and from the -y wall, and a pass beside a
    conducting sphere on either side: the sector currents (mean relative
@@ -141,59 +142,104 @@ def cold_timing(sensor: SensorDescription, folder: Path):
 
 
 # ---------------------------------------------------------------------------------------------------- 5
-def refinement(out: Path, factors=(1.4, 1.0, 1 / 1.4)):
+ENTRIES = {"sector self K[2,2]": (1, 1), "neighbour sector K[2,3]": (1, 2), "opposite sector K[2,4]": (1, 3),
+           "sector-emitter K[2,11]": (1, 10), "cap-emitter K[1,11]": (0, 10)}
+
+
+def _order_and_limit(v, ratio):
+    """Observed order from three values refined by ``ratio`` each, and the Richardson limit (order 1 where the
+    differences do not shrink monotonically)."""
+    d1, d2 = v[1] - v[0], v[2] - v[1]
+    p = float(np.log(abs(d1 / d2)) / np.log(ratio)) if d2 != 0 and d1 * d2 > 0 else float("nan")
+    return p, v[2] + d2 / (ratio ** (p if np.isfinite(p) and p > 0.3 else 1.0) - 1)
+
+
+def sector_edge_refinement(out: Path, edge_factor=1.4, levels=(6.0, 12.0, 24.0, 48.0)):
+    """The sector edges' family: the spacing at the sector edges halved level by level (``sector_refinement``
+    doubled, ``sector_grading - 1`` halved; the rings along the axis unchanged), surface solutions.
+
+    The default mesh is the level 12; its edge-corrected K is ``2 K_12 - K_6`` (the Richardson term of
+    :func:`electrosense.bem.edge_correction.sector_edge_correction`) plus the axial correction, which these meshes
+    share. Returns the surface K per level, the observed order (12, 24, 48) and the corrected K's distance from
+    the limit, entry by entry.
+    """
+    from electrosense.bem.boundary_conditions import WaterBoundary
+    from electrosense.bem.symmetric import solve_symmetric
+    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, block_symmetry
+    from electrosense.meshes.sensor_mesh import default_edge_length_m, mesh_sensor
+
+    s = STUDY_SENSOR
+    h = edge_factor * default_edge_length_m(s)
+    order, mirror = block_symmetry(s)
+    K, tri = {}, {}
+    for level in levels:
+        grading = 1 + (DEFAULT_SECTOR_GRADING - 1) * 12.0 / level
+        mesh = mesh_sensor(s, edge_length_m=h, sector_refinement=level, sector_grading=grading)
+        t0 = time.perf_counter()
+        K[level] = solve_symmetric(WaterBoundary.from_meshes(mesh, emitter=s.emitter), 1.0, None, s.emitter,
+                                   order=order, mirror=mirror).K_S
+        tri[level] = mesh.n_triangles
+        print(f"  sector refinement {level:g}: {mesh.n_triangles} triangles, {time.perf_counter() - t0:.1f} s",
+              flush=True)
+    result = {}
+    for name, (i, j) in ENTRIES.items():
+        v = np.array([K[level][i, j] for level in levels[1:]])
+        p, limit = _order_and_limit(v, 2.0)
+        corrected = 2 * K[levels[1]][i, j] - K[levels[0]][i, j]
+        result[name] = {"surface": [K[level][i, j] for level in levels], "order": p,
+                        "surface_default_error": float(v[0] / limit - 1),
+                        "corrected_default_error": float(corrected / limit - 1),
+                        "row_max": float(np.abs(K[levels[-1]][i]).max()),
+                        "corrected_default_error_of_row_max": float((corrected - limit) / np.abs(K[levels[-1]][i]).max())}
+    _plot_sector_refinement(out / "refinement.png", levels, tri, K, result)
+    return result
+
+
+def _plot_sector_refinement(path, levels, tri, K, result):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    spacing = 12.0 / np.array(levels)          # sector-edge spacing relative to the default's
+    for k, (name, r) in enumerate(result.items()):
+        v = np.array(r["surface"])
+        limit = v[1] / (1 + r["surface_default_error"])
+        ax.loglog(spacing[1:], np.abs(v[1:] / limit - 1), "-o", color=f"C{k}", label=f"{name}: p = {r['order']:.2f}")
+        ax.loglog([1.0], [abs(r["corrected_default_error"]) + 1e-7], "*", color=f"C{k}", ms=11)
+    ax.loglog(spacing[1:], 0.01 * spacing[1:], ":", color="0.5", label="order 1")
+    ax.set_xlabel("spacing at the sector edges / the default's")
+    ax.set_ylabel("|K / Richardson limit - 1|")
+    ax.set_title("Surface K under sector-edge refinement (stars: the default, corrected)", fontsize=9)
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+
+
+def mesh_refinement(factors=(1.4, 1.0, 1 / 1.4)):
+    """The corrected free-space K at three edge lengths (the whole mesh refined): how much it still moves."""
     from electrosense.bem.solve import solve_scene
     from electrosense.meshes.scene import Scene
     from electrosense.meshes.sensor_mesh import default_edge_length_m
 
     s = STUDY_SENSOR
     h0 = default_edge_length_m(s)
-    e = s.emitter - 1
-    entries = {"sector self K[2,2]": (1, 1), "neighbour sector K[2,3]": (1, 2), "opposite sector K[2,4]": (1, 3),
-               "sector-emitter K[2,11]": (1, e), "cap-emitter K[1,11]": (0, e)}
     rows = []
     for f in factors:
-        t0 = time.perf_counter()
         sol = solve_scene(Scene(s), 1.0, edge_length_m=h0 * f)
-        rows.append((sol.info["triangles"], sol.K_S.copy(), sol.K_surface_S.copy(), time.perf_counter() - t0))
-        print(f"  edge length {h0 * f * 1e3:.2f} mm: {sol.info['triangles']} triangles, "
-              f"{time.perf_counter() - t0:.1f} s", flush=True)
-    ratio = factors[0] / factors[1]
-    result = {}
-    for name, (i, j) in entries.items():
-        for kind, idx in (("corrected", 1), ("surface", 2)):
-            v = np.array([r[idx][i, j] for r in rows])
-            d1, d2 = v[1] - v[0], v[2] - v[1]
-            p = float(np.log(abs(d1 / d2)) / np.log(ratio)) if d2 != 0 and d1 * d2 > 0 else float("nan")
-            limit = v[2] + d2 / (ratio ** (p if np.isfinite(p) and p > 0.3 else 1.0) - 1)
-            result[(name, kind)] = {"values": v.tolist(), "order": p,
-                                    "default_error": float(v[1] / limit - 1), "finest_error": float(v[2] / limit - 1)}
-    _plot_refinement(out / "refinement.png", rows, result, entries)
-    return rows, result
-
-
-def _plot_refinement(path, rows, result, entries):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = np.array([r[0] for r in rows])
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    for k, name in enumerate(entries):
-        for kind, style in (("corrected", "-o"), ("surface", "--s")):
-            r = result[(name, kind)]
-            v = np.array(r["values"])
-            limit = v[1] / (1 + r["default_error"])
-            ax.loglog(n, np.abs(v / limit - 1) + 1e-7, style, color=f"C{k}", label=f"{name} ({kind})")
-    ax.set_xlabel("triangles")
-    ax.set_ylabel("|K / Richardson limit - 1|")
-    ax.set_title("Free-space K of the sector sensor under refinement")
-    ax.legend(fontsize=6.5, ncol=2)
-    ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+        rows.append((sol.info["triangles"], sol.K_S.copy(), sol.K_surface_S.copy()))
+        print(f"  edge length {h0 * f * 1e3:.2f} mm: {sol.info['triangles']} triangles", flush=True)
+    out = {}
+    for name, (i, j) in ENTRIES.items():
+        row_max = np.abs(rows[-1][1][i]).max()
+        out[name] = {"triangles": [r[0] for r in rows], "corrected": [float(r[1][i, j]) for r in rows],
+                     "surface": [float(r[2][i, j]) for r in rows],
+                     "corrected_spread_of_row_max": float(np.ptp([r[1][i, j] for r in rows]) / row_max),
+                     "surface_spread_of_row_max": float(np.ptp([r[2][i, j] for r in rows]) / row_max)}
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------- 6
@@ -281,7 +327,7 @@ def _plot_lateral(path_walls, path_sphere, poses, labels, lat_b, lat_p, split, x
                 sel = (labels[:, 0] == side) & (labels[:, 1] == d)
                 x = poses[sel, 0]
                 ax.plot(x, 1e6 * lat_p[sel, c], "-", color=f"C{k}",
-                        label=f"{d * 100:.0f} cm, {'+y' if side > 0 else '-y'} wall" if True else None)
+                        label=f"{d * 100:.0f} cm from the wall" if side > 0 else None)
                 ax.plot(x, 1e6 * lat_b[sel, c], marker, color=f"C{k}", mfc="none", ms=4)
         ax.axhline(0, color="0.6", lw=0.6)
         ax.set_title(f"electrode {j + 1} ({STUDY_SENSOR.electrodes[j].sectors} sectors): left - right")
@@ -289,7 +335,7 @@ def _plot_lateral(path_walls, path_sphere, poses, labels, lat_b, lat_p, split, x
         ax.set_ylabel("lateral signal (uA at 1 V)")
         ax.grid(True, alpha=0.3)
         if c == 0:
-            ax.legend(fontsize=6.5, ncol=2, title="PSM lines, BEM markers", title_fontsize=7)
+            ax.legend(fontsize=6.5, title="PSM lines; BEM: o +y wall, s -y wall", title_fontsize=7)
     fig.tight_layout()
     fig.savefig(path_walls, dpi=130)
     plt.close(fig)
@@ -373,6 +419,17 @@ def _plot_crb(path, cases, rows):
 
 
 # ------------------------------------------------------------------------------------------------- main
+def _save(out: Path, figures: dict, lines: list):
+    """figures.json updated (a partial run keeps the other figures), summary.txt appended."""
+    path = out / "figures.json"
+    old = json.loads(path.read_text()) if path.exists() else {}
+    old.update(json.loads(json.dumps(figures, default=float)))
+    path.write_text(json.dumps(old, indent=1) + "\n")
+    with open(out / "summary.txt", "a") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(prog="sector_sensor", description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="sector_sensor_study", help="folder of the figures and figures.json")
@@ -380,6 +437,8 @@ def main(argv=None):
     ap.add_argument("--skip-bempp", action="store_true")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--skip-refinement", action="store_true")
+    ap.add_argument("--only-refinement", action="store_true", help="stop after the refinement (and what precedes "
+                    "it unless skipped); figures.json is updated, not replaced")
     ap.add_argument("--bempp-edge-length", type=float, default=None,
                     help="edge length of the mesh both codes solve (m); default 1.5 x the default mesh's")
     args = ap.parse_args(argv)
@@ -423,11 +482,21 @@ def main(argv=None):
                 report(f"free-space K from an empty cache ({label}, {tri} triangles)",
                        f"wall {wall:.1f} s, CPU {cpu:.1f} s", "< 30 s", wall < 30)
     if not args.skip_refinement and not args.quick:
-        _, conv = refinement(out)
-        figures["refinement"] = {f"{k[0]} ({k[1]})": v for k, v in conv.items()}
-        for (name, kind), r in conv.items():
-            report(f"refinement: {name}, {kind}",
-                   f"p = {r['order']:.2f}, default {100 * r['default_error']:+.3f} %", "an observed order")
+        edges = sector_edge_refinement(out)
+        figures["sector_edge_refinement"] = edges
+        for name, r in edges.items():
+            report(f"sector-edge refinement: {name}",
+                   f"p = {r['order']:.2f}; default {100 * r['corrected_default_error']:+.3f} % "
+                   f"({100 * r['surface_default_error']:+.2f} % raw)", "an observed order")
+        meshes = mesh_refinement()
+        figures["mesh_refinement"] = meshes
+        for name, r in meshes.items():
+            report(f"whole mesh x1.4, x1, /1.4: {name} moves by",
+                   f"{100 * r['corrected_spread_of_row_max']:.3f} % ({100 * r['surface_spread_of_row_max']:.2f} %"
+                   " raw)", "of the row max")
+    if args.only_refinement:
+        _save(out, figures, lines)
+        return
     tank = psm_against_bem(out, h, n_x)
     figures["tank"] = tank
     report(f"PSM vs BEM in the tank, sector currents ({tank['poses']} poses)",
@@ -444,8 +513,7 @@ def main(argv=None):
     for (d, yaw), s_b, w_b in zip(cases, crb["sectors"], crb["whole rings"]):
         report(f"CRB beside a wall, {d * 100:.0f} cm, yaw {yaw:.1f}: y, heading (whole / sectors)",
                f"{w_b[0] / s_b[0]:.1f}x, {w_b[1] / s_b[1]:.1f}x", "(report)")
-    (out / "figures.json").write_text(json.dumps(figures, indent=1, default=float) + "\n")
-    (out / "summary.txt").write_text("\n".join(lines) + "\n")
+    _save(out, figures, lines)
     print(f"figures: {out}/refinement.png, lateral_walls.png, lateral_sphere.png, crb.png; numbers: "
           f"{out}/figures.json", flush=True)
 
