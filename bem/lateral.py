@@ -40,8 +40,11 @@ Example
 >>> from electrosense.meshes import preset
 >>> s = preset("angels-2").with_sectors({1: 2}, gap_m=0.002)
 >>> r = free_space_response(s, 1.0, edge_length_m=0.012)
->>> G = r.gradient_response.sum(axis=1)        # the response to a uniform gradient of the potential
->>> bool(G[0, 1] < 0 < G[1, 1])   # sector 1 faces +y: a potential rising towards +y drives current into it
+>>> # a uniform field along +y: the potential -y, its value at each region's centre and its gradient -e_y
+>>> I = -(r.potential_response @ r.region_centres_m) - r.gradient_response.sum(axis=1)
+>>> bool(I[0, 1] > 0 > I[1, 1])   # sector 1 faces +y: the field drives current out of it, into sector 2
+True
+>>> bool(abs(I[0, 1] / r.uniform_field_A_per_V_per_m[0, 1] - 1) < 0.01)   # reciprocity = the incident-field solve
 True
 """
 from __future__ import annotations
@@ -82,7 +85,7 @@ def sensor_regions(sensor, max_length_m: float | None = None):
     >>> from electrosense.meshes import preset
     >>> breaks, centres, of = sensor_regions(preset("angels-2"))
     >>> len(centres), of.tolist()
-    (12, [0, 11])
+    (13, [0, 12])
     """
     L = REGION_LENGTH_RADII * sensor.radius_m if max_length_m is None else float(max_length_m)
     half = 0.5 * sensor.length_m
