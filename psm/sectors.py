@@ -366,12 +366,11 @@ def sector_conductance(model: SectorModel, poses, sigma_S_per_m: float, tank=Non
         Kp = np.linalg.solve(A, rhs)[:, n:2 * n]
         K[chunk] = 0.5 * (Kp + np.swapaxes(Kp, 1, 2))
     if contact_impedance_ohm_m2 is not None:
-        from electrosense.psm.contact import series_resistance_ohm
+        from electrosense.psm.contact import series_contact, series_resistance_ohm
 
         if model.electrode_areas_m2 is None:
             raise ValueError("a contact impedance needs the sector model's electrode_areas_m2")
-        Zs = np.diag(series_resistance_ohm(contact_impedance_ohm_m2, model.electrode_areas_m2))
-        K = np.linalg.solve(np.eye(n)[None] + K @ Zs, K)
+        K = series_contact(K, series_resistance_ohm(contact_impedance_ohm_m2, model.electrode_areas_m2))
         K = 0.5 * (K + np.swapaxes(K, 1, 2))
     info = {"model": "psm-sectors", "images": "none" if tank is None else images, "objects": len(obj_coef),
             "image_shells": image_shells if tank is not None and images == "complete" else None}
