@@ -57,11 +57,13 @@ def _touching_electrodes(mesh: LabelledMesh) -> list[tuple[int, int]]:
     return sorted(pairs)
 
 
-def check_electrodes(mesh: LabelledMesh, emitter: int | None = None, name: str = "sensor") -> int:
+def check_electrodes(mesh: LabelledMesh, emitter: int | None = None, name: str = "sensor",
+                     allow_touching: bool = False) -> int:
     """Number of electrodes of a sensor mesh; ``BoundaryError`` if they are unusable.
 
     Refused: fewer than 2 electrodes, numbers with no faces (1..n must all be
-    present), electrodes that touch each other, an emitter that is not one of
+    present), electrodes that touch each other (unless ``allow_touching``: the
+    sectors of a split electrode with no gap), an emitter that is not one of
     them.
     """
     present = mesh.electrodes
@@ -74,7 +76,7 @@ def check_electrodes(mesh: LabelledMesh, emitter: int | None = None, name: str =
         raise BoundaryError(f"{name}: electrode(s) {missing} have no faces (electrodes must be numbered 1..{n})")
     if n < 2:
         raise BoundaryError(f"{name}: only one electrode; a sensor needs an emitter and at least one receiver")
-    touching = _touching_electrodes(mesh)
+    touching = [] if allow_touching else _touching_electrodes(mesh)
     if touching:
         text = ", ".join(f"{a} and {b}" for a, b in touching)
         raise BoundaryError(f"{name}: electrodes {text} touch (share mesh vertices); they need an insulating gap")
@@ -128,7 +130,7 @@ class WaterBoundary:
     @classmethod
     def from_meshes(cls, sensor: LabelledMesh, tank: LabelledMesh | None = None,
                     objects: tuple = (), conducting: tuple = (), check: bool = True,
-                    emitter: int | None = None) -> "WaterBoundary":
+                    emitter: int | None = None, allow_touching: bool = False) -> "WaterBoundary":
         """Build from a sensor mesh (already at its pose), an optional tank mesh and object meshes.
 
         Parameters
@@ -146,6 +148,9 @@ class WaterBoundary:
             For each object, whether it is a perfect conductor (default: insulating).
         check : bool
             Refuse open, badly oriented or degenerate meshes and unusable electrodes.
+        allow_touching : bool
+            Accept electrodes that share vertices (the sectors of a split
+            electrode with no gap, :attr:`electrosense.meshes.sensor.SensorDescription.sectors_touch`).
         """
         conducting = tuple(conducting) + (False,) * (len(objects) - len(conducting))
         parts = ([] if sensor is None else [sensor]) + ([] if tank is None else [tank]) + list(objects)
@@ -160,9 +165,9 @@ class WaterBoundary:
             for mesh, name in zip(parts, names):
                 check_mesh(mesh, min_angle_deg=1.0, max_aspect_ratio=60.0, name=f"{name} mesh")
             if sensor is not None and len(parts) == 1:
-                check_electrodes(sensor, emitter)
+                check_electrodes(sensor, emitter, allow_touching=allow_touching)
             else:  # electrodes anywhere in the scene: numbered 1..n over all parts
-                check_electrodes(concatenate(parts), emitter, name="scene")
+                check_electrodes(concatenate(parts), emitter, name="scene", allow_touching=allow_touching)
         tris, electrode, conductor, part = [], [], [], []
         conductor_names = []
         for p, (mesh, reverse) in enumerate(zip(parts, flip)):

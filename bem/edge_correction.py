@@ -18,6 +18,22 @@ the scene's own correction ``K_scene - K_unbounded`` (walls and objects),
 which is a few percent of K and converges fast: a defect correction, as in
 multi-fidelity schemes.
 
+Sectors. A sensor whose electrodes are split into sectors
+(:mod:`electrosense.meshes.sensor`) has no axisymmetric solution, and the ring elements
+cannot describe it. Its axial edges (where a sector meets the insulator along
+the axis) carry the same singularity as a whole ring's, spread along the
+sector's arc, so its correction is the whole sensor's (every electrode whole,
+:meth:`~electrosense.meshes.sensor.SensorDescription.merged`), on the sector mesh with its
+sectors and gaps relabelled as the whole electrode (:func:`merged_mesh`: the
+same rings, an axisymmetric problem), shared out by arc: ``dK[i, j] = f_i f_j dK_whole[a, b]`` for sector ``i`` of electrode
+``a`` and ``j`` of ``b``, ``f`` the sector's share of the circumference (1 for
+a whole electrode), then made to have zero row sums. With no gap the sectors'
+shares add up to 1, and the sectors driven together get exactly the whole
+electrode's correction. The sector edges' own error (across the gaps, order
+~1 in the spacing there, ~1 % of a sector's K at the default mesh) is removed
+by Richardson extrapolation against a companion mesh whose sector-edge
+spacings are twice as coarse (:func:`sector_edge_correction`).
+
 ``dK`` is symmetric with zero row sums (both matrices are), so ``K + dK``
 keeps the conventions of :mod:`electrosense.bem.conductance`. It applies to the sensor's
 conductance matrix only, not to the surface solution or the fields, and only
@@ -44,14 +60,16 @@ from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.meridian import meridian_conductance, mesh_meridian
 from electrosense.bem.solution import solve
 
-__all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING"]
+__all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING", "sector_shares", "merged_mesh",
+           "sector_edge_correction"]
 
 #: grading of the meridian used for the correction (angels-4: 970 elements, 1.2e-4 of converged, 0.3-0.6 s)
 MERIDIAN_GRADING = 1.15
 
 
 def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2, sensor_mesh,
-                          targets_per_class: int | None = None, surface_K_S=None) -> np.ndarray:
+                          targets_per_class: int | None = None, surface_K_S=None,
+                          mesh_options: dict | None = None) -> np.ndarray:
     """``dK`` (n, n) in siemens: the converged free-space K minus the surface mesh's free-space K.
 
     Parameters
@@ -67,7 +85,14 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         (default: :data:`electrosense.bem.axisymmetric.AXISYMMETRIC_TARGETS_PER_CLASS`).
     surface_K_S : (n, n) array, optional
         The mesh's free-space K when the caller has just solved it (saves that solve).
+    mesh_options : dict, optional
+        For a sensor with sectors: the options of :func:`electrosense.meshes.sensor_mesh.mesh_sensor` that made
+        ``sensor_mesh`` (``edge_length_m`` among them), from which the companion mesh of the sector-edge
+        term is made.
     """
+    if sensor.has_sectors:
+        return _sector_correction(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
+                                  surface_K_S, mesh_options or {})
     z = contact_impedance_ohm_m2
     if z is not None:
         z = float(z) if np.ndim(z) == 0 else tuple(np.asarray(z, float).tolist())   # hashable, as given
@@ -89,6 +114,120 @@ _CACHE: dict = {}
 def clear_cache() -> None:
     """Forget the corrections computed in this process (they are kept per sensor, sigma, z_c and mesh)."""
     _CACHE.clear()
+
+
+def sector_shares(sensor) -> np.ndarray:
+    """(n_electrodes, len(electrodes)): each sector's share of its electrode's circumference (whole: 1).
+
+    Example
+    -------
+    >>> from electrosense.meshes import preset
+    >>> s = preset("angels-2").with_sectors({1: 4})
+    >>> sector_shares(s)[:, 0].tolist()
+    [0.25, 0.25, 0.25, 0.25, 0.0]
+    """
+    from electrosense.meshes.sensor import sector_azimuths_rad
+
+    F = np.zeros((sensor.n_electrodes, len(sensor.electrodes)))
+    for j, e in enumerate(sensor.electrodes):
+        numbers = np.asarray(sensor.numbers_of(j)) - 1
+        F[numbers, j] = 1.0 if not e.is_split else sector_azimuths_rad(e, sensor.radius_m)[1] / np.pi
+    return F
+
+
+def merged_mesh(sensor, sector_mesh):
+    """The sector mesh with every electrode whole again: each split electrode's sectors and the gaps between them
+    labelled as the whole electrode (numbered as in :meth:`~electrosense.meshes.sensor.SensorDescription.merged`)."""
+    x = sector_mesh.triangles_m[:, :, 0].mean(axis=1)
+    label = np.zeros(sector_mesh.n_triangles, np.int64)
+    on = sector_mesh.electrode > 0
+    number_to_index = np.array([0] + [sensor.sector_of(k)[0] + 1 for k in range(1, sensor.n_electrodes + 1)])
+    label[on] = number_to_index[sector_mesh.electrode[on]]
+    for j, e in enumerate(sensor.electrodes, start=1):   # the gaps of a split electrode
+        if e.is_split:
+            band = (sector_mesh.electrode == 0) & (x >= e.x_min_m) & (x <= e.x_max_m)
+            label[band] = j
+    from electrosense.meshes.labelled_mesh import LabelledMesh
+
+    return LabelledMesh(sector_mesh.vertices_m, sector_mesh.faces, label, sector_mesh.region,
+                        sector_mesh.region_names)
+
+
+def _sector_correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S, mesh_options):
+    z_key = z if z is None or np.ndim(z) == 0 else tuple(np.asarray(z, float).tolist())
+    digest = hashlib.sha1(np.ascontiguousarray(sensor_mesh.vertices_m).tobytes()
+                          + np.ascontiguousarray(sensor_mesh.faces).tobytes()
+                          + np.ascontiguousarray(sensor_mesh.electrode).tobytes()).hexdigest()
+    key = ("sectors", sensor, float(sigma), z_key, digest, tuple(sorted(mesh_options.items())))
+    if key in _CACHE:
+        return _CACHE[key].copy()
+    whole = sensor.merged()
+    z_whole = z
+    if z is not None and np.ndim(z) > 0:   # one value per sector: the mean of each electrode's sectors
+        W = sensor.merge_matrix()
+        z_whole = (np.asarray(z, float) @ W) / W.sum(axis=0)
+    # the sector mesh's own edge error along the axis: its rings are those of a whole sensor's mesh
+    dK_whole = free_space_correction(whole, sigma, z_whole, merged_mesh(sensor, sensor_mesh), targets_per_class)
+    F = sector_shares(sensor)
+    dK = F @ dK_whole @ F.T
+    dK = dK - np.diag(dK.sum(axis=1))   # zero row sums (with gaps the shares add up to less than 1)
+    dK = dK + sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options, surface_K_S)
+    if len(_CACHE) >= 32:
+        _CACHE.pop(next(iter(_CACHE)))
+    _CACHE[key] = dK
+    return dK.copy()
+
+
+#: observed order of the sector-edge error in the sector-edge spacing (``validation/studies/sector_sensor.py``)
+SECTOR_EDGE_ORDER = 1.0
+
+
+def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, surface_K_S=None) -> np.ndarray:
+    """The error of the sector edges (across the gaps) by Richardson extrapolation against a companion mesh.
+
+    The companion is the same mesh with the spacings graded towards the sector
+    edges twice as coarse (``sector_refinement / 2``, ``sector_grading - 1``
+    doubled; the rings, and so the axial edges, unchanged). With the error of
+    order :data:`SECTOR_EDGE_ORDER` in that spacing, the limit is
+    ``K + (K - K_companion) / (2^p - 1)``; returns that term (S, zero row sums),
+    less its part in the sums over the sectors of any electrode that has no
+    sector edge to the insulator (whole, or split with no gap): there the two
+    meshes differ by noise only, and the whole electrode's K stays that of
+    the axial correction.
+    Both K are free-space surface solutions, by :func:`electrosense.bem.symmetric.solve_symmetric`.
+    Returns zeros when ``sensor_mesh`` is not what ``mesh_options`` make (a mesh of the caller's own).
+    """
+    from electrosense.bem.symmetric import solve_symmetric
+    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, DEFAULT_SECTOR_REFINEMENT, block_symmetry
+    from electrosense.meshes.sensor_mesh import mesh_sensor
+
+    options = dict(mesh_options)
+    if not np.array_equal(mesh_sensor(sensor, **options).faces, sensor_mesh.faces):
+        return np.zeros((sensor.n_electrodes, sensor.n_electrodes))
+    refinement = options.pop("sector_refinement", DEFAULT_SECTOR_REFINEMENT)
+    grading = options.pop("sector_grading", DEFAULT_SECTOR_GRADING)
+    companion = mesh_sensor(sensor, sector_refinement=max(1.0, refinement / 2), sector_grading=1 + 2 * (grading - 1),
+                            **options)
+    z_list = z if z is None or np.ndim(z) == 0 else list(z)
+    order, mirror = block_symmetry(sensor)
+
+    def surface_K(mesh):
+        wb = WaterBoundary.from_meshes(mesh, emitter=sensor.emitter, allow_touching=sensor.sectors_touch)
+        return solve_symmetric(wb, sigma, z_list, sensor.emitter, order=order, mirror=mirror).K_S
+
+    K = surface_K(sensor_mesh) if surface_K_S is None else np.asarray(surface_K_S, float)
+    dK = (K - surface_K(companion)) / (2.0 ** SECTOR_EDGE_ORDER - 1.0)
+    dK = 0.5 * (dK + dK.T)
+    dK = dK - np.diag(dK.sum(axis=1))
+    # an electrode with no sector edge to the insulator (whole, or split with no gap) has no such error: what
+    # the two meshes give its sectors together differs by the meshes' noise only. Take it out, shared by arc.
+    W = sensor.merge_matrix()
+    F = sector_shares(sensor)
+    F = F / (W.T @ F).diagonal()[None, :]
+    plain = np.array([not e.is_split or e.sector_gap_m == 0 for e in sensor.electrodes])
+    mask = plain[:, None] | plain[None, :]
+    dK = dK - F @ ((W.T @ dK @ W) * mask) @ F.T
+    return dK - np.diag(dK.sum(axis=1))
 
 
 def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):

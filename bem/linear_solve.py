@@ -50,14 +50,16 @@ def solve_dense(matrix: np.ndarray, rhs: np.ndarray, what: str = "BEM system", p
     the speed of float64), then iterative refinement with float64 residuals
     until the relative residual is below ``refinement_tol`` (the answer has
     float64 accuracy for any reasonably conditioned BEM system).
-    ``"double"``: LU in float64, factorising ``matrix`` in place.
+    ``"double"``: LU in float64, factorising ``matrix`` in place. A complex
+    system is solved the same way (complex64 LU, complex128 refinement).
     """
     if precision == "double":
         lu, piv, rcond = factorise(matrix, what)
         return scipy.linalg.lu_solve((lu, piv), rhs, check_finite=False), rcond, 0
     if precision != "mixed":
         raise ValueError(f"precision must be 'mixed' or 'double', got {precision!r}")
-    lu, piv, rcond = factorise(matrix.astype(np.float32), what)
+    low = np.complex64 if np.iscomplexobj(matrix) else np.float32
+    lu, piv, rcond = factorise(matrix.astype(low), what)
     if rcond < 1e-6:  # too ill-conditioned for a float32 factorisation to converge quickly
         X, rcond, _ = solve_dense(matrix, rhs, what, "double")
         return X, rcond, 0
@@ -70,7 +72,8 @@ def solve_refined(matrix: np.ndarray, rhs: np.ndarray, factors, what: str = "BEM
     """Solve ``matrix @ X = rhs`` (float64) with low-precision LU ``factors`` of ``matrix`` and iterative
     refinement on float64 residuals; returns ``(X, refinements)``."""
     lu, piv = factors
-    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(lu.dtype), check_finite=False).astype(float)
+    full = np.result_type(matrix.dtype, rhs.dtype, np.float64)   # float64, or complex128 for a complex system
+    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(lu.dtype), check_finite=False).astype(full)
     norm_rhs = np.linalg.norm(rhs)
     for k in range(1, max_refinements + 1):
         R = rhs - matrix @ X

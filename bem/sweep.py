@@ -168,6 +168,7 @@ class PoseSweep:
         self.sensor_mesh = mesh_sensor(sensor, edge_length_m=edge_length_m, **sensor_mesh_options)
         self.n = sensor.n_electrodes
         self.emitter = sensor.emitter
+        self._touching = bool(getattr(sensor, "sectors_touch", False))
         self.z_c = contact_impedances(contact_impedance_ohm_m2, self.n)
         self._env_ready = False
         self.timings = {}
@@ -185,16 +186,25 @@ class PoseSweep:
 
             t0 = time.perf_counter()
             self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
-                                                       self.sensor_mesh, surface_K_S=self._free_K)
+                                                       self.sensor_mesh, surface_K_S=self._free_K,
+                                                       mesh_options=dict(sensor_mesh_options,
+                                                                         edge_length_m=edge_length_m))
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _prepare_free(self):
         """Alone in unbounded water K does not depend on the pose: one solve, as :func:`electrosense.bem.solve.solve_scene`
         does it (the axisymmetric reduction for a sensor of revolution), and no sensor block at all."""
 
-        wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter)
+        wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter, allow_touching=self._touching)
         self.sensor_boundary = wb
-        if is_axisymmetric_sensor(wb):
+        if self.sensor.has_sectors:
+            from electrosense.bem.symmetric import solve_symmetric
+            from electrosense.meshes.sector_mesh import block_symmetry
+
+            order, mirror = block_symmetry(self.sensor)
+            solution = solve_symmetric(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter,
+                                       order=order, mirror=mirror)
+        elif is_axisymmetric_sensor(wb):
             solution = solve_axisymmetric(wb, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.emitter,
                                           targets_per_class=AXISYMMETRIC_TARGETS_PER_CLASS)
         else:
@@ -203,7 +213,7 @@ class PoseSweep:
 
     # ------------------------------------------------------------- invariant
     def _prepare_sensor(self):
-        wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter)
+        wb = WaterBoundary.from_meshes(self.sensor_mesh, emitter=self.emitter, allow_touching=self._touching)
         self.sensor_boundary = wb
         self.sensor_tris = TriangleSet(wb.triangles_m)  # sensor frame, normals out of the water
         self.scale_m = float(np.sqrt(np.mean(self.sensor_tris.areas)))
@@ -267,7 +277,8 @@ class PoseSweep:
             return
         # a boundary with the sensor at the origin gives the environment's column coefficients
         wb = WaterBoundary.from_meshes(self.sensor_mesh, tank_mesh, object_meshes,
-                                       tuple(o.is_conducting for o in self.objects), emitter=self.emitter)
+                                       tuple(o.is_conducting for o in self.objects), emitter=self.emitter,
+                                       allow_touching=self._touching)
         Ns = self.sensor_boundary.n_triangles
         self.env_boundary = wb
         self.env_tris = TriangleSet(wb.triangles_m[Ns:])

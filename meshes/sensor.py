@@ -16,12 +16,26 @@ cylinder at that end plus, where its extent reaches further inwards than the
 hemisphere, the adjacent strip of the cylinder; a ring (``kind="ring"``) is a
 band of the cylinder. Everything not covered by an electrode is insulating.
 
+Sectors. An electrode may be split around the axis into ``sectors`` equal
+angular sectors separated by insulating gaps of ``sector_gap_m`` (measured
+along the circumference of the cylinder, radius ``radius_m``; 0 allowed: the
+sectors then touch). Sector 1 is centred on the sensor frame's +y side, the
+next ones follow in the sense of rotation about +x (from +y towards +z):
+sector ``k`` of ``N`` is centred at the azimuth ``(k - 1) 2 pi / N`` measured
+from +y towards +z. Every sector is an electrode of its own: the numbers run
+head to tail as above, the sectors of a split electrode taking consecutive
+numbers (sector 1 first). A split cap's sectors are wedges of constant
+angular width that meet at the tip.
+
 Example
 -------
 >>> from electrosense.meshes.sensor import preset
 >>> s = preset("angels-4")
 >>> s.n_electrodes, s.emitter
 (4, 4)
+>>> split = s.with_sectors({2: 4, 3: 4}, gap_m=0.002)   # both rings in 4 sectors
+>>> split.n_electrodes, split.emitter, split.sector_of(3)
+(10, 10, (1, 2))
 """
 from __future__ import annotations
 
@@ -31,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Electrode", "SensorDescription", "preset", "PRESETS", "load_sensor", "save_sensor"]
+__all__ = ["Electrode", "SensorDescription", "sector_azimuths_rad", "preset", "PRESETS", "load_sensor", "save_sensor"]
 
 
 @dataclass(frozen=True)
@@ -46,15 +60,42 @@ class Electrode:
     x_min_m, x_max_m : float
         Axial extent in the sensor frame (m). For the head cap ``x_max_m`` is
         the tip (``length_m / 2``); for the tail cap ``x_min_m`` is the tip.
+    sectors : int
+        Number of equal angular sectors the electrode is split into (1: whole).
+    sector_gap_m : float
+        Insulating gap between neighbouring sectors along the circumference (m, >= 0).
     """
 
     kind: str
     x_min_m: float
     x_max_m: float
+    sectors: int = 1
+    sector_gap_m: float = 0.0
 
     @property
     def x_centre_m(self) -> float:
         return 0.5 * (self.x_min_m + self.x_max_m)
+
+    @property
+    def is_split(self) -> bool:
+        return self.sectors > 1
+
+
+def sector_azimuths_rad(electrode: Electrode, radius_m: float) -> tuple[np.ndarray, float]:
+    """Centre azimuths (N,) of an electrode's sectors and their half-width (rad).
+
+    The azimuth is measured from +y towards +z (rotation about +x); sector 1 is
+    centred at 0. A whole electrode is one sector of half-width pi.
+
+    Example
+    -------
+    >>> c, w = sector_azimuths_rad(Electrode("ring", -0.01, 0.01, sectors=4, sector_gap_m=0.0), 0.01)
+    >>> np.round(c / np.pi, 3).tolist(), round(w / np.pi, 3)
+    ([0.0, 0.5, 1.0, 1.5], 0.25)
+    """
+    n = int(electrode.sectors)
+    centres = 2 * np.pi * np.arange(n) / n
+    return centres, float(np.pi / n - 0.5 * electrode.sector_gap_m / radius_m)
 
 
 @dataclass(frozen=True)
@@ -84,13 +125,108 @@ class SensorDescription:
 
     def __post_init__(self):
         if self.emitter == 0:
-            object.__setattr__(self, "emitter", len(self.electrodes))
+            object.__setattr__(self, "emitter", int(sum(getattr(e, "sectors", 1) for e in self.electrodes)))
         self.validate()
 
     # ------------------------------------------------------------------ derived
     @property
     def n_electrodes(self) -> int:
-        return len(self.electrodes)
+        """Number of electrodes as numbered (every sector counts as one)."""
+        return int(sum(e.sectors for e in self.electrodes))
+
+    @property
+    def has_sectors(self) -> bool:
+        """True when an electrode is split into sectors."""
+        return any(e.is_split for e in self.electrodes)
+
+    @property
+    def sectors_touch(self) -> bool:
+        """True when neighbouring sectors share mesh vertices: a gap of 0, or a split cap (its sectors meet at the tip)."""
+        return any(e.is_split and (e.sector_gap_m == 0 or e.kind == "cap") for e in self.electrodes)
+
+    def sector_of(self, number: int) -> tuple[int, int]:
+        """(index into ``electrodes`` (0-based), sector (1-based)) of electrode ``number`` (1-based)."""
+        k = int(number)
+        if not 1 <= k <= self.n_electrodes:
+            raise ValueError(f"{self.name or 'sensor'}: {number} is not an electrode number (1..{self.n_electrodes})")
+        for index, e in enumerate(self.electrodes):
+            if k <= e.sectors:
+                return index, k
+            k -= e.sectors
+        raise AssertionError("unreachable")
+
+    def numbers_of(self, index: int) -> tuple[int, ...]:
+        """Electrode numbers (1-based) of the sectors of ``electrodes[index]`` (one number when it is whole)."""
+        first = 1 + sum(e.sectors for e in self.electrodes[:index])
+        return tuple(range(first, first + self.electrodes[index].sectors))
+
+    def merge_matrix(self) -> np.ndarray:
+        """(n_electrodes, len(electrodes)) 0/1 matrix: column j sums the sectors of ``electrodes[j]``.
+
+        ``W.T @ K @ W`` is the conductance matrix of the sectors of each
+        electrode driven together (with a gap of 0: the whole electrode's).
+        """
+        W = np.zeros((self.n_electrodes, len(self.electrodes)))
+        for j in range(len(self.electrodes)):
+            W[np.asarray(self.numbers_of(j)) - 1, j] = 1.0
+        return W
+
+    def merged(self) -> "SensorDescription":
+        """The same sensor with every electrode whole (sectors and gaps closed); the emitter's electrode emits."""
+        whole = tuple(replace(e, sectors=1, sector_gap_m=0.0) for e in self.electrodes)
+        return replace(self, electrodes=whole, emitter=self.sector_of(self.emitter)[0] + 1)
+
+    def with_sectors(self, sectors: dict, gap_m: float = 0.0, emitter: int | None = None) -> "SensorDescription":
+        """Split electrodes: ``sectors`` maps electrode numbers of the whole sensor (1-based) to sector counts.
+
+        The emitter keeps its electrode (its first sector when it is split) unless ``emitter`` is given.
+        """
+        base = self.merged()
+        electrodes = list(base.electrodes)
+        for number, n in sectors.items():
+            if not 1 <= int(number) <= len(electrodes):
+                raise ValueError(f"{self.name or 'sensor'}: no electrode {number} to split (1..{len(electrodes)})")
+            electrodes[int(number) - 1] = replace(electrodes[int(number) - 1], sectors=int(n),
+                                                  sector_gap_m=float(gap_m) if int(n) > 1 else 0.0)
+        split = replace(base, electrodes=tuple(electrodes), emitter=1)
+        if emitter is None:
+            emitter = split.numbers_of(base.emitter - 1)[0]
+        return replace(split, emitter=int(emitter))
+
+    def lateral_weights(self) -> tuple[tuple[int, ...], np.ndarray]:
+        """The lateral signal "left minus right" of every split electrode whose sectors are all receivers.
+
+        Returns the indices (0-based, into ``electrodes``) of those electrodes
+        and ``W`` (len, n_electrodes): ``W @ I`` is, for each, the sum of its
+        sectors' currents weighted by ``cos(phi_k)``, ``phi_k`` the sector's
+        centre azimuth from +y (the left side when the head points forward and
+        +z is up). For 2 or 4 sectors that is sector 1 minus the opposite one.
+
+        Example
+        -------
+        >>> s = preset("angels-4").with_sectors({2: 4})
+        >>> s.lateral_weights()[1][0].round(6).tolist()
+        [0.0, 1.0, 0.0, -1.0, 0.0, 0.0, 0.0]
+        """
+        rows, split = [], []
+        for j, e in enumerate(self.electrodes):
+            numbers = self.numbers_of(j)
+            if not e.is_split or self.emitter in numbers:
+                continue
+            w = np.zeros(self.n_electrodes)
+            w[np.asarray(numbers) - 1] = np.cos(sector_azimuths_rad(e, self.radius_m)[0])
+            w[np.abs(w) < 1e-12] = 0.0
+            rows.append(w)
+            split.append(j)
+        return tuple(split), np.array(rows).reshape(len(rows), self.n_electrodes)
+
+    @property
+    def electrode_labels(self) -> tuple[str, ...]:
+        """A short name per electrode number: ``"3"`` for a whole electrode, ``"2.1"`` for sector 1 of the second."""
+        labels = []
+        for index, e in enumerate(self.electrodes, start=1):
+            labels += [str(index)] if e.sectors == 1 else [f"{index}.{k}" for k in range(1, e.sectors + 1)]
+        return tuple(labels)
 
     @property
     def receivers(self) -> tuple[int, ...]:
@@ -99,9 +235,9 @@ class SensorDescription:
 
     @property
     def electrode_centres_m(self) -> np.ndarray:
-        """(n, 3) centres of the electrodes' axial extents, sensor frame (m)."""
+        """(n, 3) centres of the electrodes' axial extents, sensor frame (m), on the axis (every sector too)."""
         c = np.zeros((self.n_electrodes, 3))
-        c[:, 0] = [e.x_centre_m for e in self.electrodes]
+        c[:, 0] = [self.electrodes[self.sector_of(k)[0]].x_centre_m for k in range(1, self.n_electrodes + 1)]
         return c
 
     def with_emitter(self, emitter: int) -> "SensorDescription":
@@ -116,12 +252,11 @@ class SensorDescription:
         if not self.length_m > 2 * self.radius_m:
             raise ValueError(f"{name}: length_m ({self.length_m}) must exceed the diameter ({2 * self.radius_m})")
         n = len(self.electrodes)
-        if n < 2:
+        if n < 1 or (n < 2 and not any(getattr(e, "sectors", 1) > 1 for e in self.electrodes)):
             raise ValueError(f"{name}: a sensor needs at least 2 electrodes, got {n}")
-        if not 1 <= self.emitter <= n:
-            raise ValueError(f"{name}: emitter {self.emitter} is not an electrode number (1..{n})")
         half = 0.5 * self.length_m
         for k, e in enumerate(self.electrodes, start=1):
+            self._validate_sectors(k, e)
             if e.kind not in ("cap", "ring"):
                 raise ValueError(f"{name}: electrode {k} has unknown kind {e.kind!r} (cap or ring)")
             if not e.x_min_m < e.x_max_m:
@@ -143,17 +278,34 @@ class SensorDescription:
                 raise ValueError(
                     f"{name}: electrodes {k} and {k + 1} touch or overlap, or are not ordered head (+x) to tail (-x)"
                 )
+        if not 1 <= self.emitter <= self.n_electrodes:
+            raise ValueError(f"{name}: emitter {self.emitter} is not an electrode number (1..{self.n_electrodes})")
+
+    def _validate_sectors(self, k: int, e: Electrode) -> None:
+        name = self.name or "sensor"
+        sectors, gap = e.sectors, e.sector_gap_m
+        if isinstance(sectors, bool) or not isinstance(sectors, (int, np.integer)) or not 1 <= sectors <= MAX_SECTORS:
+            raise ValueError(f"{name}: electrode {k} has sectors {sectors!r}; give a whole number 1..{MAX_SECTORS}")
+        if isinstance(gap, bool) or not isinstance(gap, (int, float, np.floating)) or not np.isfinite(gap) or gap < 0:
+            raise ValueError(f"{name}: electrode {k} has sector_gap_m {gap!r}; give a length >= 0 (m)")
+        if sectors == 1 and gap != 0:
+            raise ValueError(f"{name}: electrode {k} has a sector_gap_m but is not split (sectors 1)")
+        if sectors > 1 and sectors * gap >= 2 * np.pi * self.radius_m:
+            raise ValueError(f"{name}: electrode {k}: {sectors} gaps of {gap} m leave nothing of the circumference "
+                             f"({2 * np.pi * self.radius_m:.6g} m) to the sectors")
 
     # -------------------------------------------------------------------- files
     def to_dict(self) -> dict:
+        """Plain data (a whole electrode is written without its ``sectors`` and ``sector_gap_m``)."""
         d = asdict(self)
-        d["electrodes"] = [asdict(e) for e in self.electrodes]
+        d["electrodes"] = [{k: v for k, v in asdict(e).items() if e.is_split or k not in ("sectors", "sector_gap_m")}
+                           for e in self.electrodes]
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "SensorDescription":
         try:
-            electrodes = tuple(Electrode(**e) for e in d["electrodes"])
+            electrodes = tuple(_electrode_from_dict(e) for e in d["electrodes"])
             return cls(
                 name=d.get("name", ""),
                 radius_m=float(d["radius_m"]),
@@ -166,6 +318,24 @@ class SensorDescription:
             raise ValueError(f"sensor description lacks the key {exc}") from None
         except TypeError as exc:
             raise ValueError(f"sensor description has a malformed electrode: {exc}") from None
+
+
+MAX_SECTORS = 64
+"""Most sectors one electrode may be split into."""
+
+
+def _electrode_from_dict(e) -> Electrode:
+    if not isinstance(e, dict):
+        raise TypeError(f"an electrode is a table of keys, got {type(e).__name__}")
+    e = dict(e)
+    if "sectors" in e:
+        n = e["sectors"]
+        if isinstance(n, float) and n.is_integer():
+            n = int(n)
+        e["sectors"] = n
+    if "sector_gap_m" in e and isinstance(e["sector_gap_m"], int) and not isinstance(e["sector_gap_m"], bool):
+        e["sector_gap_m"] = float(e["sector_gap_m"])
+    return Electrode(**e)
 
 
 def _angels(n: int) -> SensorDescription:

@@ -282,6 +282,7 @@ def mesh_sensor(
     ring_radius: str = "area",
     uniform_cylinder: bool = False,
     max_triangles: int | None = MAX_SENSOR_TRIANGLES,
+    **sector_options,
 ) -> LabelledMesh:
     """Closed, graded, labelled triangle mesh of a sensor in its own frame.
 
@@ -339,6 +340,17 @@ def mesh_sensor(
                 f"mesh_sensor: edge_length_m {edge_length_m} m would make about {n:,} triangles on this sensor; "
                 f"at most {max_triangles:,} are meshed: choose a larger edge length"
             )
+    if sensor.has_sectors:
+        from electrosense.meshes.sector_mesh import mesh_sector_sensor
+
+        mesh = mesh_sector_sensor(sensor, edge_length_m, grading, edge_refinement, max_aspect, azimuthal_refinement,
+                                  ring_radius, uniform_cylinder, **sector_options)
+        if max_triangles is not None and mesh.n_triangles > max_triangles:
+            raise ValueError(f"mesh_sensor: edge_length_m {edge_length_m} m makes {mesh.n_triangles:,} triangles on "
+                             f"this sensor; at most {max_triangles:,} are meshed: choose a larger edge length")
+        return mesh
+    if sector_options:
+        raise TypeError(f"mesh_sensor: unexpected options {sorted(sector_options)} (sector options need sectors)")
     profile, x_rings, r_rings, counts = _ring_layout(sensor, edge_length_m, grading, edge_refinement, max_aspect,
                                                      azimuthal_refinement, uniform_cylinder)
 

@@ -34,11 +34,14 @@ import numpy as np
 
 from electrosense.meshes.sensor import SensorDescription
 
-__all__ = ["electrode_areas_m2", "series_resistance_ohm"]
+__all__ = ["electrode_areas_m2", "series_resistance_ohm", "series_contact"]
 
 
 def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
-    """Wetted area (m^2) of each real electrode of ``sensor``, electrode 1 first."""
+    """Wetted area (m^2) of each real electrode of ``sensor``, electrode 1 first (a sector: its share of its
+    electrode's area, ``w / pi`` of it for half-angle ``w``)."""
+    from electrosense.meshes.sensor import sector_azimuths_rad
+
     r = sensor.radius_m
     areas = []
     for e in sensor.electrodes:
@@ -46,9 +49,11 @@ def electrode_areas_m2(sensor: SensorDescription) -> np.ndarray:
         if e.kind == "cap":
             cap = min(h, r)  # spherical cap of height h (a hemisphere when h >= r) ...
             collar = max(h - r, 0.0)  # ... plus the cylindrical collar beyond it
-            areas.append(2 * np.pi * r * cap + 2 * np.pi * r * collar)
+            whole = 2 * np.pi * r * cap + 2 * np.pi * r * collar
         else:
-            areas.append(2 * np.pi * r * h)
+            whole = 2 * np.pi * r * h
+        share = 1.0 if not e.is_split else sector_azimuths_rad(e, r)[1] / np.pi
+        areas.extend([whole * share] * e.sectors)
     return np.array(areas)
 
 
@@ -62,3 +67,20 @@ def series_resistance_ohm(contact_impedance_ohm_m2, areas_m2) -> np.ndarray:
     if not np.all(np.isfinite(z)) or np.any(z < 0):
         raise ValueError(f"contact impedance must be finite and >= 0 ohm m^2, got {z.tolist()}")
     return z / A
+
+
+def series_contact(K_S: np.ndarray, series_ohm: np.ndarray) -> np.ndarray:
+    """K of the electrodes seen through series resistances (one per electrode): K (1 + Z K)^-1.
+
+    With electrode terminal potentials W and water-side potentials V, the
+    currents leaving the electrodes are I = K V = Z^-1 (W - V), hence
+    I = K (1 + Z K)^-1 W. This is the lumped (electrode-averaged) model of a
+    contact impedance z_c: Z = z_c / area. It keeps K symmetric with zero
+    row sums.
+    """
+    K = np.asarray(K_S, dtype=float)
+    Z = np.asarray(series_ohm, dtype=float)
+    n = K.shape[-1]
+    A = np.eye(n) + Z[..., :, None] * K  # (1 + Z K)
+    # K (1 + Z K)^-1 = ((1 + K Z)^-1 K)  ; solve on the transposed system for stability
+    return np.linalg.solve(np.swapaxes(A, -1, -2), np.swapaxes(K, -1, -2)).swapaxes(-1, -2)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-__all__ = ["conductance_kernel"]
+__all__ = ["conductance_kernel", "multipole_image_kernel"]
 
 
 @njit(cache=True)
@@ -246,3 +246,42 @@ def pose_derivative_kernel(X, positions, K, signs, offsets, weights, obj_pos, ob
                     for l in range(n):
                         acc += K[ip, i, l] * tmp[l, j]
                     dK[ip, t, i, j] = -acc
+
+
+@njit(cache=True)
+def multipole_image_kernel(c, signs, offsets, weights, out):
+    """The images' reflection between points ``c`` (M, 3) up to dipoles, for the sector PSM.
+
+    ``out`` (M, 4, M, 4), filled: for target ``t``, source ``s`` and every
+    image ``k`` (``d = c_t - (signs_k * c_s + offsets_k)``, ``r = |d|``, a unit
+    current dipole ``b`` at ``s`` imaged as ``signs_k * b``): [potential;
+    gradient] at ``t`` per [unit current; unit dipole along x, y, z] at ``s``,
+    ``sum w / r``, ``-sum w d / r^3``, ``sum w signs_e d_e / r^3`` and
+    ``sum w signs_e (delta_fe / r^3 - 3 d_f d_e / r^5)`` (without the ``1 / (4 pi sigma)``).
+    """
+    M = c.shape[0]
+    K = signs.shape[0]
+    for t in range(M):
+        for s in range(M):
+            acc = np.zeros((4, 4))
+            for k in range(K):
+                d0 = c[t, 0] - (signs[k, 0] * c[s, 0] + offsets[k, 0])
+                d1 = c[t, 1] - (signs[k, 1] * c[s, 1] + offsets[k, 1])
+                d2 = c[t, 2] - (signs[k, 2] * c[s, 2] + offsets[k, 2])
+                r2 = d0 * d0 + d1 * d1 + d2 * d2
+                w1 = weights[k] / np.sqrt(r2)
+                w3 = w1 / r2
+                w5 = w3 / r2
+                d = (d0, d1, d2)
+                acc[0, 0] += w1
+                for f in range(3):
+                    acc[1 + f, 0] -= w3 * d[f]
+                    acc[0, 1 + f] += w3 * signs[k, f] * d[f]
+                    for e in range(3):
+                        h = -3.0 * w5 * d[f] * d[e]
+                        if f == e:
+                            h += w3
+                        acc[1 + f, 1 + e] += h * signs[k, e]
+            for a in range(4):
+                for b in range(4):
+                    out[t, a, s, b] = acc[a, b]

@@ -30,13 +30,14 @@ def _check_output(path: str) -> str:
     return path
 
 
-def _finish(mesh, output, png, title, emitter):
-    """Check, write and picture a mesh; print its quality."""
+def _finish(mesh, output, png, title, emitter, solver_limits: bool = False):
+    """Check, write and picture a mesh; print its quality (``solver_limits``: refuse only what the BEM refuses,
+    1 degree and aspect 60, as for sector meshes, whose split caps' gaps narrow to the tip)."""
     from electrosense.meshes.io import write_mesh
     from electrosense.meshes.quality import check_mesh
 
     try:
-        quality = check_mesh(mesh)
+        quality = check_mesh(mesh, **({"min_angle_deg": 1.0, "max_aspect_ratio": 60.0} if solver_limits else {}))
     except ValueError as exc:
         raise click.ClickException(str(exc)) from None
     click.echo(str(quality))
@@ -81,7 +82,8 @@ def mesh_sensor_cmd(sensor, output, png, edge_length_m, emitter):
         raise click.BadParameter(str(exc), param_hint="SENSOR") from None
     check_edge_length(description, edge_length_m)
     m = mesh_sensor(description, edge_length_m=edge_length_m)
-    _finish(m, output, png, f"{description.name}: {m.n_triangles} triangles", description.emitter)
+    _finish(m, output, png, f"{description.name}: {m.n_triangles} triangles", description.emitter,
+            solver_limits=description.has_sectors)
 
 
 @mesh.command("scene")

@@ -31,7 +31,8 @@ def _sensor_spec_for_log(sensor, out: Path) -> str:
     """What the bench log's meta calls the sensor: a preset name, or a sensor file beside the log."""
     from electrosense.meshes.sensor import PRESETS, preset, save_sensor
 
-    if sensor.name in PRESETS and preset(sensor.name).with_emitter(sensor.emitter) == sensor:
+    if (sensor.name in PRESETS and preset(sensor.name).n_electrodes == sensor.n_electrodes
+            and preset(sensor.name).with_emitter(sensor.emitter) == sensor):
         return sensor.name
     side = out.with_name(out.stem + ".sensor.json")
     save_sensor(sensor, side)

@@ -110,6 +110,7 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
     from electrosense.meshes.render import RenderUnavailable
     from electrosense.validation.report.figures import (
         bar_figure,
+        lateral_signal_figure,
         path_coordinate,
         potential_figure,
         relative_error_figure,
@@ -137,6 +138,16 @@ def log_figures(result, folder, potential: bool = True, potential_n: int = 81, p
                  f"s = {result.corrections[first].scale:.4f}." if result.corrections else "")
     figures.append(Figure(p, f"{result.label}: resistance U/I of each receiver against position; bench (dots), "
                              f"models (lines){', one row per pass' if passes is not None else ''}.{corr_note}"))
+    split, W = log.sensor.lateral_weights()
+    if split:   # sectors: the lateral signal, left minus right, of each split electrode
+        Wr = W[:, np.asarray(receivers) - 1]
+        names = [f"electrode {j + 1} ({log.sensor.electrodes[j].sectors} sectors)" for j in split]
+        p = lateral_signal_figure(x, log.currents_A @ Wr.T, {m: I @ Wr.T for m, I in result.model_currents_A.items()},
+                                  names, folder / f"lateral_{slug}.png", x_label=x_label, passes=passes)
+        figures.append(Figure(p, f"{result.label}: lateral signal of each split electrode, left minus right (the "
+                                 "sectors' currents weighted by the cosine of their azimuth from the sensor's +y "
+                                 "side, the left when the head points forward): bench (dots), models (lines). It "
+                                 "changes sign with the side the nearest wall or object is on."))
     errors = {f"{m.upper()} / bench - 1": c.error for m, c in result.comparisons.items()}
     errors.update({f"{m.upper()} corrected / bench - 1": c.error for m, c in result.corrected.items()})
     if result.model_difference is not None:

@@ -1,7 +1,7 @@
 """Contact impedance as the BEM's boundary condition, in the diagnosis's lumped form: effective areas.
 
 The diagnosis applies a contact impedance z_c to a baseline K as series
-resistances z_c / A_k (:func:`electrosense.validation.diagnosis.forward.series_contact`).
+resistances z_c / A_k (:func:`electrosense.psm.contact.series_contact`).
 With the electrode's geometric area A_k that is 10-20 % off the BEM, whose
 boundary condition sees the current crowd at the electrode's edges
 (:mod:`electrosense.psm.contact`). Here the areas are replaced by *effective* areas

@@ -39,7 +39,10 @@ from electrosense.meshes.objects import Sphere
 from electrosense.meshes.pose import sensor_to_tank
 from electrosense.meshes.sensor import SensorDescription
 from electrosense.meshes.tank import Tank
-from electrosense.psm.contact import electrode_areas_m2  # wetted areas: a cap of height h has 2 pi r h
+from electrosense.psm.contact import (
+    electrode_areas_m2,  # wetted areas: a cap of height h has 2 pi r h
+    series_contact,
+)
 from electrosense.psm.images import box_images
 from electrosense.psm.objects import contrast
 
@@ -47,21 +50,7 @@ __all__ = ["ModelSimulator", "PSMEffectModel", "CompositeEffectModel", "kelvin_s
 
 
 # ----------------------------------------------------------------------------- helpers
-def series_contact(K_S: np.ndarray, series_ohm: np.ndarray) -> np.ndarray:
-    """K of the electrodes seen through series resistances (one per electrode): K (1 + Z K)^-1.
 
-    With electrode terminal potentials W and water-side potentials V, the
-    currents leaving the electrodes are I = K V = Z^-1 (W - V), hence
-    I = K (1 + Z K)^-1 W. This is the lumped (electrode-averaged) model of a
-    contact impedance z_c: Z = z_c / area. It keeps K symmetric with zero
-    row sums.
-    """
-    K = np.asarray(K_S, dtype=float)
-    Z = np.asarray(series_ohm, dtype=float)
-    n = K.shape[-1]
-    A = np.eye(n) + Z[..., :, None] * K  # (1 + Z K)
-    # K (1 + Z K)^-1 = ((1 + K Z)^-1 K)  ; solve on the transposed system for stability
-    return np.linalg.solve(np.swapaxes(A, -1, -2), np.swapaxes(K, -1, -2)).swapaxes(-1, -2)
 
 
 def receiver_currents(K_S: np.ndarray, emitter: int) -> np.ndarray:
@@ -148,6 +137,8 @@ def geometric_psm(sensor: SensorDescription, calibrated=None):
         from electrosense.validation.simulation.models import calibrated_psm
 
         calibrated = calibrated_psm(sensor)
+    if sensor.has_sectors:   # the sector model's currents already leave where the electrodes are
+        return calibrated
     return PolySphericalModel(
         radii_m=np.asarray(calibrated.radii_m, float), centres_m=sensor.electrode_centres_m,
         emitter=sensor.emitter, electrode_areas_m2=electrode_areas_m2(sensor),
@@ -190,6 +181,11 @@ class PSMEffectModel:
 
         self.calls += 1
         poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        if self.sensor.has_sectors:   # the sector PSM (psm.sectors): a fixed image series already
+            from electrosense.psm.sectors import sector_conductance
+
+            return sector_conductance(self.model, poses, self.sigma_S_per_m, tank=tank, objects=tuple(objects),
+                                      contact_impedance_ohm_m2=contact_impedance_ohm_m2).K_S
         K, info = conductance_array(
             self.model, poses, self.sigma_S_per_m, tank=tank, objects=tuple(objects),
             contact_impedance_ohm_m2=contact_impedance_ohm_m2, sensor=self.sensor,

@@ -426,6 +426,40 @@ def resistance_figure(
     return curves_figure([p for row in grid for p in row], png_path, ncols=len(receivers))
 
 
+def lateral_signal_figure(
+    x_m,
+    bench_A,
+    models_A: dict,
+    names: Sequence[str],
+    png_path,
+    x_label: str = "sensor position x (m)",
+    passes=None,
+) -> Path:
+    """The lateral signal (left minus right, :meth:`electrosense.meshes.sensor.SensorDescription.lateral_weights`) of
+    each split electrode against position: bench (dots), models (lines), one panel per electrode (and pass).
+
+    ``bench_A`` (P, s) or None and ``models_A`` (name -> (P, s)) in A; plotted in uA.
+    """
+    x = np.asarray(x_m, dtype=float).ravel()
+    grid = []
+    for prefix, idx in _pass_rows(passes, len(x)):
+        order = idx[np.argsort(x[idx], kind="stable")]
+        row = []
+        for j, name in enumerate(names):
+            series = [Series(x[order], 1e6 * np.asarray(I, dtype=float)[order, j], model.upper(), "line",
+                             colour_of(model, m)) for m, (model, I) in enumerate(models_A.items())]
+            if bench_A is not None:
+                series.append(Series(x[order], 1e6 * np.asarray(bench_A)[order, j], "bench", "scatter",
+                                     COLOURS["bench"]))
+            row.append(Panel(f"{prefix}{name}", x_label, "left - right (uA)", series))
+        grid.append(row)
+    for j in range(len(names)):
+        span = _common_range([s.y for row in grid for s in row[j].series])
+        for row in grid:
+            row[j].y_range = span
+    return curves_figure([p for row in grid for p in row], png_path, ncols=len(names))
+
+
 def relative_error_figure(
     x_m,
     errors: dict,

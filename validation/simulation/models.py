@@ -10,7 +10,8 @@ that ``"bem"`` and ``"psm"`` mean the same thing everywhere:
   over poses. Without an explicit model the PSM is calibrated against the
   free-space BEM conductance of the same sensor (:func:`calibrated_psm`), once:
   the calibration is cached on disk, keyed by the sensor description, the BEM
-  edge length and the code version.
+  edge length and the code version. A sensor with sectors gets the sector PSM
+  (:mod:`electrosense.psm.sectors`, :func:`calibrated_sector_psm`), calibrated and cached the same way.
 
 The split into :func:`pose_evaluator` (the pose-invariant part, a picklable
 object with ``.conductance(poses)``) and :func:`simulate` (evaluate it) is what
@@ -49,6 +50,8 @@ __all__ = [
     "EvaluatorCache",
     "ModelError",
     "PSMEvaluator",
+    "SectorPSMEvaluator",
+    "calibrated_sector_psm",
     "pose_evaluator",
     "simulate",
     "calibrated_psm",
@@ -190,6 +193,88 @@ class PSMEvaluator:
         return replace(self, image_shells=None if shells is None else int(shells))
 
 
+@dataclass
+class SectorPSMEvaluator:
+    """The sector PSM (:mod:`electrosense.psm.sectors`) at many poses: ``.conductance(poses)``, like :class:`PSMEvaluator`."""
+
+    model: object  # psm.sectors.SectorModel
+    sigma_S_per_m: float
+    tank: Tank | None = None
+    objects: tuple = ()
+    images: str = "complete"
+    contact_impedance_ohm_m2: object = None
+    info: dict = field(default_factory=dict, compare=False)
+
+    def conductance(self, poses, progress: bool = False) -> ConductanceMatrix:
+        """Conductance matrices of batch shape (P,) at the poses (P, 4)."""
+        from electrosense.psm.sectors import sector_conductance
+
+        return sector_conductance(self.model, poses_array(poses), self.sigma_S_per_m, tank=self.tank,
+                                  images=self.images, objects=tuple(self.objects),
+                                  contact_impedance_ohm_m2=self.contact_impedance_ohm_m2)
+
+    def for_poses(self, poses, max_probes: int = 24) -> "SectorPSMEvaluator":
+        return self   # a fixed image series: every chunk is computed as one call would
+
+
+def calibrated_sector_psm(sensor: SensorDescription, edge_length_m: float | None = None, cache: bool = True):
+    """The sector PSM of ``sensor`` (:class:`electrosense.psm.sectors.SectorModel`) from its free-space BEM, computed once.
+
+    :func:`electrosense.bem.lateral.free_space_response` at 1 S/m (K with the edge correction,
+    the regions' responses), cached as JSON in :func:`psm_cache_dir`, keyed as :func:`calibrated_psm`.
+    """
+    from electrosense.psm.sectors import SectorModel
+
+    key = _psm_cache_key(sensor, edge_length_m, {"sectors": True})
+
+    def compute():
+        from electrosense.bem.lateral import free_space_response
+
+        response = free_space_response(sensor, 1.0, edge_length_m=edge_length_m)
+        return SectorModel.from_response(response, sensor.emitter,
+                                         info={"sensor": sensor.to_dict(), "bem_edge_length_m": edge_length_m,
+                                               "triangles": response.conductance.info.get("triangles")},
+                                         sensor=sensor)
+
+    return _cached_model(psm_cache_dir() / f"psm-sectors-{key}.json", SectorModel.load, compute, cache)
+
+
+def _cached_model(path: Path, load, compute, cache: bool):
+    """``load(path)`` if the cache holds it, else ``compute()``, written to ``path`` atomically."""
+    if cache and path.exists():
+        try:
+            return load(path)
+        except Exception:  # a damaged cache entry is recomputed, never trusted
+            path.unlink(missing_ok=True)
+    model = compute()
+    if cache:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
+        model.save(partial)
+        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
+    return model
+
+
+def _load_sector_psm(psm_model, sensor: SensorDescription):
+    from electrosense.psm.sectors import SectorModel
+
+    if isinstance(psm_model, (str, os.PathLike)):
+        path = Path(psm_model)
+        if not path.exists():
+            raise ModelError(f"PSM file {path} does not exist")
+        try:
+            psm_model = SectorModel.load(path)
+        except (ValueError, KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ModelError(f"{path}: not a sector PSM file ({exc}); sensor {sensor.name!r} has sectors") from None
+    if not isinstance(psm_model, SectorModel):
+        raise ModelError(f"sensor {sensor.name!r} has sectors: its PSM is a sector model (psm.sectors), "
+                         f"got a {type(psm_model).__name__}")
+    if psm_model.n != sensor.n_electrodes or psm_model.emitter != sensor.emitter:
+        raise ModelError(f"the sector PSM has {psm_model.n} electrodes and emitter {psm_model.emitter}; the sensor "
+                         f"{sensor.name!r} has {sensor.n_electrodes} and emitter {sensor.emitter}")
+    return psm_model
+
+
 def psm_cache_dir() -> Path:
     """Folder of the cached PSM calibrations: ``psm`` under the one cache root
     (:func:`electrosense.bem.block_cache.cache_root`)."""
@@ -269,29 +354,24 @@ def calibrated_psm(
 
     Returns
     -------
-    psm.PolySphericalModel
+    psm.PolySphericalModel, or for a sensor with sectors :class:`electrosense.psm.sectors.SectorModel`
+    (:func:`calibrated_sector_psm`)
     """
     from electrosense.psm import PolySphericalModel
 
+    if sensor.has_sectors:   # no spheres describe sectors: the sector model (its calibration has no layout)
+        return calibrated_sector_psm(sensor, edge_length_m, cache=cache)
     layout = calibration_layout(sensor, symmetric)
     # the file name is a hash only: a sensor's name is a user's label, never part of a path
     path = psm_cache_dir() / f"psm-{_psm_cache_key(sensor, edge_length_m, layout)}.json"
-    if cache and path.exists():
-        try:
-            return PolySphericalModel.load(path)
-        except Exception:  # a damaged cache entry is recomputed, never trusted
-            path.unlink(missing_ok=True)
 
-    from electrosense.psm.calibration import calibrate
+    def compute():
+        from electrosense.psm.calibration import calibrate
 
-    reference = free_space_bem(sensor, edge_length_m)
-    model = calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
-    if cache:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f"{path.stem}.{os.getpid()}.partial.json")
-        model.save(partial)
-        os.replace(partial, path)  # atomic: a concurrent reader sees all or nothing
-    return model
+        reference = free_space_bem(sensor, edge_length_m)
+        return calibrate(reference, layout["symmetric"], layout["fix_length_m"], sensor=sensor).model
+
+    return _cached_model(path, PolySphericalModel.load, compute, cache)
 
 
 def _load_psm(psm_model):
@@ -377,6 +457,12 @@ def pose_evaluator(
                 f"{', '.join(_PSM_CALIBRATION_OPTIONS)} (of the calibration BEM) is used"
             )
         calibrated = psm_model is None
+        if sensor.has_sectors:   # the contact impedance in series, as the PSM's
+            if calibrated:
+                psm_model = calibrated_sector_psm(sensor, bem_options.get("edge_length_m"))
+            info = {"model": "psm-sectors", "images": images, "calibrated_on_free_space_bem": calibrated}
+            return SectorPSMEvaluator(_load_sector_psm(psm_model, sensor), float(sigma_S_per_m), tank, objects,
+                                      images, contact_impedance_ohm_m2, info=info)
         if calibrated:
             psm_model = calibrated_psm(sensor, edge_length_m=bem_options.get("edge_length_m"))
         psm_model = _load_psm(psm_model)
