@@ -158,19 +158,20 @@ def surface_gradient_operator(triangles_m: np.ndarray, max_angle_deg: float = NE
 def layer_part(points_m: np.ndarray, tangents: np.ndarray, triangles, u: np.ndarray, q: np.ndarray,
                step_m: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
     """Twice the potential of the layers ``(u, q)`` (T, k) of ``triangles`` at boundary points (P, 3) of flat
-    faces, and its gradient along their two unit ``tangents`` (P, 2, 3) (central differences of the exact
-    layers): the part of the boundary potential those triangles make (module doc). Returns (P, k), (P, k, 3).
+    faces, and its gradient along their two unit ``tangents`` (P, 2, 3) (differences of the exact layers over
+    ``step_m``, far below the distance to the sources): the part of the boundary potential those triangles make
+    (module doc). Returns (P, k), (P, k, 3).
     """
     from electrosense.bem.operators import layer_matrices
 
     x = np.asarray(points_m, float).reshape(-1, 3)
     t = np.asarray(tangents, float).reshape(-1, 2, 3)
-    shifted = np.concatenate([x] + [x + s * step_m * t[:, a] for a in range(2) for s in (1.0, -1.0)])
+    shifted = np.concatenate([x, x + step_m * t[:, 0], x + step_m * t[:, 1]])
     S, D = layer_matrices(shifted, triangles)
-    val = 2.0 * (S @ q - D @ u)  # (5 P, k)
+    val = 2.0 * (S @ q - D @ u)  # (3 P, k)
     P = len(x)
-    v0, vx = val[:P], val[P:].reshape(2, 2, P, -1)
-    d = (vx[:, 0] - vx[:, 1]) / (2 * step_m)  # (2, P, k): along each tangent
+    v0 = val[:P]
+    d = (val[P:].reshape(2, P, -1) - v0[None]) / step_m  # (2, P, k): along each tangent
     grad = np.einsum("apk,pac->pkc", d, t)
     return v0, grad
 

@@ -83,7 +83,7 @@ __all__ = ["PoseSweep", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
 
 #: wall derivatives: the tank's faces within this many sensor lengths of the sensor's axis take the sensor's part
 #: of their potential exactly (:mod:`electrosense.bem.shape_derivative`)
-WALL_SPLIT_RADIUS_FACTOR = 1.0
+WALL_SPLIT_RADIUS_FACTOR = 0.6
 
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)

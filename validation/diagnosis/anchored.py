@@ -73,8 +73,8 @@ SENSOR_EDGE_FACTOR = 3.0
 #: shape derivatives): a new format is a new entry
 ANCHOR_FORMAT = 2
 
-#: a cached BEM pose this close to a logged one (m, every tip coordinate, as a distance) lends it its shape
-#: derivatives
+#: a cached BEM pose this close to a logged one (m, the distance between their tip positions) is carried to it
+#: by its own derivatives (:func:`_carry_cached`)
 DERIVATIVE_REUSE_M = 1e-3
 
 #: interpolation nodes closer than this (m, every tip coordinate) are merged into one
@@ -414,6 +414,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         stored = entry.get(key) if covered and regions_ok else None
         cached_derivatives[key] = stored if stored is not None else np.full((len(cached_poses),) + shape, np.nan)
         derivatives[key][exact >= 0] = cached_derivatives[key][exact[exact >= 0]]
+    n_carried = _carry_cached(sensor, obs.poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives)
     # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
     # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
     # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
@@ -554,17 +555,6 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         except Exception as exc:  # the estimate is optional; say so in the budget
             say(f"BEM discretisation not estimated ({type(exc).__name__}: {exc})")
             check = {}
-    # a cached BEM pose a fraction of a millimetre from a sample (another log of the same path, with the robot's
-    # position noise) lends that sample its derivatives: they change by far less than their own error over it
-    if derivatives and len(cached_poses):
-        from scipy.spatial import cKDTree
-
-        d, j = cKDTree(F).query(pose_features(sensor, cached_poses))
-        for key, values in derivatives.items():
-            known = np.all(np.isfinite(cached_derivatives[key].reshape(len(cached_poses), -1)), axis=1)
-            lend = (d < DERIVATIVE_REUSE_M) & known
-            lend &= ~np.all(np.isfinite(values[j].reshape(len(j), -1)), axis=1)
-            values[j[lend]] = cached_derivatives[key][lend]
     grad, grad_entry = None, {}
     if pose_reference is not None and "dK_dpose" in derivatives and _every_pass_has(derivatives["dK_dpose"], passes):
         from electrosense.validation.diagnosis.pose_gradient import pose_gradient_from_derivatives
@@ -597,7 +587,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     anchors = np.flatnonzero(have)
     return AnchoredBaseline(
         K=K * obs.sigma_S_per_m, error=error, anchors=anchors, refused=np.flatnonzero(~ok), n_bem_new=n_new,
-        n_cached=int(np.sum(exact >= 0)) + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
+        n_cached=int(np.sum(exact >= 0)) + n_carried + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
@@ -605,6 +595,46 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
                           else None),
         wall_regions=TANK_REGIONS if derivatives else (),
     )
+
+
+def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives) -> int:
+    """Carry the cached BEM poses within :data:`DERIVATIVE_REUSE_M` of a sample to it, by their own derivatives.
+
+    Another log of the same path logs the same nominal poses with the robot's own position noise (a tenth of a
+    millimetre), where the tank's effect changes by up to a percent per millimetre near a wall: an interpolant
+    through the other log's poses would hand that difference on as noise. A cached pose that holds the BEM's
+    pose and wall derivatives is carried to the sample to first order (x, y and yaw from the pose derivatives,
+    z from the floor's and the surface's: the sensor rising is the floor moving away and the surface coming
+    closer), the error second order in the offset; the sample then counts as a BEM pose, with those
+    derivatives. Fills ``K_bem`` and ``derivatives`` in place; returns how many samples were carried.
+    """
+    from scipy.spatial import cKDTree
+
+    from electrosense.validation.diagnosis.pose_gradient import apply_pair_log
+
+    if not len(cached_poses) or "dK_dpose" not in derivatives or "dK_dwall_S_per_m" not in derivatives:
+        return 0
+    dP, dW = cached_derivatives["dK_dpose"], cached_derivatives["dK_dwall_S_per_m"]
+    known = np.all(np.isfinite(dP.reshape(len(dP), -1)), axis=1) & np.all(np.isfinite(dW.reshape(len(dW), -1)), axis=1)
+    if not known.any():
+        return 0
+    d, j = cKDTree(pose_features(sensor, cached_poses[known])).query(F)
+    j = np.flatnonzero(known)[j]
+    take = np.flatnonzero((exact < 0) & (d < DERIVATIVE_REUSE_M))
+    if not len(take):
+        return 0
+    src = j[take]
+    n = cached_K.shape[-1]
+    iu = np.triu_indices(n, 1)
+    up = TANK_REGIONS.index("floor"), TANK_REGIONS.index("free_surface")
+    dK = np.stack([dP[src, 0], dP[src, 1], dW[src, up[0]] - dW[src, up[1]], dP[src, 2]], axis=1)   # x, y, z, yaw
+    G = dK[..., iu[0], iu[1]] / cached_K[src][:, None, iu[0], iu[1]]
+    delta = np.asarray(poses, float)[take] - cached_poses[src]
+    delta[:, 3] = np.angle(np.exp(1j * delta[:, 3]))
+    K_bem[take] = apply_pair_log(cached_K[src], np.einsum("pk,pkq->pq", delta, G))
+    for key, values in derivatives.items():
+        values[take] = cached_derivatives[key][src]
+    return int(len(take))
 
 
 def _every_pass_has(values: np.ndarray, passes: list, at_least: int = 2) -> bool:

@@ -29,8 +29,8 @@ Example
 >>> dW = np.zeros((1, 6, 2, 2))
 >>> dW[0, TANK_REGIONS.index("free_surface")] = [[1.0, -1.0], [-1.0, 1.0]]
 >>> K = np.array([[[2.0, -2.0], [-2.0, 2.0]]])
->>> wall_log_derivatives(dW, K, TANK_REGIONS)[0].round(3).tolist()   # d log|K_12| / d(dLx, dLy, surface, floor)
-[[0.0], [0.0], [0.5], [0.0]]
+>>> wall_log_derivatives(dW, K, TANK_REGIONS)[0, :, 0].round(3).tolist()   # d log|K_12| / d(dLx, dLy, surface, floor)
+[-0.0, -0.0, 0.5, 0.0]
 """
 from __future__ import annotations
 
