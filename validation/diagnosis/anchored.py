@@ -238,6 +238,7 @@ class AnchoredBaseline:
     wall_derivatives: np.ndarray | None = None  # (P, regions, n, n) dK per metre each tank region moves out (NaN off
     #                                              the BEM poses; at the observations' conductivity)
     wall_regions: tuple = ()
+    focus_m: np.ndarray | None = None  # the points the BEM's tank mesh was graded towards
 
     @property
     def interpolation_rms(self) -> float:
@@ -593,7 +594,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
         wall_derivatives=(derivatives["dK_dwall_S_per_m"] * obs.sigma_S_per_m if "dK_dwall_S_per_m" in derivatives
                           else None),
-        wall_regions=TANK_REGIONS if derivatives else (),
+        wall_regions=TANK_REGIONS if derivatives else (), focus_m=focus,
     )
 
 

@@ -55,6 +55,13 @@ class EffectiveAreas:
         return np.array([np.interp(lz[k], lg, self.areas_m2[:, k]) for k in range(len(z))])
 
 
+#: weight of the pull of log(A / A_geometric) towards zero in the areas' fit: a sensor of n electrodes has
+#: n (n - 1) / 2 transfer conductances for n areas, so that two electrodes (one conductance) leave one
+#: direction open, which this closes (the smallest change of the geometric areas that fits); far below the
+#: fit's residuals elsewhere
+AREA_PRIOR_WEIGHT = 1e-4
+
+
 def _fit_areas(K0, Kz, z, A0):
     from scipy.optimize import least_squares
 
@@ -62,11 +69,15 @@ def _fit_areas(K0, Kz, z, A0):
 
     n = K0.shape[0]
     off = ~np.eye(n, dtype=bool)
+    log_A0 = np.log(A0)
 
     def res(logA):
         return (series_contact(K0, z / np.exp(logA))[off] / Kz[off]) - 1.0
 
-    sol = least_squares(res, np.log(A0), method="lm")
+    def res_with_prior(logA):
+        return np.concatenate([res(logA), AREA_PRIOR_WEIGHT * (logA - log_A0)])
+
+    sol = least_squares(res_with_prior, log_A0, method="lm")
     return np.exp(sol.x), float(np.max(np.abs(res(sol.x))))
 
 

@@ -103,6 +103,10 @@ class Problem:
         The change of K that a sphere added by a candidate makes, from the
         BEM's field where it sits (:mod:`electrosense.validation.diagnosis.object_field`);
         without it, through the effect model.
+    secants : dict
+        Effect label -> :class:`~electrosense.validation.diagnosis.bem_secant.SecantCorrection`:
+        what the BEM of a candidate's fitted scene adds to its prediction
+        (applied by :func:`electrosense.validation.diagnosis.fitting.predict`).
     """
 
     obs: Observations
@@ -114,6 +118,7 @@ class Problem:
     pose_gradient: object = None
     wall_gradient: object = None
     object_field: object = None
+    secants: dict = field(default_factory=dict)
     t_ref_s: float = field(init=False)
     T_ref_C: float | None = field(init=False)
     areas_m2: np.ndarray = field(init=False)

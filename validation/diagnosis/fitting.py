@@ -113,7 +113,13 @@ def predict(problem: Problem, effects, theta, idx) -> np.ndarray:
     """
     idx = np.asarray(idx)
     rows = np.arange(problem.obs.n_poses) if any(e.geometric for e in effects) else idx
-    return problem.predict(scenario(problem, effects, theta, rows), idx)
+    I = problem.predict(scenario(problem, effects, theta, rows), idx)
+    if problem.secants:   # the BEM's own answer at a fitted scene (:mod:`.bem_secant`)
+        for e, part in zip(effects, _split(effects, theta)):
+            secant = problem.secants.get(e.label)
+            if secant is not None:
+                I = I * np.exp(secant.log_change(part / np.asarray(e.scales, float), idx))
+    return I
 
 
 def scenario(problem: Problem, effects, theta, rows):

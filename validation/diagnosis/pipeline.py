@@ -412,6 +412,17 @@ def diagnose(
         say("detection test against the noise model")
         detection = diagnose_detection(problem, ranking, folds, noise,
                                        anchored.total_error if anchored is not None else None)
+        if anchored is not None and anchored.focus_m is not None:
+            secants = refine_on_bem(problem, ranking, lib, detection, anchored,
+                                    {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
+                                    folds, noise, r0, mask, say)
+            if secants:
+                notes.append("solved by the BEM at their fitted scenes, and scored again: " + "; ".join(
+                    f"{i['effect']} (the model {100 * i['model_vs_bem_rms']:.3f} % RMS off the BEM there, of a "
+                    f"{100 * i['change_rms']:.3f} % change)" for i in secants))
+                ranking = sorted(ranking, key=lambda c: c.score)
+                detection = diagnose_detection(problem, ranking, folds, noise, anchored.total_error)
+                budget["bem_secants"] = secants
     selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor,
                                   model_error_by_place=budget.get("baseline_by_place"), detection=detection)
     confusable = confusable_pairs(ranking, rules)
@@ -446,6 +457,59 @@ def diagnose(
             notes.append(f"PSM/BEM split not computed: {exc}")
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
                      time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check, detection)
+
+
+#: geometric candidates whose fitted scene is solved by the BEM when their held-out improvement is significant
+SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
+
+
+def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, bem_options: dict, folds, noise,
+                  r0, mask, say, rounds: int = 2, at_most: int = 3) -> list[dict]:
+    """The geometric candidates that improve the held-out fit beyond the noise model's (p below the false-alarm
+    rate each) solved by the BEM at their fitted scenes (:mod:`electrosense.validation.diagnosis.bem_secant`) and
+    scored again, in place in ``ranking``; a second round where the refit moved the parameters by more than a
+    third. Returns what each solve found."""
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, default_tank_edge_length_m
+    from electrosense.meshes.tank_mesh import mesh_tank
+    from electrosense.validation.diagnosis.anchored import default_bem_options
+    from electrosense.validation.diagnosis.bem_secant import bem_secant
+    from electrosense.validation.diagnosis.detection import ALPHA
+    from electrosense.validation.diagnosis.effects import combined_scales
+    from electrosense.validation.diagnosis.select import score_candidate
+
+    obs = problem.obs
+    p = detection.get("p_by_candidate", {})
+    todo = [c for c in ranking if c.name in SECANT_CANDIDATES and p.get(c.name, 1.0) < ALPHA][:at_most]
+    if not todo:
+        return []
+    options = default_bem_options(obs.sensor, bem_options)
+    mesh = None
+    if isinstance(obs.tank, Tank):
+        h = options.get("tank_edge_length_m") or default_tank_edge_length_m(obs.sensor)
+        mesh = mesh_tank(obs.tank, h, anchored.focus_m, grading=DEFAULT_TANK_GRADING)
+    elif obs.tank is not None:
+        return []   # a cylinder's stretch is not built
+    found = []
+    for c in todo:
+        current = c
+        for _ in range(rounds):
+            effect = current.effects[0]
+            try:
+                correction, info = bem_secant(problem, current, mesh, options, progress=say)
+            except (ValueError, np.linalg.LinAlgError) as exc:   # the scene cannot be solved: the candidate stays
+                say(f"{current.name}: its fitted scene not solved by the BEM ({type(exc).__name__}: {exc})")
+                break
+            problem.secants[effect.label] = correction
+            found.append(info)
+            again = score_candidate(problem, lib[current.name], folds, noise, r0, mask)
+            scales = combined_scales(again.effects)
+            moved = np.linalg.norm((again.fit.theta - np.asarray(info["theta"])) / scales) if \
+                again.effects[0].label == effect.label else np.inf
+            current = again
+            if moved <= np.linalg.norm(np.asarray(info["theta"]) / scales) / 3:
+                break
+        ranking[ranking.index(c)] = current
+    return found
 
 
 def simulated_by(obs: Observations) -> str | None:
