@@ -103,9 +103,10 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
 
 
 def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = None,
-                          motion: MotionModel | None = DEFAULT_MOTION, progress=None) -> dict:
-    """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and the
-    PSM, under ``motion`` (``None``: each sample alone); a dict of summaries, estimated tracks and the noise used."""
+                          motion: MotionModel | None = DEFAULT_MOTION, progress=None, with_psm: bool = True) -> dict:
+    """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and
+    (``with_psm``) the PSM, under ``motion`` (``None``: each sample alone); a dict of summaries, estimated tracks
+    and the noise used."""
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.simulation.models import calibrated_psm
     from electrosense.validation.simulation.tank_map import same_scene, scene_record
@@ -132,8 +133,9 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
         + ("" if motion is None else f"; motion prior: acceleration {motion.acceleration_psd_m2_per_s3:g} m^2/s^3, "
                                      f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
     models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
-    psm = calibrated_psm(obs.sensor) if psm is None else psm
-    models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
+    if with_psm:
+        psm = calibrated_psm(obs.sensor) if psm is None else psm
+        models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
     for name, model in models.items():
         say(f"tracking with the {name}")

@@ -194,6 +194,7 @@ class TankMap:
     coarse_factor: float = 1.0  # the coarse sensor mesh's edge over the reference's (1: every node on the reference)
     ref_index: np.ndarray | None = None  # (F,) the nodes also solved on the reference mesh
     K_ref: np.ndarray | None = None  # (F, n, n) the reference BEM there, 1 S/m
+    focus_m: np.ndarray | None = None  # (k, 3) the points the BEM's tank mesh was graded towards
 
     def __post_init__(self):
         n = self.K_free.shape[0]
@@ -321,6 +322,7 @@ class TankMap:
         ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in self.fitted}
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, X=self.fitted["X"],
                  coef=self.fitted["coef"], loo=self.fitted["loo"], ref_index=self.ref_index, K_ref=self.K_ref,
+                 focus_m=np.zeros((0, 3)) if self.focus_m is None else self.focus_m,
                  meta=json.dumps(self.meta()), **ref)
         partial.replace(path)
         return path
@@ -371,7 +373,8 @@ def load_tank_map(path) -> TankMap:
     try:
         with np.load(path) as z:
             meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "ref_index", "K_ref")}
+            arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "ref_index", "K_ref",
+                                        "focus_m")}
             arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in z.files})
     except (OSError, KeyError, ValueError, EOFError) as exc:
         raise ValueError(f"{path}: not a tank map ({exc})") from None
@@ -389,7 +392,8 @@ def load_tank_map(path) -> TankMap:
                    float(meta.get("wall_gap_m", 0.005)), meta.get("history", []), meta.get("sigma_S_per_m"),
                    float(meta.get("warp_m", DEFAULT_WARP_M)),
                    {k: arrays[k] for k in ("X", "coef", "loo", "X_ref", "coef_ref", "loo_ref") if k in arrays},
-                   float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"])
+                   float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
+                   arrays["focus_m"] if len(arrays["focus_m"]) else None)
 
 
 # ------------------------------------------------------------------ build
@@ -559,7 +563,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
 
     def current_map():
         return TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, objects, options, code, wall_gap_m, history,
-                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref)
+                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, focus)
 
     try:
         if len(nodes) < first:
