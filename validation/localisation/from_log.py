@@ -26,7 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from electrosense.validation.localisation.smoother import DEFAULT_MOTION, MotionModel, posterior_crb, smooth_track
+from electrosense.validation.localisation.smoother import (
+    DEFAULT_MOTION,
+    MotionModel,
+    expected_error,
+    posterior_crb,
+    smooth_track,
+)
 from electrosense.validation.localisation.track import cramer_rao, heading_error, map_currents, psm_currents, track
 
 __all__ = ["localise_log", "localise_observations", "model_summary"]
@@ -74,6 +80,9 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
     if at is not None:
         C1 = cramer_rao(at[1], currents, noise_rel)
         C = C1 if motion is None else posterior_crb(at[1], currents, t_s, motion, noise_rel, passes)
+        if motion is not None:
+            bias, spread = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes)
+            expected = float(np.sqrt(np.nanmean(np.sum(bias[:, :2] ** 2 + spread[:, :2] ** 2, axis=1))))
         crb = {"crb_position_rms_m": _position_rms(C), "crb_position_median_m": float(np.median(
                np.sqrt(C[:, 0, 0] + C[:, 1, 1]))), "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
                "crb_per_sample_position_rms_m": _position_rms(C1), "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1]),
@@ -88,6 +97,9 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
     for k in ("crb_position_rms_m", "crb_heading_rms_rad", "crb_position_median_m", "crb_per_sample_position_rms_m"):
         out[k] = None if crb is None else crb[k]
     out["position_error_over_crb"] = None if crb is None else out["position_rms_m"] / crb["crb_position_rms_m"]
+    if motion is not None:
+        out["expected_position_rms_m"] = None if crb is None else expected
+        out["position_error_over_expected"] = None if crb is None else out["position_rms_m"] / expected
     if crb is None:
         out["note"] = f"the {name} does not cover every logged pose: no bound"
     if not ok.all():
