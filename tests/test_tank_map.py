@@ -166,7 +166,7 @@ def log_by_the_map(built, tmp_path_factory):
 
     m, _ = built
     rng = np.random.default_rng(3)
-    x = np.linspace(0.04, 0.11, 24)   # near a corner, where the currents fix the position along the wall too
+    x = np.linspace(0.04, 0.11, 12)   # near a corner, where the currents fix the position along the wall too
     y = 0.2 - SENSOR.radius_m - 0.035
     poses = np.c_[x, np.full_like(x, y), np.zeros_like(x), np.zeros_like(x)]
     I = _rec(m.conductance(poses, 0.05)) * (1 + 5e-4 * rng.standard_normal((len(x), 3)))

@@ -60,6 +60,8 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
     for name in ("map", "psm"):
         m = s[name]
         crb = "no bound" if m["crb_position_rms_m"] is None else f"bound {1e3 * m['crb_position_rms_m']:.3f} mm"
+        if m.get("expected_position_rms_m") is not None:
+            crb += f", this estimator's expected error on the logged track {1e3 * m['expected_position_rms_m']:.3f} mm"
         click.echo(f"{name.upper()}: position {1e3 * m['position_rms_m']:.3f} mm RMS ({crb}), heading "
                    f"{1e3 * m['heading_rms_rad']:.2f} mrad RMS, {m['estimated']} of {m['samples']} samples"
                    + (f"; {m['note']}" if m.get("note") else ""))
