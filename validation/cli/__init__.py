@@ -2,7 +2,9 @@
 
 Each subcommand lives in its own module of this package and is registered on
 the ``main`` group below; heavy imports happen inside the commands so that
-``esense --help`` stays fast.
+``esense --help`` stays fast. A command's module is imported only when that
+command runs (or when the list of commands is shown): ``esense sweep`` does
+not pay for the diagnosis's imports.
 """
 from __future__ import annotations
 
@@ -40,6 +42,32 @@ class _Esense(click.Group):
     Anything else is a bug of ours: one line naming the exception and the
     place it was raised, exit 1; ``ESENSE_TRACEBACK=1`` shows the traceback.
     """
+
+    def _load(self, module: str):
+        try:
+            mod = importlib.import_module(f"{__name__}.{module}")
+        except ModuleNotFoundError as exc:  # a command not written yet
+            if exc.name != f"{__name__}.{module}":
+                raise
+            return
+        self.add_command(getattr(mod, _COMMANDS[module]))
+
+    def _load_all(self):
+        for module in _COMMANDS:
+            self._load(module)
+
+    def list_commands(self, ctx):
+        self._load_all()
+        return super().list_commands(ctx)
+
+    def get_command(self, ctx, name):
+        if name not in self.commands:   # the module named after the command first ("bench-sim": bench_sim_cmd)
+            guess = f"{name.replace('-', '_')}_cmd"
+            if guess in _COMMANDS:
+                self._load(guess)
+            if name not in self.commands:
+                self._load_all()
+        return super().get_command(ctx, name)
 
     def invoke(self, ctx):
         try:
@@ -83,13 +111,3 @@ def main():
     head (1) to the tail; the emitter is the last electrode unless told
     otherwise; receiver currents are positive into the receiver.
     """
-
-
-for _module, _attr in _COMMANDS.items():
-    try:
-        _mod = importlib.import_module(f"{__name__}.{_module}")
-    except ModuleNotFoundError as _exc:  # a command not written yet
-        if _exc.name != f"{__name__}.{_module}":
-            raise
-        continue
-    main.add_command(getattr(_mod, _attr))

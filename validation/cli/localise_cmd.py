@@ -3,6 +3,9 @@ from __future__ import annotations
 
 import click
 
+from electrosense.validation.cli._parsing import finite_float
+from electrosense.validation.localisation.smoother import MotionModel
+
 
 @click.command("localise")
 @click.argument("log", type=click.Path(exists=True, dir_okay=False))
@@ -13,20 +16,34 @@ import click
 @click.option("-o", "--out", "outdir", required=True, type=click.Path(file_okay=False),
               help="Output folder: localise.json, localise.png, localise_tracks.npz.")
 @click.option("--no-figure", is_flag=True, help="Write the JSON and the tracks only.")
-def localise(log, map_file, psm_model, outdir, no_figure):
+@click.option("--acceleration-psd", type=finite_float(positive=True), default=MotionModel.acceleration_psd_m2_per_s3,
+              show_default=True, metavar="M2/S3",
+              help="Motion prior: spectral density of the robot's unplanned acceleration in x and y (the square of "
+                   "the speed change, m/s, it makes in a second unplanned); the default is a bench's cartesian robot.")
+@click.option("--turn-psd", type=finite_float(positive=True), default=MotionModel.turn_psd_rad2_per_s3,
+              show_default=True, metavar="RAD2/S3", help="Motion prior: the same for the heading.")
+@click.option("--per-sample", is_flag=True,
+              help="No motion prior: each sample by maximum likelihood on its own currents (the per-sample bound).")
+@click.option("--noise", type=finite_float(positive=True), default=None, metavar="REL",
+              help="Relative noise of a current (1 sigma) instead of the one measured on the log.")
+def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn_psd, per_sample, noise):
     """Estimate the track (x, y, heading) of a bench LOG from its currents alone.
 
-    Each sample by maximum likelihood (Levenberg-Marquardt with the model's
-    Jacobian, receivers weighted by the noise measured on the log), started
-    from the previous sample's estimate and the first from the logged first
-    pose; errors against the logged poses beside the Cramer-Rao bound, for
-    the map and for the paper's PSM.
+    By default the most probable track over each pass under a motion prior
+    (nearly constant velocity, white-noise acceleration of the given
+    spectral densities): Gauss-Newton on all poses at once with the model's
+    Jacobian, each step a Kalman filter and Rauch-Tung-Striebel smoother, so
+    that where the currents fix the position (near corners) it holds along
+    the pass. Receivers are weighted by the noise measured on the log;
+    errors against the logged poses beside the posterior Cramer-Rao bound
+    (and the per-sample one), for the map and for the paper's PSM.
 
     Example: esense localise run.csv --map tank.map.npz -o loc/
     """
     from electrosense.validation.diagnosis.observations import DiagnosisInputError
     from electrosense.validation.localisation.from_log import localise_log
 
+    motion = None if per_sample else MotionModel(acceleration_psd, turn_psd)
     psm = None
     if psm_model:
         from electrosense.validation.simulation.models import ModelError, _load_psm
@@ -36,12 +53,15 @@ def localise(log, map_file, psm_model, outdir, no_figure):
         except ModelError as exc:
             raise click.BadParameter(str(exc), param_hint="--psm-model") from None
     try:
-        s = localise_log(log, map_file, outdir, psm, figure=not no_figure, progress=lambda t: click.echo(f"  {t}"))
+        s = localise_log(log, map_file, outdir, psm, figure=not no_figure, motion=motion, noise_rel=noise,
+                         progress=lambda t: click.echo(f"  {t}"))
     except (ValueError, DiagnosisInputError) as exc:
         raise click.ClickException(str(exc)) from None
     for name in ("map", "psm"):
         m = s[name]
         crb = "no bound" if m["crb_position_rms_m"] is None else f"bound {1e3 * m['crb_position_rms_m']:.3f} mm"
+        if m.get("expected_position_rms_m") is not None:
+            crb += f", this estimator's expected error on the logged track {1e3 * m['expected_position_rms_m']:.3f} mm"
         click.echo(f"{name.upper()}: position {1e3 * m['position_rms_m']:.3f} mm RMS ({crb}), heading "
                    f"{1e3 * m['heading_rms_rad']:.2f} mrad RMS, {m['estimated']} of {m['samples']} samples"
                    + (f"; {m['note']}" if m.get("note") else ""))

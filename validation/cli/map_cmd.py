@@ -77,13 +77,16 @@ def parse_depths(text: str):
 @click.option("--workers", type=click.IntRange(1, 64), default=2, show_default=True,
               help="Processes solving the BEM.")
 @click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None,
-              help="Sensor mesh edge (m); default: the diagnosis anchors' (3x the mesher's, edge-corrected).")
+              help="Sensor mesh edge (m) of the reference BEM, the one the map reproduces; default: the mesher's.")
+@click.option("--coarse-factor", type=click.FloatRange(min=1.0), default=3.0, show_default=True,
+              help="Most BEM poses on a sensor mesh this much coarser (3.5x cheaper at 3), corrected by the reference "
+                   "mesh at fewer poses; 1: every pose on the reference mesh.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True), default=None,
               help="Tank mesh edge near the sensor (m); default: the mesher's.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="The map file (.npz); an existing map of the same scene is resumed.")
 def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m, spacing_m, n_headings, target,
-          target_max, max_minutes, max_cpu_minutes, workers, edge_length_m, tank_edge_length_m, output):
+          target_max, max_minutes, max_cpu_minutes, workers, edge_length_m, coarse_factor, tank_edge_length_m, output):
     """Build (or resume) a tank map: the BEM at the poses of largest estimated error until the target."""
     from dataclasses import replace
 
@@ -118,13 +121,15 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
     try:
         m = build_tank_map(sensor, tank, z_m, path=output, objects=objects, target=target, target_max=target_max,
                            wall_gap_m=wall_gap_m, spacing_m=spacing_m, n_headings=n_headings,
-                           max_seconds=60.0 * max_minutes, bem_options=options, sigma_S_per_m=sigma, workers=workers,
+                           max_seconds=60.0 * max_minutes, bem_options=options, coarse_factor=coarse_factor,
+                           sigma_S_per_m=sigma, workers=workers,
                            max_cpu_seconds=None if max_cpu_minutes is None else 60.0 * max_cpu_minutes,
                            progress=click.echo)
     except ValueError as exc:
         raise click.ClickException(str(exc)) from None
     last = m.history[-1]
-    click.echo(f"{output}: {len(m.nodes)} BEM poses, estimated error RMS {100 * last['rms_error']:.4f} %, max "
+    click.echo(f"{output}: {len(m.nodes)} BEM poses ({len(m.ref_index)} on the reference sensor mesh), estimated "
+               f"error RMS {100 * last['rms_error']:.4f} %, max "
                f"{100 * last['max_error']:.4f} % over the reachable poses ({last['seconds']:.0f} s wall, "
                f"{last['cpu_seconds']:.0f} s CPU)")
 
@@ -140,7 +145,8 @@ def info(map_file):
     last = m.history[-1] if m.history else {}
     click.echo(f"sensor {m.sensor.name} ({m.sensor.n_electrodes} electrodes), tank {meta['tank']}, "
                f"{len(m.objects)} fixed object(s)")
-    click.echo(f"z = {meta['z_m']} m, closest {1e3 * m.wall_gap_m:g} mm to a wall; {len(m.nodes)} BEM poses; "
+    click.echo(f"z = {meta['z_m']} m, closest {1e3 * m.wall_gap_m:g} mm to a wall; {len(m.nodes)} BEM poses "
+               f"(sensor mesh {m.coarse_factor:g}x the reference's), {len(m.ref_index)} on the reference mesh; "
                f"sigma {m.sigma_S_per_m} S/m")
     if last:
         click.echo(f"estimated error RMS {100 * last['rms_error']:.4f} %, max {100 * last['max_error']:.4f} %; built in "

@@ -6,6 +6,8 @@ import numpy as np
 
 __all__ = ["track_figure"]
 
+LABEL = {"map": "tank map", "psm": "PSM"}
+
 
 def track_figure(obs, res: dict, png_path):
     """Two panels: the tank from above with the logged track and each model's; position error along the log with
@@ -26,13 +28,16 @@ def track_figure(obs, res: dict, png_path):
         est = res["tracks"][name]
         s = res[name]
         c = colour_of(name, k)
-        ax.plot(est[:, 0], est[:, 1], ".", ms=3, color=c, label=f"{name.upper()} from the currents", zorder=2)
+        ax.plot(est[:, 0], est[:, 1], ".", ms=3, color=c, label=f"{LABEL[name]} from the currents", zorder=2)
         d = np.linalg.norm(est[:, :2] - obs.poses[:, :2], axis=1)
         bx.semilogy(i, np.maximum(d, 1e-7) * 1e3, ".", ms=3, color=c,
-                    label=f"{name.upper()}: {1e3 * s['position_rms_m']:.3g} mm RMS")
+                    label=f"{LABEL[name]}: {1e3 * s['position_rms_m']:.3g} mm RMS")
         if s.get("_crb_position_m") is not None:
             bx.semilogy(i, s["_crb_position_m"] * 1e3, "-", lw=1, color=c,
-                        label=f"{name.upper()} bound: {1e3 * s['crb_position_rms_m']:.3g} mm RMS")
+                        label=f"{LABEL[name]} bound: {1e3 * s['crb_position_rms_m']:.3g} mm RMS")
+        if res.get("motion") is not None and s.get("_crb_per_sample_position_m") is not None:
+            bx.semilogy(i, s["_crb_per_sample_position_m"] * 1e3, ":", lw=1, color=c,
+                        label=f"{LABEL[name]} per-sample bound: {1e3 * s['crb_per_sample_position_rms_m']:.3g} mm")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
@@ -40,6 +45,7 @@ def track_figure(obs, res: dict, png_path):
     ax.legend(loc="best", fontsize=7)
     bx.set_xlabel("sample")
     bx.set_ylabel("position error (mm)")
-    bx.set_title(f"error and Cramer-Rao bound (noise {100 * res['noise_rel']:.3f} %)")
-    bx.legend(loc="best", fontsize=7)
+    how = "each sample alone" if res.get("motion") is None else "whole track, motion prior"
+    bx.set_title(f"error and Cramer-Rao bound\n({how}; noise {100 * res['noise_rel']:.3f} %)", fontsize=9)
+    bx.legend(loc="best", fontsize=6, framealpha=0.7)
     return save(fig, png_path, vector=None)

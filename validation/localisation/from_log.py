@@ -1,12 +1,16 @@
 """``esense localise``'s work: a bench log's track from its currents, by a tank map and by the PSM, with their bounds.
 
-For each model: the track (:func:`~electrosense.validation.localisation.track.track`), its error against the
-logged poses (``position_rms_m``, ``heading_rms_rad``), and the Cramer-Rao bound of that model at the logged
-poses with the noise measured on the log (``crb_position_rms_m``, ``crb_heading_rms_rad``); written to
-``localise.json`` with a figure of the tracks against the logged one (``localise.png``).
+For each model: the track, by default the maximum a posteriori track under a motion model
+(:func:`~electrosense.validation.localisation.smoother.smooth_track`; ``motion=None``: each sample alone,
+:func:`~electrosense.validation.localisation.track.track`), its error against the logged poses
+(``position_rms_m``, ``heading_rms_rad``), and the Cramer-Rao bound of that estimator and model at the logged poses
+with the noise measured on the log (``crb_position_rms_m``: the posterior bound with the motion prior, or the
+per-sample bound; ``crb_per_sample_position_rms_m``: the per-sample bound, always); written to ``localise.json``
+with the motion model and its parameters, and a figure of the tracks against the logged one (``localise.png``).
 
 The noise is measured from the log itself: second differences of log |I| along each pass
-(:func:`electrosense.validation.comparison.metrics.noise_level`), which a smooth path leaves to the noise.
+(:func:`electrosense.validation.comparison.metrics.noise_level`), which a smooth path leaves to the noise
+(``noise_rel`` overrides it, e.g. with the bench's specified noise).
 
 Example
 -------
@@ -22,51 +26,99 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.validation.localisation.smoother import (
+    DEFAULT_MOTION,
+    MotionModel,
+    expected_error,
+    posterior_crb,
+    smooth_track,
+)
 from electrosense.validation.localisation.track import cramer_rao, heading_error, map_currents, psm_currents, track
 
 __all__ = ["localise_log", "localise_observations", "model_summary"]
 
+METHOD_SMOOTHER = ("maximum a posteriori track over each pass under the motion model (Gauss-Newton on all poses, each "
+                   "step by a Kalman filter and Rauch-Tung-Striebel smoother of the linearised problem, started from "
+                   "an iterated extended Kalman filter from the first logged pose, stiffer priors solved first), "
+                   "currents whitened by the noise; Cramer-Rao bound: the posterior bound (Fisher information of "
+                   "the currents at the logged poses plus the motion prior's); the per-sample bound (J^T S^-1 J)^-1 "
+                   "beside it")
+METHOD_PER_SAMPLE = ("per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the noise), each "
+                     "sample started from the previous estimate, the first from the logged first pose; Cramer-Rao "
+                     "bound (J^T S^-1 J)^-1 of each model at the logged poses")
 
-def model_summary(name, model, currents, poses, noise_rel) -> tuple[dict, np.ndarray]:
-    """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose (:func:`track`); errors
-    against ``poses`` (P, 4) and the Cramer-Rao bound at them; (summary, estimated (P, 3))."""
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")
+
+
+def _position_rms(C) -> float:
+    return float(np.sqrt(np.nanmean(C[:, 0, 0] + C[:, 1, 1])))
+
+
+def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: MotionModel | None = None,
+                  passes=None) -> tuple[dict, np.ndarray]:
+    """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose: under ``motion`` over the
+    whole log (:func:`smooth_track`, ``t_s`` (P,) s and ``passes`` index arrays), or each sample alone
+    (``motion=None``, :func:`track`); errors against ``poses`` (P, 4) and the Cramer-Rao bounds at them;
+    (summary, estimated (P, 3))."""
     t0 = time.perf_counter()
     q_true = poses[:, [0, 1, 3]]
-    t = track(model, currents, q_true[0], noise_rel)
+    t_s = np.arange(len(poses), dtype=float) if t_s is None else np.asarray(t_s, float)
+    if motion is None:
+        t = track(model, currents, q_true[0], noise_rel)
+        est, n_conv, fit = t.poses, int(t.converged.sum()), {"chi2": t.chi2}
+    else:
+        t = smooth_track(model, currents, t_s, q_true[0], motion, noise_rel, passes)
+        est, n_conv, fit = t.poses, int(len(poses) if t.converged else 0), {"chi2": t.chi2}
     seconds = time.perf_counter() - t0
-    ok = np.isfinite(t.poses[:, 0])
-    d_pos = np.linalg.norm(t.poses[ok, :2] - q_true[ok, :2], axis=1)
-    d_yaw = heading_error(t.poses[ok, 2], q_true[ok, 2])
+    ok = np.isfinite(est[:, 0])
+    d_pos = np.linalg.norm(est[ok, :2] - q_true[ok, :2], axis=1)
+    d_yaw = heading_error(est[ok, 2], q_true[ok, 2])
     at = model(q_true)
     crb = None
     if at is not None:
-        C = cramer_rao(at[1], currents, noise_rel)
-        crb = {"crb_position_rms_m": float(np.sqrt(np.mean(C[:, 0, 0] + C[:, 1, 1]))),
-               "crb_position_median_m": float(np.median(np.sqrt(C[:, 0, 0] + C[:, 1, 1]))),
-               "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
-               "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1])}
-    rms = lambda x: float(np.sqrt(np.mean(np.square(x)))) if len(x) else float("nan")  # noqa: E731
-    out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()),
-           "converged": int(t.converged.sum()), "position_rms_m": rms(d_pos),
+        C1 = cramer_rao(at[1], currents, noise_rel)
+        C = C1 if motion is None else posterior_crb(at[1], currents, t_s, motion, noise_rel, passes)
+        if motion is not None:
+            bias, spread = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes)
+            expected = float(np.sqrt(np.nanmean(np.sum(bias[:, :2] ** 2 + spread[:, :2] ** 2, axis=1))))
+        crb = {"crb_position_rms_m": _position_rms(C), "crb_position_median_m": float(np.median(
+               np.sqrt(C[:, 0, 0] + C[:, 1, 1]))), "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
+               "crb_per_sample_position_rms_m": _position_rms(C1), "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1]),
+               "crb_per_sample_position_m": np.sqrt(C1[:, 0, 0] + C1[:, 1, 1])}
+    chi2 = fit["chi2"][np.isfinite(fit["chi2"])]
+    out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()), "converged": n_conv,
+           "position_rms_m": _rms(d_pos),
            "position_max_m": float(d_pos.max()) if len(d_pos) else float("nan"),
            "position_median_m": float(np.median(d_pos)) if len(d_pos) else float("nan"),
-           "heading_rms_rad": rms(d_yaw), "seconds": seconds,
-           "crb_position_rms_m": None if crb is None else crb["crb_position_rms_m"],
-           "crb_heading_rms_rad": None if crb is None else crb["crb_heading_rms_rad"],
-           "crb_position_median_m": None if crb is None else crb["crb_position_median_m"],
-           "position_error_over_crb": None if crb is None else rms(d_pos) / crb["crb_position_rms_m"]}
+           "heading_rms_rad": _rms(d_yaw), "seconds": seconds,
+           "chi2_per_current": float(chi2.sum() / (chi2.size * currents.shape[1])) if chi2.size else None}
+    for k in ("crb_position_rms_m", "crb_heading_rms_rad", "crb_position_median_m", "crb_per_sample_position_rms_m"):
+        out[k] = None if crb is None else crb[k]
+    out["position_error_over_crb"] = None if crb is None else out["position_rms_m"] / crb["crb_position_rms_m"]
+    if motion is not None:
+        out["expected_position_rms_m"] = None if crb is None else expected
+        out["position_error_over_expected"] = None if crb is None else out["position_rms_m"] / expected
     if crb is None:
         out["note"] = f"the {name} does not cover every logged pose: no bound"
     if not ok.all():
         out["note"] = (f"the {name} lost the track at sample {int(np.argmin(ok))} of {len(ok)} (a pose it does not "
                        "cover)")
+    elif out["chi2_per_current"] is not None and out["chi2_per_current"] > 4.0:
+        out["note"] = (f"the residuals are {np.sqrt(out['chi2_per_current']):.1f} times the noise: the {name}'s "
+                       "error" + ("" if motion is None else " or a motion prior too stiff for this robot's path")
+                       + " dominates")
     out["_crb_position_m"] = None if crb is None else crb["crb_position_m"]
-    return out, t.poses
+    out["_crb_per_sample_position_m"] = None if crb is None else crb["crb_per_sample_position_m"]
+    return out, est
 
 
-def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = None, progress=None) -> dict:
-    """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and the
-    PSM; a dict of summaries, estimated tracks and the noise used."""
+def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = None,
+                          motion: MotionModel | None = DEFAULT_MOTION, progress=None, with_psm: bool = True) -> dict:
+    """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and
+    (``with_psm``) the PSM, under ``motion`` (``None``: each sample alone); a dict of summaries, estimated tracks
+    and the noise used."""
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.simulation.models import calibrated_psm
     from electrosense.validation.simulation.tank_map import same_scene, scene_record
@@ -86,38 +138,45 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
         raise ValueError(f"the log's poses lie at {len(z)} depths; localisation is in the plane of one depth")
     z_m = float(obs.poses[0, 2])
     currents = obs.currents_A / obs.U_V[:, None]
-    if noise_rel is None:
+    measured = noise_rel is None
+    if measured:
         noise_rel = noise_level(np.log(np.abs(currents)), obs.pass_indices())
-    say(f"{obs.n_poses} samples, measured noise {100 * noise_rel:.4f} %")
+    say(f"{obs.n_poses} samples, {'measured' if measured else 'given'} noise {100 * noise_rel:.4f} %"
+        + ("" if motion is None else f"; motion prior: acceleration {motion.acceleration_psd_m2_per_s3:g} m^2/s^3, "
+                                     f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
     models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
-    psm = calibrated_psm(obs.sensor) if psm is None else psm
-    models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
-    result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}}
+    if with_psm:
+        psm = calibrated_psm(obs.sensor) if psm is None else psm
+        models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
+    result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
     for name, model in models.items():
         say(f"tracking with the {name}")
-        summary, est = model_summary(name, model, currents, obs.poses, noise_rel)
+        summary, est = model_summary(name, model, currents, obs.poses, noise_rel, obs.t_s, motion,
+                                     obs.pass_indices())
         result[name] = summary
         result["tracks"][name] = est
     return result
 
 
-def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, progress=None) -> dict:
-    """Read a bench log and a map, track, write ``localise.json`` (and ``localise.png``); the summary."""
+def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, motion: MotionModel | None = DEFAULT_MOTION,
+                 noise_rel: float | None = None, progress=None) -> dict:
+    """Read a bench log and a map, track (under ``motion``; ``None``: each sample alone), write ``localise.json``
+    (and ``localise.png``); the summary."""
     from electrosense.validation.bench.log import read_bench_log
     from electrosense.validation.diagnosis.observations import from_bench_logs
     from electrosense.validation.simulation.tank_map import load_tank_map
 
     obs = from_bench_logs([read_bench_log(log_path)])
     tank_map = load_tank_map(map_path)
-    res = localise_observations(obs, tank_map, psm, progress=progress)
+    res = localise_observations(obs, tank_map, psm, noise_rel, motion, progress)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     summary = {"log": Path(log_path).name, "map_file": Path(map_path).name, "noise_rel": res["noise_rel"],
                "map": {k: v for k, v in res["map"].items() if not k.startswith("_")},
                "psm": {k: v for k, v in res["psm"].items() if not k.startswith("_")},
-               "method": "per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the measured "
-                         "noise), each sample started from the previous estimate, the first from the logged first "
-                         "pose; Cramer-Rao bound (J^T S^-1 J)^-1 of each model at the logged poses",
+               "noise_measured": noise_rel is None,
+               "method": METHOD_PER_SAMPLE if motion is None else METHOD_SMOOTHER,
+               "motion_model": None if motion is None else motion.record(),
                "map_estimated_error_rms": float(np.sqrt(np.mean(tank_map.estimated_error(obs.poses) ** 2)))}
     (outdir / "localise.json").write_text(json.dumps(summary, indent=2))
     np.savez(outdir / "localise_tracks.npz", logged=obs.poses, map=res["tracks"]["map"], psm=res["tracks"]["psm"])

@@ -50,7 +50,7 @@ from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, M
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 2"
+MAP_FORMAT = "electrosense tank map 3"
 
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
@@ -181,16 +181,20 @@ class TankMap:
     tank: object
     z_m: object
     nodes: np.ndarray  # (B, 4) poses where the BEM was solved
-    K_nodes: np.ndarray  # (B, n, n) the BEM there, 1 S/m
+    K_nodes: np.ndarray  # (B, n, n) the BEM there, 1 S/m (on the coarse sensor mesh when coarse_factor > 1)
     K_free: np.ndarray  # (n, n) unbounded water, 1 S/m
     objects: tuple = ()
-    bem_options: dict = field(default_factory=dict)
+    bem_options: dict = field(default_factory=dict)  # the reference BEM's (the one the map reproduces)
     code: str = ""
     wall_gap_m: float = 0.005
     history: list = field(default_factory=list)
     sigma_S_per_m: float | None = None  # the water's conductivity the map was built for (K is kept at 1 S/m)
     warp_m: float = DEFAULT_WARP_M
-    fitted: dict | None = None  # {"X", "coef", "loo"}: the interpolant, as stored (else fitted from the nodes)
+    fitted: dict | None = None  # the interpolants, as stored (else fitted from the nodes)
+    coarse_factor: float = 1.0  # the coarse sensor mesh's edge over the reference's (1: every node on the reference)
+    ref_index: np.ndarray | None = None  # (F,) the nodes also solved on the reference mesh
+    K_ref: np.ndarray | None = None  # (F, n, n) the reference BEM there, 1 S/m
+    focus_m: np.ndarray | None = None  # (k, 3) the points the BEM's tank mesh was graded towards
 
     def __post_init__(self):
         n = self.K_free.shape[0]
@@ -200,17 +204,23 @@ class TankMap:
         pairs = list(zip(*self._iu))
         self._rec = [pairs.index((min(k, e), max(k, e))) for k in range(n) if k != e]
         self.frame = MapFrame(self.sensor, self.tank, self.objects, self.band, self.warp_m)
+        self.ref_index = np.zeros(0, int) if self.ref_index is None else np.asarray(self.ref_index, int)
+        self.K_ref = np.zeros((0, n, n)) if self.K_ref is None else np.asarray(self.K_ref, float)
         if self.fitted is None:
             from electrosense.validation.diagnosis.anchored import RBFInterpolant
 
+            iu = self._iu
             X = self.frame.features(self.nodes)
-            L = np.log(self.K_nodes[:, self._iu[0], self._iu[1]] / self.K_free[self._iu])
-            interp = RBFInterpolant(X, L)
+            interp = RBFInterpolant(X, np.log(self.K_nodes[:, iu[0], iu[1]] / self.K_free[iu]))
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out}
-        self._X = np.asarray(self.fitted["X"], float)
-        self._coef = np.asarray(self.fitted["coef"], float)
-        self._X2 = np.sum(self._X**2, axis=1)
-        self._linear = len(self._coef) > len(self._X) + 1
+            if len(self.ref_index):
+                Xr = X[self.ref_index]
+                d = np.log(self.K_ref[:, iu[0], iu[1]] / self.K_nodes[self.ref_index][:, iu[0], iu[1]])
+                corr = RBFInterpolant(Xr, d)
+                self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out})
+        self._parts = [_RBF(self.fitted["X"], self.fitted["coef"])]
+        if "X_ref" in self.fitted:
+            self._parts.append(_RBF(self.fitted["X_ref"], self.fitted["coef_ref"]))
 
     @property
     def band(self) -> bool:
@@ -223,30 +233,30 @@ class TankMap:
 
     @property
     def leave_one_out(self) -> np.ndarray:
-        """(B, m) relative leave-one-out error of the receiver currents at the nodes."""
+        """(B, m) relative leave-one-out error of the receiver currents at the nodes (of the coarse interpolant
+        when the map has a reference correction: its own is :attr:`leave_one_out_ref`)."""
         return np.abs(np.expm1(np.asarray(self.fitted["loo"])[:, self._rec]))
+
+    @property
+    def leave_one_out_ref(self) -> np.ndarray:
+        """(F, m) relative leave-one-out error of the reference correction at its nodes (empty without one)."""
+        if "loo_ref" not in self.fitted:
+            return np.zeros((0, len(self._rec)))
+        return np.abs(np.expm1(np.asarray(self.fitted["loo_ref"])[:, self._rec]))
 
     def log_ratio(self, poses, jacobian: bool = False, chunk: int = 4096):
         """log(K / K_free) of the upper triangle, (P, pairs); with ``jacobian`` also its d/d(x, y, yaw), (P, 3, pairs)."""
         poses = np.asarray(poses, float).reshape(-1, 4)
-        B = len(self._X)
         out, dout = [], []
         for s in range(0, len(poses), chunk):
             F, dF = self.frame.features(poses[s:s + chunk], jacobian=True) if jacobian else \
                 (self.frame.features(poses[s:s + chunk]), None)
-            r = np.sqrt(np.maximum(np.sum(F**2, axis=1)[:, None] + self._X2[None, :] - 2.0 * F @ self._X.T, 0.0))
-            c, t = self._coef[:B], self._coef[B:]
-            L = (r**3) @ c + t[0]
-            if self._linear:
-                L = L + F @ t[1:]
+            L, G = 0.0, 0.0
+            for part in self._parts:
+                v, g = part(F, jacobian)
+                L, G = L + v, G + (g if jacobian else 0.0)
             out.append(L)
             if jacobian:
-                # d/dF_k sum_b r_b^3 c_b = 3 sum_b r_b (F_k - X_bk) c_b
-                rc = r @ c  # (p, pairs)
-                G = 3.0 * (F[:, :, None] * rc[:, None, :] - np.stack([r @ (self._X[:, k, None] * c)
-                                                                       for k in range(F.shape[1])], axis=1))
-                if self._linear:
-                    G = G + t[1:][None]
                 dout.append(np.einsum("pkq,pkj->pjq", G, dF))
         L = np.concatenate(out) if out else np.zeros((0, len(self._iu[0])))
         return (L, np.concatenate(dout)) if jacobian else L
@@ -269,10 +279,15 @@ class TankMap:
         return self.conductance(poses, sigma_S_per_m, jacobian=True)[1]
 
     def estimated_error(self, poses) -> np.ndarray:
-        """(P, m) estimated relative error of the receiver currents at ``poses`` (zero at the nodes)."""
+        """(P, m) estimated relative error of the receiver currents at ``poses`` (zero at the nodes): the coarse
+        interpolant's and the reference correction's, in quadrature."""
         from electrosense.validation.diagnosis.anchored import estimated_error
 
-        return estimated_error(self._X, self.leave_one_out, self.frame.features(np.asarray(poses, float)))
+        F = self.frame.features(np.asarray(poses, float))
+        err = estimated_error(self._parts[0].X, self.leave_one_out, F)
+        if len(self._parts) > 1:
+            err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
+        return err
 
     def covers(self, poses) -> tuple[np.ndarray, str]:
         """(P,) bool: poses inside the map (its depth or band, its wall gap), and why the first other is not."""
@@ -296,7 +311,7 @@ class TankMap:
     def meta(self) -> dict:
         return {"format": MAP_FORMAT, "sensor": self.sensor.to_dict(), **scene_record(self.tank, self.objects),
                 "z_m": (list(self.z_range_m) if self.band else float(self.z_m)), "wall_gap_m": self.wall_gap_m,
-                "warp_m": self.warp_m,
+                "warp_m": self.warp_m, "coarse_factor": self.coarse_factor,
                 "bem_options": {k: v for k, v in self.bem_options.items() if isinstance(v, (int, float, str))},
                 "code": self.code, "history": self.history, "sigma_S_per_m": self.sigma_S_per_m}
 
@@ -304,10 +319,41 @@ class TankMap:
         """One ``.npz``: arrays, and the scene, sensor, options and code version as JSON (written atomically)."""
         path = Path(path)
         partial = path.with_name(f"{path.name}.{os.getpid()}.writing.npz")
+        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in self.fitted}
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, X=self.fitted["X"],
-                 coef=self.fitted["coef"], loo=self.fitted["loo"], meta=json.dumps(self.meta()))
+                 coef=self.fitted["coef"], loo=self.fitted["loo"], ref_index=self.ref_index, K_ref=self.K_ref,
+                 focus_m=np.zeros((0, 3)) if self.focus_m is None else self.focus_m,
+                 meta=json.dumps(self.meta()), **ref)
         partial.replace(path)
         return path
+
+
+class _RBF:
+    """A fitted cubic RBF with its trend (as :class:`~electrosense.validation.diagnosis.anchored.RBFInterpolant`
+    stores it), evaluated with its gradient by the features."""
+
+    def __init__(self, X, coef):
+        self.X, self.coef = np.asarray(X, float), np.asarray(coef, float)
+        self.X2 = np.sum(self.X**2, axis=1)
+        self.linear = len(self.coef) > len(self.X) + 1
+
+    def __call__(self, F, gradient: bool = False):
+        """(values (p, k), d/dF (p, d, k) or None)."""
+        B = len(self.X)
+        r = np.sqrt(np.maximum(np.sum(F**2, axis=1)[:, None] + self.X2[None, :] - 2.0 * F @ self.X.T, 0.0))
+        c, t = self.coef[:B], self.coef[B:]
+        L = (r**3) @ c + t[0]
+        if self.linear:
+            L = L + F @ t[1:]
+        if not gradient:
+            return L, None
+        # d/dF_k sum_b r_b^3 c_b = 3 sum_b r_b (F_k - X_bk) c_b
+        rc = r @ c  # (p, k)
+        G = 3.0 * (F[:, :, None] * rc[:, None, :] - np.stack([r @ (self.X[:, j, None] * c)
+                                                               for j in range(F.shape[1])], axis=1))
+        if self.linear:
+            G = G + t[1:][None]
+        return L, G
 
 
 def _assemble(off: np.ndarray, n: int, iu) -> np.ndarray:
@@ -327,7 +373,9 @@ def load_tank_map(path) -> TankMap:
     try:
         with np.load(path) as z:
             meta = json.loads(str(z["meta"]))
-            arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo")}
+            arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "ref_index", "K_ref",
+                                        "focus_m")}
+            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in z.files})
     except (OSError, KeyError, ValueError, EOFError) as exc:
         raise ValueError(f"{path}: not a tank map ({exc})") from None
     if meta.get("format") != MAP_FORMAT:
@@ -343,32 +391,44 @@ def load_tank_map(path) -> TankMap:
                    arrays["K_free"], objects, meta.get("bem_options", {}), meta.get("code", ""),
                    float(meta.get("wall_gap_m", 0.005)), meta.get("history", []), meta.get("sigma_S_per_m"),
                    float(meta.get("warp_m", DEFAULT_WARP_M)),
-                   {"X": arrays["X"], "coef": arrays["coef"], "loo": arrays["loo"]})
+                   {k: arrays[k] for k in ("X", "coef", "loo", "X_ref", "coef_ref", "loo_ref") if k in arrays},
+                   float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
+                   arrays["focus_m"] if len(arrays["focus_m"]) else None)
 
 
 # ------------------------------------------------------------------ build
 _WORKER = {}
 
+#: the coarse sensor mesh's edge over the reference's, for the many poses of a map (the reference mesh, 3.5x the
+#: CPU per pose, at fewer poses corrects them): 3 is the diagnosis anchors' factor
+COARSE_FACTOR = 3.0
+
 
 def _worker_init(sensor, tank, objects, focus, options):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
+    _WORKER.update(args=(sensor, tank, objects, focus), options=options, sweeps={})
+
+
+def _worker_solve(poses, fidelity: str = "coarse"):
+    """K at ``poses`` on the ``fidelity``'s sensor mesh ("coarse" or "ref"), this process's id and its CPU seconds
+    so far (its set-up included)."""
     from electrosense.bem import PoseSweep
 
-    _WORKER["sweep"] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **options)
-
-
-def _worker_solve(poses):
-    """K at ``poses``, this process's id and its CPU seconds so far (its set-up included)."""
-    K = _WORKER["sweep"].conductance(poses).K_S
+    if fidelity not in _WORKER["sweeps"]:   # set up on first use: a map without a correction never pays for it
+        sensor, tank, objects, focus = _WORKER["args"]
+        _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus,
+                                                **_WORKER["options"][fidelity])
+    K = _WORKER["sweeps"][fidelity].conductance(poses).K_S
     return K, os.getpid(), time.process_time()
 
 
 class _BemPool:
-    """The BEM at many poses on ``workers`` processes (each with its own PoseSweep on the same tank mesh, so a
-    pose's K does not depend on which worker solved it). ``cpu_s``: CPU seconds of the worker processes (with
-    one worker everything runs in this process, whose own CPU time counts it)."""
+    """The BEM at many poses on ``workers`` processes (each with its own PoseSweeps on the same tank mesh, so a
+    pose's K does not depend on which worker solved it), on the coarse or the reference sensor mesh. ``cpu_s``:
+    CPU seconds of the worker processes (with one worker everything runs in this process, whose own CPU time
+    counts it)."""
 
-    def __init__(self, sensor, tank, objects, focus, options, workers: int):
+    def __init__(self, sensor, tank, objects, focus, options: dict, workers: int):
         self.args = (sensor, tank, tuple(objects), focus, options)
         self.workers = max(1, int(workers))
         self._cpu = {}
@@ -387,12 +447,12 @@ class _BemPool:
     def cpu_s(self) -> float:
         return float(sum(self._cpu.values()))
 
-    def solve(self, poses: np.ndarray) -> np.ndarray:
+    def solve(self, poses: np.ndarray, fidelity: str = "coarse") -> np.ndarray:
         self.solved += len(poses)
         if self._pool is None:
-            return _worker_solve(poses)[0]
+            return _worker_solve(poses, fidelity)[0]
         parts = [p for p in np.array_split(poses, self.workers) if len(p)]
-        out = list(self._pool.map(_worker_solve, parts))
+        out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts)))
         for _, pid, cpu in out:
             self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
         return np.concatenate([K for K, _, _ in out])
@@ -405,28 +465,41 @@ class _BemPool:
 def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TARGET_RMS,
                    target_max: float = TARGET_MAX, wall_gap_m: float = 0.005, spacing_m: float = 0.01,
                    n_headings: int = 48, n_depths: int = 5, first: int = 60, per_round: int = 24,
-                   max_seconds: float = 270.0, max_cpu_seconds: float | None = None, bem_options: dict | None = None,
+                   first_ref: int = 12, max_seconds: float = 270.0, max_cpu_seconds: float | None = None,
+                   bem_options: dict | None = None, coarse_factor: float = COARSE_FACTOR,
                    sigma_S_per_m: float | None = None, workers: int = 2, warp_m: float = DEFAULT_WARP_M,
                    progress=None) -> TankMap:
     """Build (or resume, from ``path``) the map of ``sensor`` in ``tank`` at depth ``z_m`` (module doc).
 
     ``z_m``: a depth (m, tank frame) or ``(z_min, z_max)`` for a band (``n_depths`` candidate depths);
     ``target`` / ``target_max``: the RMS and largest estimated relative error of a receiver current over the
-    candidates at which the build stops; ``max_cpu_seconds``: CPU budget of the whole build, every process
+    candidates at which the build stops; ``bem_options``: of the reference BEM, the one the map reproduces
+    (its sensor mesh ``edge_length_m`` defaults to the mesher's, as everywhere else in the project);
+    ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser and corrected by the
+    reference at fewer poses (``first_ref`` first, then more where the correction's estimated error leads;
+    1: every pose on the reference mesh); ``max_cpu_seconds``: CPU budget of the whole build, every process
     counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
     same BEM poses and gives the same map); ``max_seconds``: wall-clock budget; at either the map is saved as it
     stands, its estimated error with it (a round is not started that the CPU budget cannot pay for);
     ``workers``: processes solving the BEM.
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
-    from electrosense.validation.diagnosis.anchored import default_bem_options
+    from electrosense.meshes.sensor_mesh import default_edge_length_m
+    from electrosense.validation.diagnosis.anchored import estimated_error
     from electrosense.validation.simulation.models import code_version, free_space_bem
 
     say = progress or (lambda s: None)
     t0, c0 = time.perf_counter(), time.process_time()
     max_cpu_seconds = workers * max_seconds if max_cpu_seconds is None else max_cpu_seconds
     objects = tuple(objects)
-    options = default_bem_options(sensor, bem_options)
+    options = dict(bem_options or {})
+    if options.get("edge_length_m") is None:
+        options["edge_length_m"] = default_edge_length_m(sensor)
+    coarse_factor = float(coarse_factor)
+    if not coarse_factor >= 1.0:
+        raise ValueError(f"coarse_factor must be 1 or more, got {coarse_factor}")
+    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_factor * options["edge_length_m"]}}
+    corrected = coarse_factor > 1.0
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:
@@ -446,8 +519,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         C, F = C[np.sort(keep)], F[np.sort(keep)]
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls{', folded by the tank symmetry' if frame.symmetric else ''})")
-    K_free = free_space_bem(sensor, options.get("edge_length_m")).K_S
-    nodes, K_nodes, history = np.zeros((0, 4)), np.zeros((0,) + K_free.shape), []
+    K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
+    n = K_free.shape[0]
+    nodes, K_nodes, history = np.zeros((0, 4)), np.zeros((0, n, n)), []
+    ref_index, K_ref = np.zeros(0, int), np.zeros((0, n, n))
     if path is not None and Path(path).exists():
         try:
             old = load_tank_map(path)
@@ -455,49 +530,92 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             raise ValueError(f"{exc}; remove it or choose another output file") from None
         same = (old.sensor.to_dict() == sensor.to_dict() and same_scene(old.tank, old.objects, tank, objects, 1e-12)
                 and old.z_m == z_m and old.code == code and old.warp_m == warp_m
+                and old.coarse_factor == coarse_factor
                 and old.bem_options == {k: v for k, v in options.items() if isinstance(v, (int, float, str))})
         if not same:
             raise ValueError(f"{path} holds a map of another scene, depth, BEM or code version; remove it or "
                              "choose another output file")
         nodes, K_nodes, history = old.nodes, old.K_nodes, list(old.history)
-        say(f"resuming from {len(nodes)} BEM poses in {path}")
+        ref_index, K_ref = old.ref_index, old.K_ref
+        say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
     focus = trajectory_focus_m(sensor, C[_farthest_points(F, 400)])
-    pool = _BemPool(sensor, tank, objects, focus, options, workers)
+    pool = _BemPool(sensor, tank, objects, focus, fidelities if corrected else {"coarse": options}, workers)
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
+    per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)
+
+    def cpu_now():
+        return time.process_time() - c0 + pool.cpu_s
 
     def solve(idx):
         nonlocal nodes, K_nodes
-        K = pool.solve(C[idx])
+        c = cpu_now()
+        K = pool.solve(C[idx], "coarse")
+        per_pose["coarse"] = (cpu_now() - c) / len(idx)
         nodes, K_nodes = np.vstack([nodes, C[idx]]), np.vstack([K_nodes, K])
+
+    def solve_ref(node_idx):
+        nonlocal ref_index, K_ref
+        c = cpu_now()
+        K = pool.solve(nodes[node_idx], "ref")
+        per_pose["ref"] = (cpu_now() - c) / len(node_idx)
+        ref_index, K_ref = np.r_[ref_index, node_idx], np.vstack([K_ref, K])
+
+    def current_map():
+        return TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, objects, options, code, wall_gap_m, history,
+                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, focus)
 
     try:
         if len(nodes) < first:
-            say(f"BEM at {first - len(nodes)} first poses on {pool.workers} process(es)")
+            say(f"BEM at {first - len(nodes)} first poses on {pool.workers} process(es)"
+                + (f", sensor mesh {coarse_factor:g}x coarser than the reference" if corrected else ""))
             solve(_farthest_points(F, first - len(nodes), frame.features(nodes) if len(nodes) else None))
+        if corrected and len(ref_index) < first_ref:
+            say(f"reference BEM at {first_ref - len(ref_index)} of them (sensor mesh edge "
+                f"{1e3 * options['edge_length_m']:.2f} mm)")
+            X = frame.features(nodes)
+            spread = _farthest_points(X, first_ref - len(ref_index), X[ref_index] if len(ref_index) else None)
+            solve_ref(spread)
         while True:
-            m = TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, objects, options, code, wall_gap_m, history,
-                        sigma_S_per_m, warp_m)
-            err = m.estimated_error(C).max(axis=1)
+            m = current_map()
+            err_c = estimated_error(m._parts[0].X, m.leave_one_out, F).max(axis=1)
+            err_r = (estimated_error(m._parts[1].X, m.leave_one_out_ref, F).max(axis=1) if corrected
+                     else np.zeros(len(C)))
+            err = np.hypot(err_c, err_r)
             rms = float(np.sqrt(np.mean(err**2)))
+            rms_c, rms_r = float(np.sqrt(np.mean(err_c**2))), float(np.sqrt(np.mean(err_r**2)))
             wall = prior_wall + time.perf_counter() - t0
-            cpu = prior_cpu + time.process_time() - c0 + pool.cpu_s
-            history.append({"bem_poses": len(nodes), "max_error": float(err.max()), "rms_error": rms,
-                            "seconds": wall, "cpu_seconds": cpu})
+            cpu = prior_cpu + cpu_now()
+            history.append({"bem_poses": len(nodes), "reference_poses": int(len(ref_index)),
+                            "max_error": float(err.max()), "rms_error": rms, "rms_error_coarse": rms_c,
+                            "rms_error_correction": rms_r, "seconds": wall, "cpu_seconds": cpu})
             m.history = history
             if path is not None:
                 m.save(path)
-            say(f"{len(nodes)} BEM poses: estimated error RMS {100 * rms:.4f} %, max {100 * err.max():.4f} % "
-                f"(target {100 * target:.4f} % / {100 * target_max:.4f} %), {wall:.0f} s")
+            say(f"{len(nodes)} BEM poses{f' ({len(ref_index)} on the reference mesh)' if corrected else ''}: "
+                f"estimated error RMS {100 * rms:.4f} %, max {100 * err.max():.4f} % (target {100 * target:.4f} % / "
+                f"{100 * target_max:.4f} %){f'; interpolation {100 * rms_c:.4f} %, correction {100 * rms_r:.4f} %' if corrected else ''}, "
+                f"{wall:.0f} s")
             if rms <= target and err.max() <= target_max:
                 break
-            per_pose = (cpu - prior_cpu) / max(pool.solved, 1)   # set-up included: an upper estimate
-            if time.perf_counter() - t0 > max_seconds or cpu + per_round * per_pose > max_cpu_seconds:
+            # the next round: more coarse poses, or more reference ones, whichever error leads
+            refine = corrected and rms_r > rms_c and len(ref_index) < len(nodes)
+            k = max(4, per_round // 3) if refine else per_round
+            cost = k * per_pose.get("ref" if refine else "coarse", 0.0)
+            if time.perf_counter() - t0 > max_seconds or cpu + cost > max_cpu_seconds:
                 say(f"time budget spent ({wall:.0f} s of {max_seconds:.0f} s wall, {cpu:.0f} s of "
                     f"{max_cpu_seconds:.0f} s CPU): the map is saved with its estimated error")
                 break
-            worst = np.argsort(err)[::-1][: 20 * per_round]
-            solve(worst[_farthest_points(F[worst], per_round, m._X)])
+            if refine:
+                X = frame.features(nodes)
+                e_nodes = estimated_error(m._parts[1].X, m.leave_one_out_ref, X).max(axis=1)
+                e_nodes[ref_index] = -1.0
+                worst = np.argsort(e_nodes)[::-1][: 20 * k]
+                worst = worst[e_nodes[worst] >= 0]
+                solve_ref(worst[_farthest_points(X[worst], min(k, len(worst)), X[ref_index])])
+            else:
+                worst = np.argsort(err_c)[::-1][: 20 * k]
+                solve(worst[_farthest_points(F[worst], k, m._parts[0].X)])
     finally:
         pool.close()
     return m

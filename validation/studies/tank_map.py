@@ -78,17 +78,29 @@ def test_poses(sensor, tank, z, rng, n, band=None):
     return np.array(out)
 
 
-def check_accuracy(m, sensor, tank, P, options):
-    """Receiver-current errors of the map against the BEM at ``P`` on a tank mesh graded towards ``P``."""
+def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
+    """Receiver-current errors of the map against the reference BEM (the map's sensor mesh options) at ``P``:
+    ``other``: on a tank mesh graded towards ``P`` (a fresh BEM as a user would run it); ``same``: on the map's own
+    tank mesh (the interpolation's error alone); ``bem_tank``: the BEM between the two tank meshes; ``bem_sensor``:
+    the BEM with its sensor mesh 0.7x the reference's at the first ``n_sensor_check`` poses (the reference's own
+    discretisation, graded tank mesh)."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
 
-    sweep = PoseSweep(sensor, tank, (), 1.0, focus_m=trajectory_focus_m(sensor, P), **options)
-    K = sweep.conductance(P).K_S
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    err = m.conductance(P)[:, r, e] / K[:, r, e] - 1
-    return err, K
+    focus = trajectory_focus_m(sensor, P)
+    K_other = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
+    out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
+    if m.focus_m is not None:
+        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, **m.bem_options).conductance(P).K_S
+        out["same"] = m.conductance(P)[:, r, e] / K_same[:, r, e] - 1
+        out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
+    if n_sensor_check:
+        fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
+        K_fine = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **fine).conductance(P[:n_sensor_check]).K_S
+        out["bem_sensor"] = K_other[:n_sensor_check][:, r, e] / K_fine[:, r, e] - 1
+    return out
 
 
 def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
@@ -182,6 +194,23 @@ def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int):
     return folder / "wall.csv"
 
 
+def motion_prior_table(log, m, noise_rel) -> list[dict]:
+    """The map's track error and bound under stiffer and looser motion priors, and each sample alone."""
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.diagnosis.observations import from_bench_logs
+    from electrosense.validation.localisation.from_log import localise_observations
+    from electrosense.validation.localisation.smoother import MotionModel
+
+    obs = from_bench_logs([read_bench_log(log)])
+    rows = []
+    for q in (1e-6, 1e-4, 1e-2, None):
+        motion = None if q is None else MotionModel(q, 10 * q)
+        s = localise_observations(obs, m, noise_rel=noise_rel, motion=motion, with_psm=False)["map"]
+        rows.append({"acceleration_psd_m2_per_s3": q, "position_rms_m": s["position_rms_m"],
+                     "crb_position_rms_m": s["crb_position_rms_m"], "heading_rms_rad": s["heading_rms_rad"]})
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1)
@@ -231,17 +260,21 @@ def main(argv=None):
     load_ms = 1e3 * (time.perf_counter() - t0) / 5
     est = m.history[-1]
     results["build"] = {"wall_s": build_wall, "cpu_s": build_cpu, "bem_poses": len(m.nodes), "load_ms": load_ms,
+                        "reference_poses": int(len(m.ref_index)),
                         "estimated_rms": est["rms_error"], "estimated_max": est["max_error"]}
     save = lambda: (folder / "study.json").write_text(json.dumps(results, indent=1, default=float))  # noqa: E731
     save()
     # ---------------------------------------------------------------- accuracy
     print(f"BEM at {args.test_poses} random poses (tips 5 mm to 20 cm from a wall), on a tank mesh graded to them")
     P = test_poses(sensor, tank, z, rng, args.test_poses, band)
-    err, _ = check_accuracy(m, sensor, tank, P, m.bem_options)
+    errs = check_accuracy(m, sensor, tank, P)
+    err = errs["other"]
     err_est = m.estimated_error(P)
-    results["accuracy"] = {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
-                           "estimated_rms": float(np.sqrt(np.mean(err_est**2))),
-                           "poses": P.tolist(), "errors": err.tolist()}
+    rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    results["accuracy"] = {"rms": rms(err), "max": float(np.abs(err).max()), "estimated_rms": rms(err_est),
+                           "poses": P.tolist(), "errors": err.tolist(),
+                           **{f"{k}_rms": rms(v) for k, v in errs.items()},
+                           **{f"{k}_max": float(np.abs(v).max()) for k, v in errs.items()}}
     save()
     # ---------------------------------------------------------------- speed
     Q = test_poses(sensor, tank, z, rng, 2000, band)
@@ -262,19 +295,34 @@ def main(argv=None):
     save()
     # ---------------------------------------------------------------- localisation
     if not (args.skip_localisation or args.cylinder or band):
+        from electrosense.validation.defaults import BENCH_CURRENT_NOISE_REL
         from electrosense.validation.localisation.from_log import localise_log
 
         print(f"virtual-bench log of {args.log_poses} poses 2 cm from a wall (BEM physics), then esense localise")
         log = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed)
-        results["localise"] = localise_log(log, path, folder / "localise", progress=lambda s: print(" ", s))
+        # the bound at the bench's specified noise (the virtual bench's): the noise measured on a short log is
+        # inflated by the path's curvature, which would loosen the bound
+        results["localise"] = localise_log(log, path, folder / "localise", noise_rel=BENCH_CURRENT_NOISE_REL,
+                                           progress=lambda s: print(" ", s))
+        results["localise_motion_priors"] = motion_prior_table(log, m, BENCH_CURRENT_NOISE_REL)
+        measured = localise_log(log, path, folder / "localise_measured_noise", figure=False)
+        results["localise_measured_noise"] = {k: measured[k] for k in ("noise_rel", "map", "psm")}
     save()
     # ---------------------------------------------------------------- summary
     print("\nfigure                                                            measured   goal")
     b, a = results["build"], results["accuracy"]
     _line("map vs BEM at fresh poses (another tank mesh), RMS", a["rms"], GOALS["rms"], "{:.3%}")
     _line("map vs BEM at fresh poses, max", a["max"], GOALS["max"], "{:.3%}")
+    if "same_rms" in a:
+        print(f"  on the map's own tank mesh (the interpolation alone): {a['same_rms']:.3%} RMS, {a['same_max']:.3%} "
+              f"max; the BEM itself between the two tank meshes: {a['bem_tank_rms']:.3%} RMS, {a['bem_tank_max']:.3%} "
+              "max")
+    if "bem_sensor_rms" in a:
+        print(f"  the reference BEM's own sensor-mesh error (against a 0.7x finer sensor mesh, {len(P[:4])} poses): "
+              f"{a['bem_sensor_rms']:.3%} RMS, {a['bem_sensor_max']:.3%} max")
     print(f"  (the map's own estimate there: {a['estimated_rms']:.3%} RMS; at build end over all reachable poses "
-          f"{b['estimated_rms']:.3%} RMS, {b['estimated_max']:.3%} max; {b['bem_poses']} BEM poses)")
+          f"{b['estimated_rms']:.3%} RMS, {b['estimated_max']:.3%} max; {b['bem_poses']} BEM poses, "
+          f"{b['reference_poses']} on the reference sensor mesh)")
     _line(f"build, wall s ({args.workers} workers, empty cache)", b["wall_s"], GOALS["build_s"], "{:.0f}")
     print(f"  build CPU s (all processes): {b['cpu_s']:.0f} (on {args.workers} free cores: about "
           f"{b['cpu_s'] / args.workers:.0f} s wall); loading the map: {b['load_ms']:.1f} ms")
@@ -287,14 +335,25 @@ def main(argv=None):
         print(f"  the whole command, start-up and store included: {s['sweep_command_poses_per_s']:.0f} poses/s")
     if "localise" in results:
         lm, lp = results["localise"]["map"], results["localise"]["psm"]
+        mm = lambda v: "none" if v is None else f"{1e3 * v:.3f} mm"  # noqa: E731
         if lm["crb_position_rms_m"]:
-            _line("localisation, map: position RMS / its Cramer-Rao bound", lm["position_rms_m"] /
+            _line("localisation, map: position RMS / its posterior Cramer-Rao bound", lm["position_rms_m"] /
                   lm["crb_position_rms_m"], GOALS["loc_over_crb"], "{:.2f}")
         _line("localisation, map: position RMS (m)", lm["position_rms_m"], GOALS["loc_rms_m"], "{:.2e}")
-        print(f"  map: heading {lm['heading_rms_rad']:.2e} rad RMS, bound {lm['crb_position_rms_m']} m / "
-              f"{lm['crb_heading_rms_rad']} rad; PSM: position {lp['position_rms_m']:.2e} m RMS, heading "
-              f"{lp['heading_rms_rad']:.2e} rad, bound {lp['crb_position_rms_m']} m; noise "
-              f"{results['localise']['noise_rel']:.3%}")
+        print(f"  (noise {results['localise']['noise_rel']:.3%}, the bench's; motion prior "
+              f"{results['localise']['motion_model']['acceleration_psd_m2_per_s3']:g} m^2/s^3)")
+        print(f"  map: position {mm(lm['position_rms_m'])} RMS, bound {mm(lm['crb_position_rms_m'])} (each sample "
+              f"alone: bound {mm(lm['crb_per_sample_position_rms_m'])}), heading {lm['heading_rms_rad']:.2e} rad RMS")
+        print(f"  PSM: position {mm(lp['position_rms_m'])} RMS, bound {mm(lp['crb_position_rms_m'])} (each sample "
+              f"alone: bound {mm(lp['crb_per_sample_position_rms_m'])}), heading {lp['heading_rms_rad']:.2e} rad RMS")
+        print("  the map under other motion priors (acceleration PSD m^2/s^3; none: each sample alone):")
+        for row in results["localise_motion_priors"]:
+            print(f"    {str(row['acceleration_psd_m2_per_s3']):>8s}: position {mm(row['position_rms_m'])} RMS, "
+                  f"bound {mm(row['crb_position_rms_m'])}")
+        lmm = results["localise_measured_noise"]
+        print(f"  with the noise measured on the log ({lmm['noise_rel']:.3%}): map {mm(lmm['map']['position_rms_m'])}"
+              f" (bound {mm(lmm['map']['crb_position_rms_m'])}), PSM {mm(lmm['psm']['position_rms_m'])} (bound "
+              f"{mm(lmm['psm']['crb_position_rms_m'])})")
     print(f"wrote {folder / 'study.json'}")
     return results
 

@@ -82,15 +82,6 @@ def fingerprint(identity: dict, poses: np.ndarray) -> str:
     return digest.hexdigest()[:32]
 
 
-def _zarr_kwargs() -> dict:
-    """Zarr format 2 where xarray can write it: readable by zarr-python 2 and 3 alike."""
-    import inspect
-
-    import xarray as xr
-
-    return {"zarr_format": 2} if "zarr_format" in inspect.signature(xr.Dataset.to_zarr).parameters else {}
-
-
 @dataclass
 class SweepStore:
     """A zarr sweep store on disk; open one with :meth:`open_or_create`."""
@@ -160,15 +151,16 @@ class SweepStore:
 
     @classmethod
     def _create(cls, path, poses, n_electrodes, emitter, identity, chunk_poses, fp, attrs) -> "SweepStore":
-        import dask.array as da
-        import xarray as xr
+        """The empty store, written with zarr alone in the layout ``xarray.to_zarr`` gives (zarr format 2,
+        ``_ARRAY_DIMENSIONS``, consolidated metadata): importing xarray and dask to write a few metadata files
+        cost a fast model's sweep of 10 000 poses more than the poses themselves."""
+        import zarr
 
         if chunk_poses < 1:
             raise StoreError(f"chunk_poses must be a positive number of poses, got {chunk_poses}")
         P, n = len(poses), int(n_electrodes)
         receivers = [k for k in range(1, n + 1) if k != emitter]
         chunks = (min(chunk_poses, max(P, 1)),)
-        lazy = lambda *shape: da.full(shape, np.nan, chunks=chunks + shape[1:])  # noqa: E731 - never computed
         all_attrs = {k: (v if isinstance(v, (str, int, float, bool)) else _as_json(v)) for k, v in attrs.items()}
         all_attrs.update(
             {
@@ -185,33 +177,34 @@ class SweepStore:
         )
         for key, value in identity.items():
             all_attrs[key] = value if isinstance(value, (str, int, float, bool)) else _as_json(value)
-        ds = xr.Dataset(
-            {
-                "K_S": (("pose", "electrode", "driven"), lazy(P, n, n), {"units": "S"}),
-                "I_A": (("pose", "receiver"), lazy(P, n - 1), {"units": "A", "long_name": "receiver current at U = 1 V"}),
-                "R_ohm": (("pose", "receiver"), lazy(P, n - 1), {"units": "ohm", "long_name": "U / I"}),
-                "computed": (("pose",), np.zeros(P, dtype="i1"), {"long_name": "1 where computed"}),
-            },
-            coords={
-                "pose": np.arange(P),
-                "electrode": np.arange(1, n + 1),
-                "driven": np.arange(1, n + 1),
-                "receiver": receivers,
-                "x_m": ("pose", poses[:, 0], {"units": "m"}),
-                "y_m": ("pose", poses[:, 1], {"units": "m"}),
-                "z_m": ("pose", poses[:, 2], {"units": "m"}),
-                "yaw_rad": ("pose", poses[:, 3], {"units": "rad"}),
-            },
-            attrs=all_attrs,
-        )
-        # uncompressed: float64 conductances hardly compress, and compressing costs a fast model (the PSM) ~20 % more
-        import zarr
+        if Path(path).exists():
+            raise StoreError(f"{path} exists; remove it or choose another output")
+        group = zarr.open_group(str(path), mode="w-", zarr_format=2)
+        group.attrs.update(all_attrs)
+        coords = "x_m y_m yaw_rad z_m"
 
-        plain = {"compressors" if int(zarr.__version__.split(".")[0]) >= 3 else "compressor": None}
-        encoding = {name: {"chunks": chunks + ds[name].shape[1:], **plain} for name in ("K_S", "I_A", "R_ohm", "computed")}
-        for name in ("x_m", "y_m", "z_m", "yaw_rad", "pose"):
-            encoding[name] = {"chunks": chunks}
-        ds.to_zarr(str(path), mode="w-", compute=False, encoding=encoding, consolidated=True, **_zarr_kwargs())
+        def array(name, dims, data=None, shape=None, dtype="<f8", fill=np.nan, **attributes):
+            shape = np.shape(data) if data is not None else shape
+            # uncompressed: float64 conductances hardly compress, and compressing costs a fast model ~20 % more
+            a = group.create_array(name, shape=shape, chunks=(chunks[0] if dims[0] == "pose" else shape[0],)
+                                   + tuple(shape[1:]), dtype=dtype, fill_value=fill, compressors=None,
+                                   attributes={**attributes, "_ARRAY_DIMENSIONS": list(dims)})
+            if data is not None:
+                a[...] = data
+
+        array("K_S", ("pose", "electrode", "driven"), shape=(P, n, n), units="S", coordinates=coords)
+        array("I_A", ("pose", "receiver"), shape=(P, n - 1), units="A", long_name="receiver current at U = 1 V",
+              coordinates=coords)
+        array("R_ohm", ("pose", "receiver"), shape=(P, n - 1), units="ohm", long_name="U / I", coordinates=coords)
+        array("computed", ("pose",), np.zeros(P, dtype="i1"), dtype="|i1", fill=None, long_name="1 where computed",
+              coordinates=coords)
+        array("pose", ("pose",), np.arange(P, dtype="<i8"), dtype="<i8", fill=None)
+        for name in ("electrode", "driven"):
+            array(name, (name,), np.arange(1, n + 1, dtype="<i8"), dtype="<i8", fill=None)
+        array("receiver", ("receiver",), np.asarray(receivers, dtype="<i8"), dtype="<i8", fill=None)
+        for k, (name, unit) in enumerate((("x_m", "m"), ("y_m", "m"), ("z_m", "m"), ("yaw_rad", "rad"))):
+            array(name, ("pose",), np.ascontiguousarray(poses[:, k]), units=unit)
+        zarr.consolidate_metadata(str(path), zarr_format=2)
         return cls(Path(path), P, chunks[0], n, int(emitter))
 
     # ------------------------------------------------------------------- state
