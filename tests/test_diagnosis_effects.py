@@ -154,11 +154,11 @@ def test_fit_recovers_a_geometric_effect_with_honest_uncertainty(setup, sim, tra
     I = world_currents(sim, setup, trajectory[0], "tank_size", truth)
     pb = _problem(setup, sim, trajectory, I, rng)
     lib = library(pb.obs)
-    f = fit(pb, lib["tank_size"], np.arange(pb.obs.n_poses), noise=5e-4)
+    f = fit(pb, lib["tank_size"][:1], np.arange(pb.obs.n_poses), noise=5e-4)
     est, sd = f.params()["tank_size"]["dLx_m"], f.uncertainty()["tank_size"]["dLx_m"]
     assert abs(est - (-0.03)) < max(4 * sd, 1e-4)
     assert f.train_rms < 1.3 * 5e-4
-    heldout, thetas = cross_validate(pb, lib["tank_size"], make_folds(pb.obs), full=f)
+    heldout, thetas = cross_validate(pb, lib["tank_size"][:1], make_folds(pb.obs), full=f)
     assert np.sqrt(np.mean(heldout**2)) < 1.5 * 5e-4
     assert len(thetas) == len(make_folds(pb.obs))
 

@@ -120,7 +120,8 @@ def null_draws(designs: dict, folds: list, P: int, m: int, model_error_ratio: np
                rng=None, draws: int = DRAWS, local_folds: list | None = None, local: dict | None = None) -> dict:
     """Draws of the null statistics (in units of s^2).
 
-    ``designs``: name -> weighted sensitivity columns (P m, k) of a candidate (scored on ``folds``);
+    ``designs``: name -> weighted sensitivity columns (P m, k) of a candidate (scored on ``folds``), or
+    (columns, the candidate's own folds);
     ``local``: name -> (C, P m) one-column alternatives scored on ``local_folds`` (the object's places);
     ``model_error_ratio`` (P, m): e_i / s. Returns ``{"max_improvement": (draws,), "sse": (draws,),
     "by_candidate": {name: (draws,)}}``.
@@ -135,10 +136,11 @@ def null_draws(designs: dict, folds: list, P: int, m: int, model_error_ratio: np
     z = z.reshape(draws, P * m) * np.sqrt(nu / rng.chisquare(nu, draws))[:, None]
     by = {}
     for name, J in designs.items():
+        J, own_folds = J if isinstance(J, tuple) else (J, folds)
         J = np.asarray(J, float)
         J = J[:, np.linalg.norm(J, axis=0) > 0]
         if J.shape[1]:
-            by[name] = heldout_improvement(z, J, folds, P, m)[:, 0]
+            by[name] = heldout_improvement(z, J, own_folds, P, m)[:, 0]
     for name, V in (local or {}).items():
         if len(V):
             by[name] = heldout_improvement(z, np.asarray(V, float), local_folds or folds, P, m).max(axis=1)
@@ -198,7 +200,7 @@ def diagnose_detection(problem, ranking: list, folds: list, noise: float, model_
             _, v = dipole_responses(problem, np.arange(P))
             local[c.name] = (v * problem.weight[:, None, :]).transpose(1, 0, 2).reshape(v.shape[1], P * m)
         else:
-            designs[c.name] = c.fit.jac
+            designs[c.name] = (c.fit.jac, c.folds or folds)   # held out as the candidate was
     null = null_draws(designs, folds, P, m, ratio, obs.pass_indices(), rng=seed, draws=draws,
                       local_folds=segment_folds(obs), local=local)
     best = max(observed, key=observed.get) if observed else None

@@ -13,11 +13,11 @@ name                   what changes (parameters)                    how it is ev
 ``channel_gain``       receiver k reads (1 + g_k) I_k (g_1..g_m)    exact
 ``pose_offset``        robot frame shifted/turned against the tank  the BEM's pose gradient
                        (dx, dy, dyaw; or the sensor mounted off     (Taylor step from the
-                       its logged pose)                             baseline; effect model when
-                                                                    the scene changes too)
-``water_depth``        free surface (or floor) elsewhere (dd)       effect model in that tank
-``tank_size``          walls elsewhere (dLx, dLy)                   effect model in that tank
-``unmodelled_object``  a sphere at (x, y, z) of dipole chi b^3      effect model with the sphere
+                       its logged pose; nested forms: the heading   baseline; effect model when
+                       alone, the frame's turn alone, the shift)    the scene changes too)
+``water_depth``        free surface (or floor) elsewhere (dd)       effect model corrected to
+``tank_size``          walls elsewhere (dLx, dLy; or one alone)     the BEM's shape derivative
+``unmodelled_object``  a sphere at (x, y, z) of dipole chi b^3      the BEM's field (multipoles)
 ``none``               nothing: the gap is noise                    --
 =====================  ===========================================  ==========================
 
@@ -35,7 +35,10 @@ Example
 >>> sorted(lib)[:3]
 ['channel_gain', 'conductivity', 'contact_impedance']
 >>> [f.form for f in lib["pose_offset"]]
-['frame', 'mount']
+['frame', 'mount', 'heading', 'turn', 'shift']
+
+A form with fewer parameters is scored beside the full one (the information criterion charges each
+parameter): a log that determines a heading offset but not a shift is explained by the heading alone.
 """
 from __future__ import annotations
 
@@ -52,7 +55,7 @@ from electrosense.validation.bench.virtual.effects import EFFECT_NAMES as BENCH_
 from electrosense.validation.diagnosis.forward import electrode_areas_m2, receiver_currents, series_contact
 from electrosense.validation.diagnosis.observations import Observations
 
-__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "combined_scales", "combined_bounds",
+__all__ = ["EFFECT_NAMES", "Scenario", "Problem", "Effect", "library", "restricted", "combined_scales", "combined_bounds",
            "model_trust_weights"]
 
 #: Candidate names, in the order they are reported: the virtual bench's effects (defined once, in
@@ -331,6 +334,33 @@ class Effect:
         return self.name if self.form == "" else f"{self.name}[{self.form}]"
 
 
+def restricted(effect: Effect, keep: tuple, form: str, describe: str) -> Effect:
+    """``effect`` with only the parameters ``keep`` (indices) free, the others held at zero: a nested form.
+
+    A candidate whose parameters the log does not all determine (a tank longer but not wider; a heading
+    offset without a shift) is then scored with the parameters it needs: a held-out fold cannot move a
+    parameter its training passes do not see, and the information criterion charges only what is fitted.
+
+    >>> lib = library()
+    >>> restricted(lib["tank_size"][0], (0,), "x", "walls at x moved").param_names
+    ('dLx_m',)
+    """
+    keep = tuple(int(k) for k in keep)
+    full_apply, n = effect.apply, effect.n_params
+
+    def apply(theta, sc, pb, idx):
+        full = np.zeros(n)
+        full[list(keep)] = theta
+        return full_apply(full, sc, pb, idx)
+
+    def pick(values):
+        return tuple(values[k] for k in keep)
+
+    return replace(effect, form=form, param_names=pick(effect.param_names), units=pick(effect.units),
+                   scales=pick(effect.scales), lower=pick(effect.lower), upper=pick(effect.upper), apply=apply,
+                   describe=describe)
+
+
 def combined_scales(effects) -> np.ndarray:
     return np.concatenate([np.asarray(e.scales, float) for e in effects]) if effects else np.zeros(0)
 
@@ -494,6 +524,12 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
                (-0.05, -0.05, -0.2), (0.05, 0.05, 0.2), _pose_offset_additive, geometric=True, order=1,
                describe="sensor mounted off the logged pose: true pose = logged pose + (dx, dy, dyaw)"),
     ]
+    lib["pose_offset"] += [
+        restricted(lib["pose_offset"][1], (2,), "heading", "sensor turned on its mount: true yaw = logged yaw + dyaw"),
+        restricted(lib["pose_offset"][0], (2,), "turn", "robot frame turned about the tank's origin: true position "
+                   "= rotation(dyaw) logged position, true yaw = logged yaw + dyaw"),
+        restricted(lib["pose_offset"][1], (0, 1), "shift", "robot frame shifted: true position = logged + (dx, dy)"),
+    ]
     if obs is None or obs.tank is not None:
         depth = obs.tank.water_depth_m if obs is not None else 1.0
         lxy = obs.tank.size_m[:2] if obs is not None else (1.0, 1.0)
@@ -503,11 +539,12 @@ def library(obs: Observations | None = None) -> dict[str, list[Effect]]:
             Effect("water_depth", "floor", ("d_floor_m",), ("m",), (0.01,), (-0.4 * depth,), (0.4 * depth,),
                    _depth_floor, geometric=True, order=3, describe="floor higher by d than believed"),
         ]
-        lib["tank_size"] = [
-            Effect("tank_size", "", ("dLx_m", "dLy_m"), ("m", "m"), (0.01, 0.01),
-                   (-0.2 * lxy[0], -0.2 * lxy[1]), (0.2 * lxy[0], 0.2 * lxy[1]), _tank_size, geometric=True, order=2,
-                   describe="walls at +-(L + dL)/2 instead of +-L/2")
-        ]
+        both = Effect("tank_size", "", ("dLx_m", "dLy_m"), ("m", "m"), (0.01, 0.01),
+                      (-0.2 * lxy[0], -0.2 * lxy[1]), (0.2 * lxy[0], 0.2 * lxy[1]), _tank_size, geometric=True,
+                      order=2, describe="walls at +-(L + dL)/2 instead of +-L/2")
+        lib["tank_size"] = [both,
+                            restricted(both, (0,), "x", "walls at x = +-(Lx + dLx)/2 instead of +-Lx/2"),
+                            restricted(both, (1,), "y", "walls at y = +-(Ly + dLy)/2 instead of +-Ly/2")]
     lo, hi = _object_bounds(obs)
     lib["unmodelled_object"] = [
         Effect("unmodelled_object", "", ("x_m", "y_m", "z_m", "dipole_m3"), ("m", "m", "m", "m^3"),

@@ -44,6 +44,8 @@ __all__ = [
     "FitResult",
     "noise_level",
     "make_folds",
+    "folds_determining",
+    "standard_error_ratio",
     "segment_folds",
     "predict",
     "scenario",
@@ -71,6 +73,58 @@ def segment_folds(obs, n_blocks: int = 8) -> list[np.ndarray]:
     (4, [0, 1, 8, 9])
     """
     return make_folds(obs, n_blocks=n_blocks, min_passes=np.iinfo(np.int64).max)
+
+
+#: a fold's training samples must determine every fitted parameter to within this many times the standard error
+#: of all the samples (evenly informative passes give sqrt(P / P_train): 1.2 of three passes held out one at a time)
+DETERMINED_SE_RATIO = 3.0
+
+
+def standard_error_ratio(jac: np.ndarray, folds, n_poses: int) -> np.ndarray:
+    """(folds, k) standard error of each parameter from a fold's training samples over that from all samples.
+
+    ``jac`` (P m, k): the weighted residual's Jacobian at the fit, rows sample-major. A parameter that only
+    the held-out samples see has a ratio far above one (infinite where the training samples do not see it).
+
+    The second parameter is seen by samples 4-7 only: held out, nothing determines it.
+
+    >>> J = np.r_[np.c_[np.ones(4), np.zeros(4)], np.c_[np.ones(4), np.ones(4)]]   # 8 samples, m = 1
+    >>> standard_error_ratio(J, [np.arange(2), np.arange(4, 8)], 8).round(2).tolist()
+    [[1.41, 1.22], [inf, inf]]
+    """
+    jac = np.asarray(jac, float)
+    k = jac.shape[1]
+    m = jac.shape[0] // n_poses
+    rows = jac.reshape(n_poses, m, k)
+
+    def se(J):
+        F = J.T @ J
+        if np.linalg.matrix_rank(F, tol=1e-10 * max(np.trace(F), 1e-300)) < k:
+            return np.full(k, np.inf)
+        return np.sqrt(np.diag(np.linalg.inv(F)))
+
+    full = se(jac)
+    out = []
+    for held in folds:
+        train = np.setdiff1d(np.arange(n_poses), held)
+        out.append(se(rows[train].reshape(-1, k)) / full)
+    return np.array(out)
+
+
+def folds_determining(jac: np.ndarray, obs, folds) -> list[np.ndarray]:
+    """``folds`` if each fold's training samples determine every parameter (:func:`standard_error_ratio` within
+    :data:`DETERMINED_SE_RATIO`), else :func:`segment_folds`.
+
+    Held-out whole passes test whether the effect fitted on some passes predicts another; they cannot where a
+    parameter is seen by the held-out pass alone (a tank's width by the one pass near a side wall, a shift
+    across the path by the one pass across it): the training fit then moves that parameter to absorb whatever
+    else it sees, and the held-out pass pays for a parameter its training set never determined. Held-out
+    segments of every pass leave every parameter determined.
+    """
+    if jac is None or not np.size(jac):
+        return folds
+    ratio = standard_error_ratio(jac, folds, obs.n_poses)
+    return folds if np.all(ratio <= DETERMINED_SE_RATIO) else segment_folds(obs)
 
 
 def make_folds(obs, n_blocks: int = 8, max_folds: int = 5, min_passes: int = 3) -> list[np.ndarray]:

@@ -79,8 +79,8 @@ def _derived(name: str, params: dict, d: Diagnosis) -> dict:
         else:
             out["water_depth_true_m"] = d.obs.tank.water_depth_m - params["d_floor_m"]
     elif name == "tank_size" and d.obs.tank is not None:
-        out["Lx_true_m"] = d.obs.tank.size_m[0] + params["dLx_m"]
-        out["Ly_true_m"] = d.obs.tank.size_m[1] + params["dLy_m"]
+        out["Lx_true_m"] = d.obs.tank.size_m[0] + params.get("dLx_m", 0.0)
+        out["Ly_true_m"] = d.obs.tank.size_m[1] + params.get("dLy_m", 0.0)
     return out
 
 
@@ -158,6 +158,7 @@ def _candidate_row(c: CandidateScore, d: Diagnosis) -> dict:
         "interval_95": _intervals(p, u),
         "n_params": c.n_params,
         "heldout_gap": c.heldout_gap,
+        "heldout_by": ("whole passes" if c.folds is d.folds or not c.folds else "contiguous segments of every pass"),
         "shrink": 1 - c.heldout_gap / before if before > 0 else 0.0,
         "shrink_text": readable_shrink(before, c.heldout_gap),
         "readable": _readable_params(c),

@@ -59,6 +59,7 @@ from electrosense.validation.diagnosis.fitting import (
     FitResult,
     cross_validate,
     fit,
+    folds_determining,
     object_starts,
     predict,
     segment_folds,
@@ -101,6 +102,7 @@ class CandidateScore:
     heldout_gap: float
     region_gap: float | None = None
     fold_thetas: list = field(default_factory=list, repr=False)
+    folds: list = field(default_factory=list, repr=False)  # the held-out sets it was scored on
     other_forms: list = field(default_factory=list, repr=False)  # the candidate's other forms, scored alike
 
     @property
@@ -149,11 +151,13 @@ def _evaluate(problem, effects, folds, noise, starts, region_mask) -> CandidateS
             best = f
     if any(e.local for e in effects):   # what one pass alone sees cannot be predicted from the other passes
         folds = segment_folds(problem.obs)
+    else:                               # nor a parameter that only the held-out pass determines
+        folds = folds_determining(best.jac, problem.obs, folds)
     weighted, thetas = cross_validate(problem, effects, folds, full=best, noise=noise)
     heldout = weighted / problem.weight
     return CandidateScore(
         tuple(effects), best, heldout, _score(weighted, best.n_params, noise), _rms(heldout),
-        _rms(heldout, region_mask) if region_mask is not None else None, thetas,
+        _rms(heldout, region_mask) if region_mask is not None else None, thetas, folds=folds,
     )
 
 
