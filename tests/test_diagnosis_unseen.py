@@ -44,10 +44,10 @@ def _world(setup, poses, **scene):
     return receiver_currents(sweep.conductance(poses).K_S, setup.sensor.emitter)
 
 
-def _diagnose(setup, poses, t, passes, I, seed, **output):
+def _diagnose(setup, poses, t, passes, I, seed, effects="all", **output):
     obs = assemble(setup, poses, t, passes, I, np.random.default_rng(seed), **output)
     options = {"tank_edge_length_m": TANK_EDGE_FACTOR * default_tank_edge_length_m(setup.sensor)}
-    return diagnose(obs, model_options=options)
+    return diagnose(obs, effects=effects, model_options=options)
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +77,7 @@ def test_conductivity_is_named_and_the_second_log_reuses_the_bem(small):
     assert d.gap_after <= max(0.2 * d.gap_before, 1.5 * d.noise_floor)
     params = next(c for c in d.ranking if c.name == "conductivity").fit.theta
     assert params[0] == pytest.approx(-0.025, abs=0.003)
-    again = _diagnose(setup, poses, t, passes, I, 3, conductivity=-0.025)
+    again = _diagnose(setup, poses, t, passes, I, 3, effects="conductivity", conductivity=-0.025)   # the cache
     assert again.model_error["bem_poses_new"] == 0 and again.model_error["bem_poses_cached"] >= 1
 
 

@@ -107,7 +107,9 @@ def standard_error_ratio(jac: np.ndarray, folds, n_poses: int) -> np.ndarray:
     out = []
     for held in folds:
         train = np.setdiff1d(np.arange(n_poses), held)
-        out.append(se(rows[train].reshape(-1, k)) / full)
+        fold = se(rows[train].reshape(-1, k))
+        # where all the samples do not determine the parameters, no choice of folds does: no reason to change them
+        out.append(fold / full if np.all(np.isfinite(full)) else np.ones(k))
     return np.array(out)
 
 

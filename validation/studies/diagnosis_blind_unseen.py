@@ -189,7 +189,7 @@ def judge(d: dict, acceptable) -> dict:
     first = d["chosen"][0] if d["chosen"] else d["verdict"]
     named = bool(d["chosen"]) and d["chosen"] != ["none"]
     floor = d.get("model_error", {}).get("noise_floor", d["noise"])
-    shrink_ok = (not named) or d["gap_after"] <= max(0.2 * d["gap_before"], 1.5 * floor)
+    shrink_ok = (not named) or d["gap_after"] <= max(0.2 * d["gap_before"], 1.2 * floor)
     return {"first": first, "right": first in acceptable, "shrink_ok": shrink_ok}
 
 
