@@ -362,6 +362,15 @@ def _pass_rows(passes, n: int) -> list[tuple[str, np.ndarray]]:
     return [(f"pass {p}, ", idx) for p, idx in zip(labels, segments)]
 
 
+def _column_grid_figure(grid: list[list[Panel]], png_path) -> Path:
+    """Rows of panels (one row a pass, one column a receiver) drawn with one y range down each column."""
+    for j in range(len(grid[0]) if grid else 0):
+        span = _common_range([s.y for row in grid for s in row[j].series])
+        for row in grid:
+            row[j].y_range = span
+    return curves_figure([p for row in grid for p in row], png_path, ncols=len(grid[0]) if grid else 1)
+
+
 def _common_range(values: list[np.ndarray], pad: float = 0.06):
     finite = np.concatenate([v[np.isfinite(v)] for v in values]) if values else np.array([])
     if not finite.size:
@@ -419,11 +428,7 @@ def resistance_figure(
                 series.append(Series(x[order], np.asarray(bench_ohm)[order, j], "bench", "scatter", COLOURS["bench"]))
             row.append(Panel(f"{title_prefix}{prefix}receiver {k}", x_label, "resistance U/I (ohm)", series))
         grid.append(row)
-    for j in range(len(receivers)):  # one y range down each receiver's column
-        span = _common_range([s.y for row in grid for s in row[j].series])
-        for row in grid:
-            row[j].y_range = span
-    return curves_figure([p for row in grid for p in row], png_path, ncols=len(receivers))
+    return _column_grid_figure(grid, png_path)
 
 
 def lateral_signal_figure(
@@ -453,11 +458,7 @@ def lateral_signal_figure(
                                      COLOURS["bench"]))
             row.append(Panel(f"{prefix}{name}", x_label, "left - right (uA)", series))
         grid.append(row)
-    for j in range(len(names)):
-        span = _common_range([s.y for row in grid for s in row[j].series])
-        for row in grid:
-            row[j].y_range = span
-    return curves_figure([p for row in grid for p in row], png_path, ncols=len(names))
+    return _column_grid_figure(grid, png_path)
 
 
 def relative_error_figure(
