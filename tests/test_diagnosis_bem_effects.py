@@ -87,3 +87,22 @@ def test_a_sphere_beside_the_pass_as_the_bem_sees_it(bench):
     problem.object_field = None
     err = lambda x: float(np.sqrt(np.mean((x - signal) ** 2)) / np.sqrt(np.mean(signal**2)))  # noqa: E731
     assert err(bem) < 0.1 and err(bem) < 0.6 * err(fast), (err(bem), err(fast))
+
+
+def test_the_chosen_scene_solved_by_its_secant_is_not_solved_again():
+    from types import SimpleNamespace
+
+    from electrosense.validation.diagnosis.bem_check import check_from_secant
+    from electrosense.validation.diagnosis.effects import library
+
+    form = library()["tank_size"][1]   # the walls at x alone
+    chosen = SimpleNamespace(effects=(form,), fit=SimpleNamespace(theta=np.array([-0.021])), name="tank_size")
+    secant = {"label": form.label, "theta": [-0.020], "poses": [1, 5, 9], "gap_before": 3e-3,
+              "gap_effect_model": 6e-4, "gap_bem": 5.5e-4}
+    check = check_from_secant(chosen, secant, floor=5e-4)
+    assert check["confirmed"] and check["gap_bem"] == 5.5e-4 and check["params_bem"] == {"dLx_m": -0.021}
+    # solved elsewhere (a third of the way off), or another form: the BEM check proper must run
+    assert check_from_secant(chosen, {**secant, "theta": [-0.012]}, 5e-4) is None
+    assert check_from_secant(chosen, {**secant, "label": "tank_size"}, 5e-4) is None
+    # the BEM far from what the model claimed: not confirmed
+    assert not check_from_secant(chosen, {**secant, "gap_bem": 3e-3}, 5e-4)["confirmed"]

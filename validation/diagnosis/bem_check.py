@@ -62,6 +62,29 @@ def _jacobian(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
     return np.column_stack(columns)
 
 
+def check_from_secant(candidate, secant: dict, floor: float) -> dict | None:
+    """The :func:`bem_check` of ``candidate`` from the BEM solve its secant already made (:mod:`.bem_secant`), when
+    that solve was at the candidate's final parameters (within a third of their size): the same scene solved
+    again would say nothing new. None otherwise."""
+    from electrosense.validation.diagnosis.effects import combined_scales
+
+    if len(candidate.effects) != 1 or secant.get("label") != candidate.effects[0].label:
+        return None
+    scales = combined_scales(candidate.effects)
+    theta, solved = np.asarray(candidate.fit.theta, float), np.asarray(secant["theta"], float)
+    if np.linalg.norm((theta - solved) / scales) > np.linalg.norm(solved / scales) / 3:
+        return None
+    gap_model, gap_bem = secant["gap_effect_model"], secant["gap_bem"]
+    return {"effect": candidate.name, "poses": secant["poses"], "gap_before": secant["gap_before"],
+            "gap_effect_model": gap_model, "gap_bem": gap_bem,
+            "confirmed": bool(gap_bem <= max(1.5 * floor, 1.25 * gap_model + floor)),
+            "params_bem": {p: float(v) for p, v in zip(candidate.effects[0].param_names, theta)},
+            "gap_bem_refined": gap_bem,
+            "how": "the fitted scene solved by the BEM (the anchors' tank mesh stretched to it, the object meshed) at "
+                   "the logged poses where the change is largest, by the secant that then corrected the candidate's "
+                   "fit; gaps are RMS relative residuals there, in-sample"}
+
+
 def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options: dict | None = None,
               n_poses: int = 12, refine_steps: int = 2, progress=None) -> dict | None:
     """The bench against ``candidate`` evaluated by its effect model and by the BEM, at up to ``n_poses`` of the

@@ -96,7 +96,11 @@ def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = 
     c, loo = along_passes(c_nodes, idx, s, passes)
     u_hat = theta / combined_scales(effects)
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
-    info = {"effect": candidate.name, "poses": idx.tolist(), "theta": theta.tolist(),
+    info = {"effect": candidate.name, "label": effects[0].label, "poses": idx.tolist(), "theta": theta.tolist(),
             "model_vs_bem_rms": rms(np.expm1(c_nodes)), "change_rms": rms(I_model[idx] / problem.I_base[idx] - 1),
-            "loo_rms": rms(loo)}
+            "loo_rms": rms(loo),
+            # the bench against the baseline, the model and the BEM at these poses (in-sample RMS relative gaps)
+            "gap_before": rms(problem.relative_residual(problem.I_base[idx], idx)),
+            "gap_effect_model": rms(problem.relative_residual(I_model[idx], idx)),
+            "gap_bem": rms(problem.relative_residual(I_bem, idx))}
     return SecantCorrection(u_hat, c), info

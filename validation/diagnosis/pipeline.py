@@ -431,12 +431,14 @@ def diagnose(
     check = None
     if anchored is not None and selection.verdict in ("explained", "partly explained") and selection.chosen \
             and bem_check_poses > 0:
-        from electrosense.validation.diagnosis.bem_check import bem_check
+        from electrosense.validation.diagnosis.bem_check import bem_check, check_from_secant
 
+        for secant in reversed(budget.get("bem_secants") or []):   # the chosen scene already solved by the BEM
+            check = check or check_from_secant(selection.chosen[-1], secant, floor)
         try:
-            check = bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
-                              {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
-                              n_poses=bem_check_poses, progress=say)
+            check = check or bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
+                                       {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
+                                       n_poses=bem_check_poses, progress=say)
         except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
             notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
         if check is not None and "params_bem" in check and check["gap_bem_refined"] < check["gap_bem"]:
