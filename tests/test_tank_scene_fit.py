@@ -177,6 +177,7 @@ def test_a_variant_phantom_the_tank_ball_and_multiplexer_found_within_their_stan
     assert f["scores"]["setups"]["Avg2"]["held_out"] and not f["scores"]["setups"]["Avg1"]["held_out"]
     assert f["scores"]["setups"]["Avg2"]["rms_rel"] < 0.4 * stated
     assert f["scores"]["empty_heldout_rms_rel"] < 3 * out["noise"]["reference_per_measurement_rel"]
+    assert out["fits"]["staged"]["fitted"]["ball_radius_m"]["se_total"] > 0    # from the geometry's own stage
     staged = out["fits"]["staged"]["scores"]
     assert staged["setups"]["Avg2"]["rms_rel"] < stated
     md = T.scene_fit_markdown(out)

@@ -632,6 +632,11 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
                       max_iterations=max_iterations)
         b = fit.chord(a[2], a[3], fixed=gnames, ref_block=True, max_iterations=0)
         fits["staged"] = fit.result(*b, ball_setups)
+        shift = bem_shift(a[0], a[1])       # the geometry's uncertainty is that of the first stage
+        for k, n in enumerate(gnames):
+            if np.isfinite(a[1].se[k]):
+                fits["staged"]["fitted"][n].update(se=float(a[1].se[k]), se_bem=float(shift[k]),
+                                                   se_total=float(np.hypot(a[1].se[k], shift[k])))
         fits["staged"]["iterations"] = a[4]
         fits["staged"]["converged"] = a[5]
     for name, f in fits.items():
