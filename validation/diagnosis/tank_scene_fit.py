@@ -473,9 +473,24 @@ def _rms(x) -> float:
     return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
+def _amplitude(d_model, d_meas) -> float:
+    return float(d_model @ d_meas / (d_model @ d_model)) if np.any(d_model) else float("nan")
+
+
 def _signal_scores(d_model, d_meas) -> dict:
-    amp = float(d_model @ d_meas / (d_model @ d_model)) if np.any(d_model) else float("nan")
-    return {"rms_rel": _rms(d_model - d_meas) / _rms(d_meas), "measured_over_model_amplitude": amp}
+    """A set-up's signal error RMS over its RMS, the measured/model amplitude, and the amplitude on the quarter of
+    rows where the model's signal is largest (the electrodes nearest a ball) and on the rest: where they differ,
+    the misfit is no scale of the signal.
+
+    >>> s = _signal_scores(np.array([4.0, 1.0, 1.0, 0.5]), np.array([8.0, 1.0, 1.0, 0.5]))
+    >>> s["amplitude_largest_quarter"], s["amplitude_other_rows"]
+    (2.0, 1.0)
+    """
+    d_model, d_meas = np.asarray(d_model, float), np.asarray(d_meas, float)
+    big = np.abs(d_model) >= np.quantile(np.abs(d_model), 0.75)
+    return {"rms_rel": _rms(d_model - d_meas) / _rms(d_meas), "measured_over_model_amplitude": _amplitude(d_model, d_meas),
+            "amplitude_largest_quarter": _amplitude(d_model[big], d_meas[big]),
+            "amplitude_other_rows": _amplitude(d_model[~big], d_meas[~big])}
 
 
 class _Model:
@@ -812,10 +827,13 @@ def _instrument_models(fit: _Fit, s_ref, s_ball, theta0: dict, ball_setups) -> l
         rel = np.exp(lr - np.log(fit.data.Z_ref)) - 1
         row = {"model": label, "adds": sorted(new), "n_parameters": len(free),
                "empty_heldout_rms_rel": _rms(rel[~fit.data.train]), "empty_train_rms_rel": _rms(rel[fit.data.train]),
-               "setups_rms_rel": {}}
+               "setups_rms_rel": {}, "setups_amplitude_largest_quarter_other_rows": {}}
         for su in ball_setups:
             sig = np.exp(_reading(*solved[su], inst, fit.data.cls, fit.data.channel) - lr) - 1
-            row["setups_rms_rel"][su] = _signal_scores(sig, fit.data.signals[su])["rms_rel"]
+            sc = _signal_scores(sig, fit.data.signals[su])
+            row["setups_rms_rel"][su] = sc["rms_rel"]
+            row["setups_amplitude_largest_quarter_other_rows"][su] = [sc["amplitude_largest_quarter"],
+                                                                      sc["amplitude_other_rows"]]
         fit.report(f"  {label}: empty held out {row['empty_heldout_rms_rel']:.3f}, set-ups "
                    + ", ".join(f"{k} {v:.2f}" for k, v in row["setups_rms_rel"].items()))
         out.append(row)
@@ -845,12 +863,13 @@ def _fit_markdown(name: str, f: dict, stated: dict) -> list[str]:
     sc = f["scores"]
     lines = [f"### Fit `{name}`", "", f"Empty tank on held-out drives: {sc['empty_heldout_rms_rel']:.3f} RMS "
              f"(training drives {sc['empty_train_rms_rel']:.3f}). Converged: {f['converged']}.", "",
-             "| set-up | signal error RMS / signal RMS | without outlying reference rows | floor | measured / model |",
-             "|---|---|---|---|---|"]
+             "| set-up | signal error RMS / signal RMS | without outlying reference rows | floor | measured / model "
+             "| on the model's largest quarter / the other rows |", "|---|---|---|---|---|---|"]
     for k, v in sc["setups"].items():
         lines.append(f"| {k}{'' if v['held_out'] else ' (fitted)'} | {v['rms_rel']:.3f} | "
                      f"{v['rms_rel_without_outlying_rows']:.3f} | {v['floor_rel']:.3f} | "
-                     f"{v['measured_over_model_amplitude']:.2f} |")
+                     f"{v['measured_over_model_amplitude']:.2f} | {v['amplitude_largest_quarter']:.2f} / "
+                     f"{v['amplitude_other_rows']:.2f} |")
     if sc["outlying_reference_rows"]:
         lines += ["", "Reference rows that every set-up's signal contradicts alike (the reference's value is off): "
                   + "; ".join(f"drive {r['drive']} measure {r['measure']}" for r in sc["outlying_reference_rows"])]
