@@ -2,7 +2,8 @@
 
 Scenes and data are made here: random tanks, a linear surrogate with known unknowns (no BEM), and a small
 phantom of the Ottawa layout written as a .mat variant (``voltRef`` as the second Ottawa file names it, eight
-electrodes, the tank narrower and the ball larger than its scene file says, a multiplexer class 8 % low).
+electrodes, the tank narrower and the ball larger than its scene says, a multiplexer class 8 % low, on a finer
+mesh than the fit's).
 """
 import numpy as np
 import pytest
@@ -101,37 +102,19 @@ def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_s
 
 
 def _phantom(tmp_path, rng, noise=3e-3):
-    """A small tank's scene file, and a .mat of the Ottawa layout made by the BEM at another scene and on a finer
-    mesh than the scene file's (the data are not the fit's own discretisation): the tank 6 % narrower at the
+    """A small tank's scene, and a .mat of the Ottawa layout made by the BEM at another scene and on a finer
+    mesh than the fit's (the data are not the fit's own discretisation): the tank 6 % narrower at the
     ring, the ball 25 % larger, the odd-odd class 8 % low, ``noise`` (relative) on every reading; set-ups Ref,
     Avg1 and Avg2."""
     n, R, H = 8, 0.1, 0.12
-    z = -0.5 * H + 0.45 * H
-    (tmp_path / "tank.toml").write_text(f"""[tank]
-shape = "cylinder"
-radius_m = {R}
-height_m = {H}
-[electrode_ring]
-n = {n}
-z_m = {z}
-radius_m = 0.006
-first_angle_rad = {rng.uniform(0, 2 * np.pi)}
-[bem]
-tank_edge_length_m = {R / 2}
-edge_fraction = 0.5
-electrode_grading = 1.0
-[protocol]
-ring = {list(range(1, n + 1))}
-reference = "Ref"
-ball_radius_m = 0.016
-ball_z_m = {z}
-Avg1 = [[0.035, 0.0]]
-Avg2 = [[0.0, -0.04]]
-""")
-    from electrosense.meshes.scene_file import load_scene, load_scene_settings
-
-    scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
-    protocol = settings["protocol"]
+    z, phi0 = -0.5 * H + 0.45 * H, rng.uniform(0, 2 * np.pi)
+    scene = Scene(None, tank=CylinderTank(R, H), electrodes=[
+        DiscElectrode((R * np.cos(phi0 + 2 * np.pi * k / n), R * np.sin(phi0 + 2 * np.pi * k / n), z), 0.006)
+        for k in range(n)])
+    protocol = {"ring": list(range(1, n + 1)), "reference": "Ref", "ball_radius_m": 0.016, "ball_z_m": z,
+                "Avg1": [[0.035, 0.0]], "Avg2": [[0.0, -0.04]]}
+    settings = {"bem": {"tank_edge_length_m": R / 2, "edge_fraction": 0.5, "electrode_grading": 1.0},
+                "protocol": protocol}
     truth = {"ring_radius_m": 0.94 * R, "ball_radius_m": 0.02}
     d, m = adjacent_protocol(range(1, n + 1))
     k, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
@@ -154,14 +137,14 @@ Avg2 = [[0.0, -0.04]]
 def test_a_variant_phantom_the_tank_ball_and_multiplexer_found_within_their_standard_errors(tmp_path):
     """Fitted jointly on the empty tank and Avg1 of data made on a finer mesh at another scene, the ring's radius,
     the ball's and the multiplexer class are found within three of their stated uncertainties (the noise's
-    standard error and the BEM's discretisation error), and the held-out set-up (Avg2), solved at the fitted scene, is predicted far
-    better than at the stated one. The staged fit (the geometry from Avg1's signal alone, where a larger ball and
+    standard error and the BEM's discretisation error), and the held-out set-up (Avg2), solved at the fitted
+    scene, is predicted far better than at the stated one. The staged fit (the geometry from Avg1's signal alone, where a larger ball and
     a narrower tank trade off) is scored too. About 20 s."""
     from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
     from electrosense.validation.bench.transfer.log import read_transfer_log
 
     mat, scene, settings, truth = _phantom(tmp_path, np.random.default_rng(3))
-    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
+    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="unused.toml"))
     out = T.fit_tank_scene(log, scene, 1.0, settings["bem"], settings["protocol"], "Avg1", max_iterations=4,
                            geometry=("ring_radius_m", "ball_radius_m"), report=lambda *a: None)
     assert out["noise"]["bem_discretisation_log_Z"] > 0 and out["noise"]["reference_per_measurement_rel"] > 1e-3
