@@ -165,3 +165,29 @@ def test_a_variant_phantom_the_tank_ball_and_multiplexer_found_within_their_stan
     assert staged["setups"]["Avg2"]["rms_rel"] < stated
     md = T.scene_fit_markdown(out)
     assert "Fit `joint`" in md and "Fit `staged`" in md and "ring_radius_m" in md
+
+
+def test_a_scene_fit_that_stops_leaves_the_comparison_written(tmp_path):
+    """The study's scene fit on a set-up the log does not have stops with its reason in metrics.json and the
+    report; the comparison before it is written all the same (no traceback). A protocol without the balls'
+    radius is refused by name."""
+    import json
+
+    from test_real_tank import _synthetic_phantom
+
+    from electrosense.validation.cli.transfer_logs import run_transfer_comparison
+
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(2))
+    m = run_transfer_comparison(mat, tmp_path / "tank.toml", tmp_path / "out", diagnose=False, scene_fit=True,
+                                fit_setup="Avg9")
+    assert "Avg9" in m["scene_fit"]["error"] and m["object_rms_rel"]["Avg1"] < 0.2
+    assert "Avg9" in json.loads((tmp_path / "out" / "metrics.json").read_text())["scene_fit"]["error"]
+    assert "Not computed" in (tmp_path / "out" / "report.md").read_text()
+    from electrosense.meshes.scene_file import load_scene, load_scene_settings
+    from electrosense.validation.bench.transfer.log import read_transfer_log
+
+    log = read_transfer_log(tmp_path / "out" / "transfer_log.csv")
+    settings = load_scene_settings(tmp_path / "tank.toml")
+    protocol = {k: v for k, v in settings["protocol"].items() if k != "ball_radius_m"}
+    with pytest.raises(ValueError, match="ball_radius_m"):
+        T.fit_tank_scene(log, load_scene(tmp_path / "tank.toml"), 1.0, settings["bem"], protocol)

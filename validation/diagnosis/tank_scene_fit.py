@@ -601,6 +601,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     grounds = [e for e in range(1, scene.n_electrodes + 1) if e not in set(ring) | set(floating)]
     ground = grounds[0] if len(grounds) == 1 else None
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
+    if ball_setups and "ball_radius_m" not in protocol:
+        raise ValueError("the [protocol] table gives no ball_radius_m: the ball set-ups cannot be modelled")
     stated = ring_state(scene, protocol)
     focus = [np.asarray(o.centre_m) + o.radius_m * np.vstack([np.eye(3), -np.eye(3)]) for su in ball_setups
              for o in balls_at(protocol[su], stated["ball_z_m"], stated["ball_radius_m"])]
