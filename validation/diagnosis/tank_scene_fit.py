@@ -91,7 +91,8 @@ GEOMETRY_GROUPS = {"tank": ("ring_radius_m", "wall_slope", "water_depth_m"), "ri
                    "frame": ("frame_dx_m", "frame_dy_m", "frame_rotation_rad")}
 #: a surrogate is first trusted this many typical steps (``Unknown.step``) about its anchor
 TRUST = 2.0
-#: robust loss of the fit (:func:`scipy.optimize.least_squares`): rows beyond F_SCALE noise deviations weigh less
+#: robust loss of the fit (:func:`scipy.optimize.least_squares`): rows beyond F_SCALE times the typical misfit (the
+#: noise floor, or the plain least-squares fit's own scatter where that is larger) weigh less
 LOSS, F_SCALE = "soft_l1", 3.0
 #: unknowns that only the set-ups with balls see
 BALL_ONLY = ("ball_radius_m", "ball_z_m", "frame_dx_m", "frame_dy_m", "frame_rotation_rad")
@@ -636,7 +637,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
                "model": "independent errors: the reference's log|Z| of one standard deviation (its reciprocity "
                         "floor and the BEM's discretisation error against a finer mesh, in quadrature), each ball "
                         "signal's of its own floor (its reciprocity, and the BEM's); the fit's scatter scales both "
-                        "(noise_rms); rows beyond 3 deviations weigh less (soft L1)"}}
+                        "(noise_rms); rows beyond 3 times the typical misfit (the floor, or the plain fit's "
+                        "scatter where larger) weigh less (soft L1)"}}
     explains = _instrument_models(fit, s_ref, s_ball, theta0, ball_setups)
 
     fits = {}
@@ -684,7 +686,11 @@ class _Fit:
               for u, v, a in zip(self.unknowns[:self.nG], x0, ref.anchor)]
         us += [replace(u, value=float(v)) for u, v in zip(self.unknowns[self.nG:], x0[self.nG:])]
         m = _Model(self.data, us, self.nG, ref, ball, self.fit_setup, ref_block)
-        return m, fit_unknowns(m.residual, m.jacobian, us, max_nfev=200, fixed=fixed, loss=LOSS, f_scale=F_SCALE)
+        plain = fit_unknowns(m.residual, m.jacobian, us, max_nfev=200, fixed=fixed)
+        us = [replace(u, value=float(v)) for u, v in zip(us, plain.x)]
+        # a model that misses every row by a few floors is not made of outliers: the loss's scale is the misfit's
+        f_scale = F_SCALE * max(plain.noise_rms, 1.0)
+        return m, fit_unknowns(m.residual, m.jacobian, us, max_nfev=200, fixed=fixed, loss=LOSS, f_scale=f_scale)
 
     def chord(self, s_ref, s_ball, fixed, ref_block, max_iterations):
         """Gauss-Newton on the surrogates with a trust region (Levenberg-Marquardt's rule, Broyden's secant for the
