@@ -25,12 +25,15 @@ def all_transfer_logs(paths) -> bool:
     return bool(paths) and all(is_transfer_log(p) for p in paths)
 
 
-def run_transfer_comparison(data, scene_path, out, diagnose: bool = True) -> dict:
+def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_fit: bool = False,
+                            fit_setup: str | None = None) -> dict:
     """Compare a transfer log (or an EIT phantom's .mat) with the BEM of ``scene_path``; write everything to ``out``.
 
     Writes ``out/metrics.json``, the figures and ``report.md`` (and, from a
     .mat, ``out/transfer_log.csv`` beside a copy of the scene file); returns
-    the metrics. ``diagnose``: also run the diagnosis candidates.
+    the metrics. ``diagnose``: also run the diagnosis candidates. ``scene_fit``: also fit the scene's and the
+    instrument's unknowns on the BEM across set-ups (on ``fit_setup`` and the reference; scored on the other
+    set-ups; :mod:`electrosense.validation.diagnosis.tank_scene_fit`), written as ``metrics["scene_fit"]``.
     Raises :class:`electrosense.validation.comparison.transfer.TransferMismatchError` when the
     log and the scene disagree (signs, set-ups).
     """
@@ -75,6 +78,13 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True) -> dic
                 diagnosis["one_geometry"] = {"error": f"not computed: {exc}"}
             metrics["bem"]["shape_ball_solves_s"] = time.perf_counter() - t0
         metrics["diagnosis"] = diagnosis
+    if scene_fit:
+        from electrosense.validation.diagnosis.tank_scene_fit import fit_tank_scene
+
+        try:
+            metrics["scene_fit"] = fit_tank_scene(log, scene, sigma, bem_options, protocol, fit_setup)
+        except Exception as exc:     # an optional step: what was computed before is written all the same
+            metrics["scene_fit"] = {"error": f"the scene fit stopped: {type(exc).__name__}: {exc}"}
     metrics["wall_s"] = time.perf_counter() - t_start
     metrics["cpu_s"] = time.process_time() - cpu_start
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))

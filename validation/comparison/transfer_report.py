@@ -240,6 +240,10 @@ def summary_text(m: dict) -> str:
     lines = [json.dumps({k: m[k] for k in ("noise_floor", "empty_heldout_rms_rel", "object_rms_rel")}, indent=1)]
     if "diagnosis" in m:
         lines.append(f"diagnosis: {({k: m['diagnosis'][k] for k in ('chosen', 'gap_before', 'gap_after', 'error') if k in m['diagnosis']})}")
+    if "scene_fit" in m:
+        from electrosense.validation.diagnosis.tank_scene_fit import scene_fit_summary
+
+        lines.append(scene_fit_summary(m["scene_fit"]))
     return "\n".join(lines + [GOALS])
 
 
@@ -262,5 +266,10 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
         remainder_figure(folder, d["gap_before_split"], d["remaining"], d["chosen"])
         candidates_figure(folder, d, metrics["noise_floor"]["per_measurement_rms_rel"])
     path = folder / "report.md"
-    path.write_text(report_markdown(metrics))
+    text = report_markdown(metrics)
+    if "scene_fit" in metrics:
+        from electrosense.validation.diagnosis.tank_scene_fit import scene_fit_markdown
+
+        text += "\n" + scene_fit_markdown(metrics["scene_fit"])
+    path.write_text(text)
     return path

@@ -126,11 +126,15 @@ def uncertainty(J: np.ndarray, residual: np.ndarray, scale: np.ndarray, rtol: fl
 
 
 def fit_unknowns(residual_fn: Callable[[np.ndarray], np.ndarray], jacobian_fn: Callable[[np.ndarray], np.ndarray],
-                 unknowns: Sequence[Unknown], max_nfev: int = 30, fixed: Sequence[str] = ()) -> SceneFit:
+                 unknowns: Sequence[Unknown], max_nfev: int = 30, fixed: Sequence[str] = (), loss: str = "linear",
+                 f_scale: float = 1.0) -> SceneFit:
     """Fit the unknowns (those named in ``fixed`` kept at their start value) by bounded least squares.
 
     ``residual_fn(x)`` (n,) and ``jacobian_fn(x)`` (n, p) take the full vector
-    of every unknown's value, in the order given.
+    of every unknown's value, in the order given. ``loss``, ``f_scale``: those of
+    :func:`scipy.optimize.least_squares` (``"soft_l1"`` discounts residuals beyond ``f_scale``: a few
+    outlying rows); the standard errors then come from its reweighted Jacobian and the raw residuals' scatter
+    (an overestimate where rows were discounted).
     """
     names = [u.name for u in unknowns]
     x0 = np.array([u.value for u in unknowns], float)
@@ -146,7 +150,8 @@ def fit_unknowns(residual_fn: Callable[[np.ndarray], np.ndarray], jacobian_fn: C
         return x
 
     res = least_squares(lambda xf: residual_fn(full(xf)), x0[free], jac=lambda xf: jacobian_fn(full(xf))[:, free],
-                        bounds=(lo[free], hi[free]), x_scale=step[free], max_nfev=max_nfev, method="trf")
+                        bounds=(lo[free], hi[free]), x_scale=step[free], max_nfev=max_nfev, method="trf",
+                        loss=loss, f_scale=f_scale)
     x = full(res.x)
     J = res.jac
     se_f, corr, noise = uncertainty(J, res.fun, step[free])

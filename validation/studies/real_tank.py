@@ -26,6 +26,14 @@ Run: ``esense study real_tank --data FILE.mat|LOG.csv --scene pail.toml -o DIR``
   asks whether one tank shape explains both the empty tank and the balls:
   the ring radius the empty tank's fit wants against the one at which each
   ball's measured/simulated amplitude is 1.
+* Scene fit (left out with ``--no-scene-fit``): the scene's unknowns (the
+  tank's radius and taper at the ring, the water depth, the ring's height,
+  the electrodes' effective size, the balls' radius, height and frame) and
+  the instrument's (scale, multiplexer classes, channel gains, common mode,
+  ground current) fitted on the BEM to the reference's training drives and
+  one ball set-up (``--fit-setup``), scored on the held-out drives and the
+  other set-ups, with standard errors and what the data cannot separate
+  (:mod:`electrosense.validation.diagnosis.tank_scene_fit`).
 
 The logic lives in the package along the data's path: the comparison in
 :mod:`electrosense.validation.comparison.transfer`, the diagnosis in
@@ -55,9 +63,15 @@ def main(argv=None) -> None:
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--no-diagnosis", dest="diagnosis", action="store_false",
                     help="only the comparison (noise floor, empty tank, balls): no diagnosis candidates")
+    ap.add_argument("--no-scene-fit", dest="scene_fit", action="store_false",
+                    help="no fit of the scene's unknowns across set-ups (the slowest part: about 40 BEM solves)")
+    ap.add_argument("--fit-setup", default=None,
+                    help="the ball set-up fitted with the reference (default: the first the protocol places); "
+                         "the others are held out")
     args = ap.parse_args(argv)
     try:
-        metrics = run_transfer_comparison(args.data, args.scene, args.out, diagnose=args.diagnosis)
+        metrics = run_transfer_comparison(args.data, args.scene, args.out, diagnose=args.diagnosis,
+                                          scene_fit=args.scene_fit, fit_setup=args.fit_setup)
     except TransferMismatchError as exc:
         raise SystemExit(str(exc)) from None
     print(summary_text(metrics))
