@@ -6,7 +6,9 @@
   noise does, with variance 6 s^2).
 * :func:`make_folds`: held-out sets: whole passes when there are three or
   more, otherwise contiguous segments of every pass (8 blocks in time, fold k
-  holds blocks k and k + 4).
+  holds blocks k and k + 4); :func:`folds_determining` keeps whole passes for a
+  candidate only where each fold's training passes determine all its
+  parameters (:func:`standard_error_ratio`), else segments of every pass.
 * :func:`fit`: nonlinear least squares of the relative residual
   (bench - prediction) / |baseline| over the training samples, in scaled
   parameters, with the covariance ``s^2 (J^T J)^-1`` from the Jacobian at the
