@@ -36,9 +36,9 @@ import numpy as np
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import check_conductivity
 from electrosense.bem.linear_solve import SingularSystemError
-from electrosense.bem.operators import TriangleSet, mixed_system_reduced
+from electrosense.bem.operators import mixed_system_reduced
 from electrosense.bem.solution import unit_solutions
-from electrosense.bem.system import BemSystem, column_coefficients, contact_impedances
+from electrosense.bem.system import BemSystem, boundary_columns
 
 #: collocation points per ring class in :func:`electrosense.bem.solve.solve_scene`: K within 6e-6 of all of them (angels-4)
 AXISYMMETRIC_TARGETS_PER_CLASS = 16
@@ -92,10 +92,7 @@ def solve_axisymmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_im
     sigma_S_per_m = check_conductivity(sigma_S_per_m)
     n = boundary.n_electrodes
     emitter = n if emitter is None else int(emitter)
-    z_c = contact_impedances(contact_impedance_ohm_m2, n)
-    tris = TriangleSet(boundary.triangles_m)
-    scale = float(np.sqrt(np.mean(tris.areas)))
-    c_single, c_double, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
+    tris, z_c, scale, c_single, c_double, group = boundary_columns(boundary, sigma_S_per_m, contact_impedance_ohm_m2)
     cls, n_cls = ring_classes(boundary)
     # collocation targets: up to targets_per_class faces of each class, spread over the class
     targets = []

@@ -55,7 +55,7 @@ import numpy as np
 from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
 from electrosense.bem.conductance import check_conductivity
 from electrosense.bem.linear_solve import solve_dense
-from electrosense.bem.system import BemSystem, assemble_system, column_coefficients, contact_impedances
+from electrosense.bem.system import BemSystem, assemble_system, boundary_columns
 
 __all__ = ["solve_symmetric", "type_symmetry_blocks", "is_rotation_symmetric"]
 
@@ -121,7 +121,7 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     leaving each electrode into the water, and ``solution.incident_unknowns``
     (F, r) the unknowns (potential on insulators, ``l q`` on electrodes).
     """
-    from electrosense.bem.operators import FAR, TriangleSet, layer_matrices
+    from electrosense.bem.operators import FAR, layer_matrices
     from electrosense.bem.solution import solve, unit_solutions
 
     t0 = time.perf_counter()
@@ -135,10 +135,7 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
         raise BoundaryError(f"the sensor mesh is not {order} rotated copies of one wedge")
     n_el = boundary.n_electrodes
     emitter = n_el if emitter is None else int(emitter)
-    z_c = contact_impedances(contact_impedance_ohm_m2, n_el)
-    tris = TriangleSet(boundary.triangles_m)
-    scale = float(np.sqrt(np.mean(tris.areas)))
-    cs, cd, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
+    tris, z_c, scale, cs, cd, group = boundary_columns(boundary, sigma_S_per_m, contact_impedance_ohm_m2)
     G = type_symmetry_blocks(cs, cd, order)
     N = len(tris)
     labels = boundary.electrode

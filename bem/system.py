@@ -45,7 +45,7 @@ from electrosense.bem.boundary_conditions import BoundaryError, WaterBoundary
 from electrosense.bem.conductance import check_conductivity
 from electrosense.bem.memory import check_memory
 
-__all__ = ["BemSystem", "assemble_system", "contact_impedances", "column_coefficients"]
+__all__ = ["BemSystem", "assemble_system", "contact_impedances", "column_coefficients", "boundary_columns"]
 
 
 def contact_impedances(contact_impedance_ohm_m2, n_electrodes: int) -> np.ndarray:
@@ -91,19 +91,32 @@ class BemSystem:
     n_conductors: int
 
 
+def boundary_columns(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None, triangles=None):
+    """What every collocation solver of ``boundary`` starts from: ``(tris, z_c, scale_m, c_single, c_double, group)``.
+
+    ``tris`` the :class:`~electrosense.bem.operators.TriangleSet` (``triangles`` if given), ``z_c`` the
+    per-electrode contact impedance (ohm m^2), ``scale_m`` the mesh's own length scale (the square root of the
+    mean triangle area) and the columns' coefficients of :func:`column_coefficients` at it.
+    """
+    from electrosense.bem.operators import TriangleSet  # numba kernels, loaded on first use
+
+    z_c = contact_impedances(contact_impedance_ohm_m2, boundary.n_electrodes)
+    tris = TriangleSet(boundary.triangles_m) if triangles is None else triangles
+    scale = float(np.sqrt(np.mean(tris.areas)))
+    return (tris, z_c, scale) + tuple(column_coefficients(boundary, sigma_S_per_m, z_c, scale))
+
+
 def assemble_system(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                     triangles=None) -> BemSystem:
     """Assemble the dense mixed system on ``boundary`` (refusing what does not fit in memory)."""
-    from electrosense.bem.operators import FAR, TriangleSet, mixed_system  # numba kernels, loaded on first use
+    from electrosense.bem.operators import FAR, mixed_system  # numba kernels, loaded on first use
 
     sigma_S_per_m = check_conductivity(sigma_S_per_m)
     n = boundary.n_electrodes
     n_f, n_c = boundary.n_triangles, boundary.n_conductors
     check_memory(n_f + n_c, 1.1)
-    z_c = contact_impedances(contact_impedance_ohm_m2, n)
-    tris = TriangleSet(boundary.triangles_m) if triangles is None else triangles
-    scale = float(np.sqrt(np.mean(tris.areas)))
-    c_single, c_double, group = column_coefficients(boundary, sigma_S_per_m, z_c, scale)
+    tris, z_c, scale, c_single, c_double, group = boundary_columns(boundary, sigma_S_per_m,
+                                                                  contact_impedance_ohm_m2, triangles)
     own = np.arange(n_f)
     # in a closed tank every row's solid angles must add up (the Neumann problem's compatibility):
     # the centroid rule beyond FAR diameters breaks that by ~1e-4 per row, which grows with the tank
