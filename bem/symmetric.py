@@ -101,6 +101,21 @@ def type_symmetry_blocks(c_single: np.ndarray, c_double: np.ndarray, order: int)
     return 1
 
 
+def _weighted_block_sum(blocks: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``sum_d weights[d] blocks[:, d]`` of the (n, G, n) blocks (``weights[0]`` is 1: the mode's ``cos 0`` or,
+    for the imaginary part, ``sin 0`` = 0), accumulated in place: a weight of +-1 costs no temporary."""
+    out = blocks[:, 0] * weights[0]
+    for d in range(1, len(weights)):
+        w = weights[d]
+        if abs(w - 1.0) < 1e-15:
+            out += blocks[:, d]
+        elif abs(w + 1.0) < 1e-15:
+            out -= blocks[:, d]
+        elif abs(w) > 1e-15:
+            out += w * blocks[:, d]
+    return out
+
+
 def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_impedance_ohm_m2=None,
                     emitter: int | None = None, order: int = 1, incident_potential_V=None, mirror: bool = False):
     """Unit solutions of a mesh made of ``order`` rotated copies of one wedge, alone in unbounded water.
@@ -168,15 +183,18 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     own = np.arange(n)
     S0, H0 = layer_matrices(tris.centroids[:n], tris, own, far=FAR)
     H0[own, own] += 0.5
-    # right-hand sides of every block: block a's rows see the labels turned back by a blocks
+    # right-hand sides of every block: block a's rows see the labels turned back by a blocks; the electrodes'
+    # columns of H summed as one product with their indicator
+    indicator = np.zeros((N, n_el))
+    on = labels > 0
+    indicator[np.flatnonzero(on), labels[on] - 1] = 1.0
     rhs = np.empty((G, n, n_el + incident.shape[1]))
     for a in range(G):
-        turned = np.roll(labels, -a * n)
-        for g in range(n_el):
-            rhs[a, :, g] = -H0[:, turned == g + 1].sum(axis=1)
+        rhs[a, :, :n_el] = -(H0 @ np.roll(indicator, -a * n, axis=0))
         rhs[a, :, n_el:] = incident[a * n:(a + 1) * n]
     S0 *= cs[None, :]
-    S0 += H0 * cd[None, :]
+    H0 *= cd[None, :]
+    S0 += H0
     del H0
     blocks = S0.reshape(n, G, n)                             # blocks[:, d]: block 0's targets x block d's sources
     rhs_hat = np.fft.fft(rhs, axis=0)
@@ -187,12 +205,12 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
         # A_m = sum_d C_d exp(2 pi i m d / G), summed directly in real arithmetic (an FFT over a short, strided
         # axis of a large array is several times slower)
         angle = 2 * np.pi * m * np.arange(G) / G
-        real = sum(np.cos(a) * blocks[:, d] for d, a in enumerate(angle))
+        real = _weighted_block_sum(blocks, np.cos(angle))
         if m == 0 or 2 * m == G:   # real modes: real arithmetic
             x, rcond, _ = solve_dense(real, rhs_hat[m].real.copy(), what=f"BEM system of mode {m}")
             x_hat[m] = x
         else:
-            mode = real + 1j * sum(np.sin(a) * blocks[:, d] for d, a in enumerate(angle))
+            mode = real + 1j * _weighted_block_sum(blocks, np.sin(angle))
             del real
             x_hat[m], rcond, _ = solve_dense(mode, rhs_hat[m], what=f"BEM system of mode {m}")
         rconds.append(rcond)
