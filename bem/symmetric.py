@@ -136,7 +136,7 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
     leaving each electrode into the water, and ``solution.incident_unknowns``
     (F, r) the unknowns (potential on insulators, ``l q`` on electrodes).
     """
-    from electrosense.bem.operators import FAR, layer_matrices
+    from electrosense.bem.operators import FAR, mixed_system
     from electrosense.bem.solution import solve, unit_solutions
 
     t0 = time.perf_counter()
@@ -181,21 +181,18 @@ def solve_symmetric(boundary: WaterBoundary, sigma_S_per_m: float, contact_imped
         return with_incident(solution, x[:, n_el:])
     n = N // G
     own = np.arange(n)
-    S0, H0 = layer_matrices(tris.centroids[:n], tris, own, far=FAR)
-    H0[own, own] += 0.5
-    # right-hand sides of every block: block a's rows see the labels turned back by a blocks; the electrodes'
-    # columns of H summed as one product with their indicator
-    indicator = np.zeros((N, n_el))
-    on = labels > 0
-    indicator[np.flatnonzero(on), labels[on] - 1] = 1.0
+    # the electrode each triangle's place holds in every turned labelling: block a's rows see the labels turned
+    # back by a blocks, so its right-hand side for electrode g sums H over the columns j with labels[j + a n] = g
+    turned = np.stack([np.roll(labels, -a * n) for a in range(G)], axis=1)        # (N, G)
+    patterns, group = np.unique(turned, axis=0, return_inverse=True)
+    group = group.ravel()
+    # block 0's rows of A = c_single S + c_double H in one pass, with H summed over each pattern's columns
+    S0, H_sums = mixed_system(tris.centroids[:n], tris, own, cs, cd, group, len(patterns), far=FAR)
     rhs = np.empty((G, n, n_el + incident.shape[1]))
     for a in range(G):
-        rhs[a, :, :n_el] = -(H0 @ np.roll(indicator, -a * n, axis=0))
+        for g in range(n_el):
+            rhs[a, :, g] = -H_sums[:, patterns[:, a] == g + 1].sum(axis=1)
         rhs[a, :, n_el:] = incident[a * n:(a + 1) * n]
-    S0 *= cs[None, :]
-    H0 *= cd[None, :]
-    S0 += H0
-    del H0
     blocks = S0.reshape(n, G, n)                             # blocks[:, d]: block 0's targets x block d's sources
     rhs_hat = np.fft.fft(rhs, axis=0)
     t1 = time.perf_counter()
