@@ -193,6 +193,35 @@ class SensorDescription:
             emitter = split.numbers_of(base.emitter - 1)[0]
         return replace(split, emitter=int(emitter))
 
+    def lateral_mirror(self) -> np.ndarray | None:
+        """The electrodes' permutation under the sensor's lateral mirror image (y -> -y in its own frame), or None.
+
+        A pose reflected in a vertical plane of the tank (a box's mirror plane, a
+        cylinder's diameter) carries the sensor's mirror image: sector ``k`` of
+        a ring at azimuth ``phi_k`` (from +y towards +z) lands on azimuth
+        ``pi - phi_k``, which is a sector again only when the ring has an even
+        number of them. Returns the 0-based indices ``perm`` with ``K`` of the
+        reflected pose ``= K[perm][:, perm]`` of the pose (an involution;
+        whole electrodes map onto themselves), or None when a split electrode
+        has an odd number of sectors (no mirror image of the sensor is the
+        sensor).
+
+        Example
+        -------
+        >>> preset("angels-4").with_sectors({2: 4}).lateral_mirror().tolist()
+        [0, 3, 2, 1, 4, 5, 6]
+        >>> preset("angels-4").with_sectors({2: 3}).lateral_mirror() is None
+        True
+        """
+        perm = []
+        for j, e in enumerate(self.electrodes):
+            first = self.numbers_of(j)[0] - 1
+            if e.sectors % 2 and e.sectors > 1:
+                return None
+            n = e.sectors
+            perm += [first + (n // 2 - c) % n for c in range(n)]
+        return np.array(perm, dtype=np.int64)
+
     def lateral_weights(self) -> tuple[tuple[int, ...], np.ndarray]:
         """The lateral signal "left minus right" of every split electrode whose sectors are all receivers.
 

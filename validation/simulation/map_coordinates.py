@@ -11,7 +11,11 @@ Two facts make the BEM's K far easier to interpolate than it looks in (x, y, hea
    (x', |y'|). Every pose is *folded* into the fundamental domain before it
    is interpolated, which quarters (box) the space the BEM must cover, or
    takes away a dimension (cylinder). Fixed objects break the symmetry: a
-   scene with objects is not folded.
+   scene with objects is not folded. A sensor with sectors is a body of
+   revolution only in shape: a reflection maps it onto its mirror image, whose
+   sectors are permuted (:meth:`MapFrame.reflected`, the map permutes K back),
+   and with a ring in an odd number of sectors onto no sensor at all; then only
+   a cylinder's rotations fold.
 2. **the walls**: K changes fastest where a cap comes near a wall (tens of
    percent between 5 mm and 2 cm). The features are the two end caps' centres,
    each coordinate *warped* so that distance from the nearest wall counts
@@ -90,6 +94,26 @@ class MapFrame:
         return not self.objects
 
     @property
+    def mirrors(self) -> bool:
+        """Folded by reflections too: the sensor has a mirror image (no ring split into an odd number of sectors,
+        :meth:`~electrosense.meshes.sensor.SensorDescription.lateral_mirror`); a cylinder's rotations need none."""
+        return self.symmetric and self.sensor.lateral_mirror() is not None
+
+    def reflected(self, poses) -> np.ndarray:
+        """(P,) bool: the fold of each pose reflects it (an odd number of mirror planes): its K is the folded
+        pose's with the electrodes permuted by the sensor's lateral mirror (the identity without sectors)."""
+        p = np.asarray(poses, float).reshape(-1, 4)
+        x, y, yaw = p[:, 0], p[:, 1], p[:, 3]
+        if not self.mirrors:
+            return np.zeros(len(p), bool)
+        if self.cylinder:
+            return -x * np.sin(yaw) + y * np.cos(yaw) < 0
+        odd = (x < 0) ^ (y < 0)
+        if abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:
+            odd ^= np.abs(y) > np.abs(x)
+        return odd
+
+    @property
     def n_features(self) -> int:
         return 4 + int(self.band)
 
@@ -107,7 +131,7 @@ class MapFrame:
             if self.symmetric:   # the sensor's own frame: rotated by -yaw, mirrored to y' >= 0
                 cs, sn = np.cos(yaw), np.sin(yaw)
                 u, v = x * cs + y * sn, -x * sn + y * cs
-                sgn = np.where(v < 0, -1.0, 1.0)
+                sgn = np.where((v < 0) & self.mirrors, -1.0, 1.0)
                 v = sgn * v
                 # d(u, v)/d(x, y, yaw)
                 du = np.stack([cs, sn, v * sgn], axis=-1)
@@ -138,7 +162,7 @@ class MapFrame:
             lo, hi = self.tank.water_bounds_m
             sx = sy = np.ones(P)
             swap = np.zeros(P, bool)
-            if self.symmetric:
+            if self.mirrors:
                 sx, sy = np.where(x < 0, -1.0, 1.0), np.where(y < 0, -1.0, 1.0)
                 x, y = sx * x, sy * y
                 yaw = np.where(sx < 0, np.pi - yaw, yaw)

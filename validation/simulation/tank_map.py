@@ -211,16 +211,30 @@ class TankMap:
 
             iu = self._iu
             X = self.frame.features(self.nodes)
-            interp = RBFInterpolant(X, np.log(self.K_nodes[:, iu[0], iu[1]] / self.K_free[iu]))
+            K_nodes = self._mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
+            interp = RBFInterpolant(X, np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu]))
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
-                d = np.log(self.K_ref[:, iu[0], iu[1]] / self.K_nodes[self.ref_index][:, iu[0], iu[1]])
+                K_ref = self._mirrored(self.K_ref, self.nodes[self.ref_index])
+                d = np.log(K_ref[:, iu[0], iu[1]] / K_nodes[self.ref_index][:, iu[0], iu[1]])
                 corr = RBFInterpolant(Xr, d)
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out})
         self._parts = [_RBF(self.fitted["X"], self.fitted["coef"])]
         if "X_ref" in self.fitted:
             self._parts.append(_RBF(self.fitted["X_ref"], self.fitted["coef_ref"]))
+
+    def _mirrored(self, K: np.ndarray, poses) -> np.ndarray:
+        """K (P, ..., n, n) with the electrodes permuted by the sensor's lateral mirror at the poses whose fold
+        reflects them (:meth:`MapFrame.reflected`): from a pose's frame to its folded pose's, and back (an
+        involution). A copy; K itself where nothing is reflected."""
+        perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
+        if perm is None or np.array_equal(perm, np.arange(len(perm))):
+            return K
+        out = np.array(K, float, copy=True)
+        r = self.frame.reflected(poses)
+        out[r] = out[r][..., perm, :][..., :, perm]
+        return out
 
     @property
     def band(self) -> bool:
@@ -269,10 +283,10 @@ class TankMap:
         res = self.log_ratio(poses, jacobian)
         L, dL = res if jacobian else (res, None)
         off = self.K_free[iu] * np.exp(L) * sigma_S_per_m
-        K = _assemble(off, n, iu)
+        K = self._mirrored(_assemble(off, n, iu), poses)
         if not jacobian:
             return K
-        return K, _assemble(off[:, None, :] * dL, n, iu)
+        return K, self._mirrored(_assemble(off[:, None, :] * dL, n, iu), poses)
 
     def jacobian(self, poses, sigma_S_per_m: float = 1.0) -> np.ndarray:
         """dK / d(x, y, yaw) (P, 3, n, n) (analytic: the interpolant's derivative through the map's coordinates)."""
@@ -287,6 +301,13 @@ class TankMap:
         err = estimated_error(self._parts[0].X, self.leave_one_out, F)
         if len(self._parts) > 1:
             err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
+        perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
+        e = self.sensor.emitter - 1
+        if perm is not None and perm[e] == e:   # a reflected pose's receivers are the folded pose's, permuted
+            receivers = [k for k in range(len(perm)) if k != e]
+            order = [receivers.index(perm[k]) for k in receivers]
+            r = self.frame.reflected(poses)
+            err[r] = err[r][:, order]
         return err
 
     def covers(self, poses) -> tuple[np.ndarray, str]:
