@@ -63,10 +63,15 @@ def stretched_tank_mesh(mesh, believed, tank):
     return replace(mesh, vertices_m=v)
 
 
-def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = SECANT_POSES, progress=None):
+def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = SECANT_POSES, progress=None,
+               negligible: float = 0.0):
     """The :class:`SecantCorrection` of ``candidate`` (a :class:`~.select.CandidateScore` of one geometric
     effect) from the BEM of its fitted scene (module doc); ``tank_mesh``: the believed tank's mesh the anchors
-    were solved on (None in unbounded water). Returns ``(correction, info)``."""
+    were solved on (None in unbounded water). Returns ``(correction, info)``.
+
+    ``negligible`` (relative): a chosen pose where the candidate changes no current by more than this is not
+    solved; the correction there is 0 (the caller passes the change below which no re-solve can move a
+    prediction by a third of the noise: far from a fitted object, most of a pass)."""
     from electrosense.bem import PoseSweep
     from electrosense.validation.diagnosis.effects import combined_scales
     from electrosense.validation.diagnosis.fitting import predict, scenario
@@ -81,21 +86,29 @@ def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = 
     change = np.max(np.abs(I_model / problem.I_base - 1), axis=1)
     passes = obs.pass_indices()
     idx = np.unique(choose_bem_poses(change, passes, max(n_poses, 4 * len(passes))))
+    solve = idx[change[idx] > negligible]
     sc = scenario(problem, effects, theta, every)
     mesh = None
     if sc.tank is not None and tank_mesh is not None:
         mesh = stretched_tank_mesh(tank_mesh, obs.tank, sc.tank)
     if progress:
-        progress(f"{candidate.name}: its fitted scene solved by the BEM at {len(idx)} poses")
-    options = {k: v for k, v in bem_options.items() if k in ("edge_length_m",)}
-    sweep = PoseSweep(obs.sensor, sc.tank, tuple(sc.objects), obs.sigma_S_per_m, tank_mesh=mesh,
-                      focus_m=None if mesh is not None else sc.poses[idx, :3], **options)
-    I_bem = receiver_currents(sweep.conductance(sc.poses[idx]).K_S, obs.emitter) * obs.U_V[idx, None]
+        progress(f"{candidate.name}: its fitted scene solved by the BEM at {len(solve)} poses"
+                 + (f" ({len(idx) - len(solve)} more where it changes no current by more than "
+                    f"{100 * negligible:.3g} %: correction 0)" if len(solve) < len(idx) else ""))
+    I_bem = I_model[idx].copy()   # the model itself where the change is negligible
+    if len(solve):
+        options = {k: v for k, v in bem_options.items() if k in ("edge_length_m",)}
+        sweep = PoseSweep(obs.sensor, sc.tank, tuple(sc.objects), obs.sigma_S_per_m, tank_mesh=mesh,
+                          focus_m=None if mesh is not None else sc.poses[solve, :3], **options)
+        I_bem[np.isin(idx, solve)] = receiver_currents(sweep.conductance(sc.poses[solve]).K_S, obs.emitter) \
+            * obs.U_V[solve, None]
     c_nodes = np.log(I_bem / I_model[idx])
     s = arc_length(obs.sensor, obs.poses, passes)
     c, loo = along_passes(c_nodes, idx, s, passes)
     u_hat = theta / combined_scales(effects)
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
+    solved = np.isin(idx, solve)   # the figures: where it was solved
+    c_nodes, I_bem, idx = c_nodes[solved], I_bem[solved], solve
     info = {"effect": candidate.name, "label": effects[0].label, "poses": idx.tolist(), "theta": theta.tolist(),
             "model_vs_bem_rms": rms(np.expm1(c_nodes)), "change_rms": rms(I_model[idx] / problem.I_base[idx] - 1),
             "loo_rms": rms(loo),

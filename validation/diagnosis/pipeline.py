@@ -416,12 +416,22 @@ def diagnose(
             secants = refine_on_bem(problem, ranking, lib, detection, anchored,
                                     {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
                                     folds, noise, r0, mask, say)
-            if secants:
+            solved = [i for i in secants if not i.get("skipped")]
+            if solved:
                 notes.append("solved by the BEM at their fitted scenes, and scored again: " + "; ".join(
                     f"{i['effect']} (the model {100 * i['model_vs_bem_rms']:.3f} % RMS off the BEM there, of a "
-                    f"{100 * i['change_rms']:.3f} % change)" for i in secants))
+                    f"{100 * i['change_rms']:.3f} % change)" for i in solved))
+            skipped_secants = [i for i in secants if i.get("skipped")]
+            if skipped_secants:
+                notes.append("not solved by the BEM, since no re-solve (at most "
+                             f"{SECANT_REACH:.0%} of its own fitted change) could bring its score below the best's "
+                             f"({skipped_secants[0]['best_score']:.0f}): " + "; ".join(
+                                 f"{i['effect']} (score at least {i['score_lower_bound']:.0f})"
+                                 for i in skipped_secants))
+            if solved:
                 ranking = sorted(ranking, key=lambda c: c.score)
                 detection = diagnose_detection(problem, ranking, folds, noise, anchored.total_error)
+            if secants:
                 budget["bem_secants"] = secants
     selection = forward_selection(problem, ranking, folds, noise, rules, mask, floor=floor,
                                   model_error_by_place=budget.get("baseline_by_place"), detection=detection)
@@ -464,6 +474,48 @@ def diagnose(
 #: geometric candidates whose fitted scene is solved by the BEM when their held-out improvement is significant
 SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
 
+#: the largest share of a geometric candidate's own fitted change that its BEM re-solve may alter: five times the
+#: largest measured on blind logs (an object within two radii of a pass: the BEM-field model 10 % off the BEM at
+#: the fitted scene; walls and depth 2-4 %)
+SECANT_REACH = 0.5
+
+
+def secant_cannot_overtake(problem, candidate, best_score: float, noise: float,
+                           reach: float = SECANT_REACH) -> tuple[bool, float]:
+    """Whether a BEM re-solve of ``candidate``'s fitted scene cannot bring its score below ``best_score``.
+
+    The re-solve changes the candidate's prediction by at most ``reach`` times
+    its own fitted change ``delta`` (weighted, in units of the noise), so its
+    held-out residual ``r`` stays at least ``|r| - reach |delta|`` long::
+
+        score >= max(0, |r| - reach |delta|)^2 + k ln N.
+
+    Returns ``(cannot, that lower bound)``.
+
+    Example
+    -------
+    A candidate whose fitted change is small against what it leaves cannot
+    overtake one at the noise level:
+
+    >>> import numpy as np
+    >>> np.sqrt(2185.0) - 0.5 * 14.0 > np.sqrt(373.0)
+    True
+    """
+    from electrosense.validation.diagnosis.fitting import predict
+
+    every = np.arange(problem.obs.n_poses)
+    effects = list(candidate.effects)
+    theta = np.asarray(candidate.fit.theta, float)
+    changed = predict(problem, effects, theta, every)
+    base = predict(problem, effects, np.zeros_like(theta), every)
+    delta = (problem.relative_residual(base, every) - problem.relative_residual(changed, every)) * problem.weight
+    r = candidate.heldout * problem.weight
+    finite = np.isfinite(r)
+    length = float(np.sqrt(np.sum(r[finite] ** 2))) / noise
+    bound = max(0.0, length - reach * float(np.sqrt(np.sum(delta[finite] ** 2))) / noise) ** 2 \
+        + candidate.n_params * np.log(int(finite.sum()))
+    return bound > best_score, bound
+
 
 def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, bem_options: dict, folds, noise,
                   r0, mask, say, rounds: int = 2, at_most: int = 3) -> list[dict]:
@@ -493,11 +545,21 @@ def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, 
         return []   # a cylinder's stretch is not built
     found = []
     for c in todo:
+        best_score = min(x.score for x in ranking)
+        if c.score > best_score:
+            cannot, bound = secant_cannot_overtake(problem, c, best_score, noise)
+            if cannot:
+                say(f"{c.name}: not solved by the BEM (its score cannot fall below {bound:.0f} by a re-solve; "
+                    f"the best is {best_score:.0f})")
+                found.append({"effect": c.name, "skipped": True, "score_lower_bound": bound,
+                              "best_score": best_score})
+                continue
         current = c
         for _ in range(rounds):
             effect = current.effects[0]
             try:
-                correction, info = bem_secant(problem, current, mesh, options, progress=say)
+                correction, info = bem_secant(problem, current, mesh, options, progress=say,
+                                              negligible=noise / (3 * SECANT_REACH))
             except (ValueError, np.linalg.LinAlgError) as exc:   # the scene cannot be solved: the candidate stays
                 say(f"{current.name}: its fitted scene not solved by the BEM ({type(exc).__name__}: {exc})")
                 break
