@@ -32,12 +32,40 @@ import numpy as np
 
 from electrosense.validation.diagnosis.fitting import _split
 
-__all__ = ["needs_bem_check", "bem_check"]
+__all__ = ["needs_bem_check", "bem_check", "taylor_step_is_exact"]
 
 
 def needs_bem_check(effects) -> bool:
     """Whether the explanation goes through an approximate model: a geometric effect or a contact impedance."""
     return any(e.geometric or e.name == "contact_impedance" for e in effects)
+
+
+def taylor_step_is_exact(problem, candidate, anchors: np.ndarray, noise: float) -> tuple[bool, float]:
+    """Whether the BEM check of a pose or heading offset could only repeat what the baseline already says.
+
+    A pose offset is predicted from the BEM's own derivatives (:mod:`.pose_gradient`): at the baseline's BEM
+    poses ``anchors``, where the check is made, the gradient *is* the BEM's, and the step's only approximation is
+    its Taylor remainder. When the whole second-order term there (the diagonal second derivatives, as the
+    prediction has them), doubled for the cross derivatives that it leaves out and for those second derivatives'
+    own error, moves no receiver current by a third of the noise, the remainder is smaller still and a BEM
+    solve at the moved poses cannot differ from the prediction by what the noise could show. Returns ``(exact,
+    the largest doubled second-order term, relative)``; ``(False, nan)`` for any other candidate.
+    """
+    from electrosense.validation.diagnosis.anchored import _receiver_entries
+    from electrosense.validation.diagnosis.fitting import scenario
+    from electrosense.validation.diagnosis.pose_gradient import POSE_AXES
+
+    pg = problem.pose_gradient
+    if pg is None or not len(anchors) or any(e.name != "pose_offset" for e in candidate.effects):
+        return False, float("nan")
+    idx = np.asarray(anchors)
+    obs = problem.obs
+    moved = scenario(problem, candidate.effects, np.asarray(candidate.fit.theta, float), np.arange(obs.n_poses))
+    d = moved.poses[idx][:, POSE_AXES] - obs.poses[idx][:, POSE_AXES]
+    d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
+    second = 0.5 * np.einsum("pk,pkq->pq", d**2, pg.H[idx])[:, _receiver_entries(obs.sensor)]
+    size = 2.0 * float(np.max(np.abs(second))) if second.size else 0.0
+    return size < noise / 3.0, size
 
 
 def _jacobian(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
