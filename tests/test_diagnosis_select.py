@@ -65,3 +65,38 @@ def test_a_pair_is_found_in_full(world):
     d = _run(world, 13, "tank_size", {"Lx_m": 0.97}, gains=[0.01, -0.01, 0.0])
     assert set(d.chosen[:2]) == {"tank_size", "channel_gain"}
     assert d.gap_after < 0.2 * d.gap_before
+
+
+def test_a_bem_re_solve_is_skipped_only_where_it_cannot_change_the_answer(monkeypatch):
+    """The secant's bound: each current may change by up to the candidate's own change of it (a quarter for walls
+    and depth), so the samples it does not touch keep their held-out gap."""
+    from types import SimpleNamespace
+
+    import electrosense.validation.diagnosis.fitting as fitting
+    from electrosense.validation.diagnosis.pipeline import secant_cannot_overtake
+
+    P, noise = 100, 1e-3
+    local = np.r_[np.full(10, 5 * noise), np.zeros(P - 10)][:, None]   # an object: 10 samples see it
+    everywhere = np.full((P, 1), 5 * noise)                            # a depth: every sample
+    bench = np.zeros((P, 1))
+
+    class Stub:
+        obs = SimpleNamespace(n_poses=P)
+        weight = np.ones((P, 1))
+
+        @staticmethod
+        def relative_residual(I, idx):
+            return bench[idx] - I
+
+    def candidate(name, change):
+        monkeypatch.setattr(fitting, "predict", lambda pb, eff, theta, idx: change[idx] * float(np.any(theta)))
+        return SimpleNamespace(name=name, effects=(), fit=SimpleNamespace(theta=np.array([1.0])),
+                               heldout=np.full((P, 1), 3 * noise), n_params=1)
+
+    cannot, bound = secant_cannot_overtake(Stub(), candidate("unmodelled_object", local), 200.0, noise)
+    assert cannot and bound == pytest.approx(90 * 9 + np.log(P))
+    cannot, bound = secant_cannot_overtake(Stub(), candidate("unmodelled_object", everywhere), 200.0, noise)
+    assert not cannot and bound == pytest.approx(np.log(P))
+    # a depth's re-solve moves its currents by a quarter of its change at most: 3 - 1.25 noise left everywhere
+    cannot, bound = secant_cannot_overtake(Stub(), candidate("water_depth", everywhere), 200.0, noise)
+    assert cannot and bound == pytest.approx(P * 1.75**2 + np.log(P))
