@@ -11,7 +11,8 @@ where the BEM leaves more than the noise floor that the effect model claimed
 to reach, the diagnosis says that its effect model, not the data, made the
 answer.
 
-The parameters are then refined on the BEM itself, a defect correction
+Where the BEM leaves more than both the noise floor and the effect model's own gap,
+the parameters are then refined on the BEM itself, a defect correction
 (Gauss-Newton on the BEM's residual with the effect model's Jacobian: each
 step one BEM solve of the changed scene; it converges while the effect model's
 sensitivities are within a factor of two of the BEM's, and a step that does
@@ -167,8 +168,8 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     best, best_gap = theta, gap_bem
     r = residual(I_bem).ravel()
     for step in range(refine_steps):
-        if best_gap <= floor:
-            break
+        if best_gap <= max(floor, gap_model):   # the BEM already reaches what the model claimed: a step would fit
+            break                               # the noise of these few poses
         try:
             J = _jacobian(lambda t: residual(predict(problem, effects, t, idx)).ravel(), best, 0.05 * scales)
         except ValueError as exc:  # the effect model refuses both sides of a parameter (a sphere through a wall)
