@@ -448,14 +448,15 @@ def diagnose(
         if check is None and exact:
             notes.append(f"{selection.chosen[-1].name} not checked by new BEM solves: it is the BEM's own pose "
                          "derivatives at its BEM poses, whose Taylor step's second-order term (doubled for the cross "
-                         f"terms and its own error) moves no current by more than {100 * second_order:.4f} %, a third of the noise "
-                         f"being {100 * noise / 3:.4f} %")
-        try:
-            check = check or (None if exact else bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
-                                       {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
-                                       n_poses=bem_check_poses, progress=say))
-        except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
-            notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
+                         f"terms and its own error) moves no current by more than {100 * second_order:.4f} %, a third "
+                         f"of the noise being {100 * noise / 3:.4f} %")
+        elif check is None:
+            try:
+                check = bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
+                                  {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
+                                  n_poses=bem_check_poses, progress=say)
+            except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
+                notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
         if check is not None and "params_bem" in check and check["gap_bem_refined"] < check["gap_bem"]:
             params = ", ".join(f"{k} = {v:.4g}" for k, v in check["params_bem"].items())
             notes.append(f"{check['effect']} refined on the BEM at its {len(check['poses'])} poses: {params}; the BEM "
@@ -488,6 +489,11 @@ SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
 SECANT_REACH = {"tank_size": 0.25, "water_depth": 0.25, "unmodelled_object": 1.0}
 
 
+def secant_reach(name: str) -> float:
+    """:data:`SECANT_REACH` of a candidate (1, the whole of its change, for one not listed)."""
+    return SECANT_REACH.get(name, 1.0)
+
+
 def secant_cannot_overtake(problem, candidate, best_score: float, noise: float,
                            reach: float | None = None) -> tuple[bool, float]:
     """Whether a BEM re-solve of ``candidate``'s fitted scene cannot bring its score below ``best_score``.
@@ -512,7 +518,7 @@ def secant_cannot_overtake(problem, candidate, best_score: float, noise: float,
     """
     from electrosense.validation.diagnosis.fitting import predict
 
-    reach = SECANT_REACH.get(candidate.name, 1.0) if reach is None else reach
+    reach = secant_reach(candidate.name) if reach is None else reach
     every = np.arange(problem.obs.n_poses)
     effects = list(candidate.effects)
     theta = np.asarray(candidate.fit.theta, float)
@@ -561,14 +567,14 @@ def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, 
                 say(f"{c.name}: not solved by the BEM (its score cannot fall below {bound:.0f} by a re-solve; "
                     f"the best is {best_score:.0f})")
                 found.append({"effect": c.name, "skipped": True, "score_lower_bound": bound,
-                              "best_score": best_score, "reach": SECANT_REACH.get(c.name, 1.0)})
+                              "best_score": best_score, "reach": secant_reach(c.name)})
                 continue
         current = c
         for _ in range(rounds):
             effect = current.effects[0]
             try:
                 correction, info = bem_secant(problem, current, mesh, options, progress=say,
-                                              negligible=noise / (3 * SECANT_REACH.get(current.name, 1.0)))
+                                              negligible=noise / (3 * secant_reach(current.name)))
             except (ValueError, np.linalg.LinAlgError) as exc:   # the scene cannot be solved: the candidate stays
                 say(f"{current.name}: its fitted scene not solved by the BEM ({type(exc).__name__}: {exc})")
                 break
