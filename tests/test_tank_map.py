@@ -243,3 +243,15 @@ def test_a_sector_sensor_map_permutes_the_sectors_of_its_mirror_images():
     assert not frame.mirrors and not frame.reflected(images).any()
     F = frame.features(images)
     assert not np.allclose(F[0], F[1])
+
+
+def test_a_cylinder_folds_a_sector_sensor_by_its_diameters_with_the_sectors_permuted():
+    """Reflected across a diameter, a pose of a 4-sector sensor has the same features and is marked reflected (its K
+    permuted); a 3-sector sensor has no mirror image: the two poses stay apart."""
+    pair = np.array([[0.05, 0.08, 0.0, 0.4], [0.05, -0.08, 0.0, -0.4]])
+    even = MapFrame(preset("angels-4").with_sectors({2: 4}, gap_m=0.002), CylinderTank(0.3, 0.3))
+    assert even.reflected(pair).tolist() == [False, True]
+    assert np.allclose(even.features(pair)[0], even.features(pair)[1])
+    odd = MapFrame(preset("angels-4").with_sectors({2: 3}, gap_m=0.002), CylinderTank(0.3, 0.3))
+    assert not odd.reflected(pair).any()
+    assert not np.allclose(odd.features(pair)[0], odd.features(pair)[1])

@@ -95,20 +95,20 @@ def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = 
         progress(f"{candidate.name}: its fitted scene solved by the BEM at {len(solve)} poses"
                  + (f" ({len(idx) - len(solve)} more where it changes no current by more than "
                     f"{100 * negligible:.3g} %: correction 0)" if len(solve) < len(idx) else ""))
+    solved = np.isin(idx, solve)
     I_bem = I_model[idx].copy()   # the model itself where the change is negligible
     if len(solve):
         options = {k: v for k, v in bem_options.items() if k in ("edge_length_m",)}
         sweep = PoseSweep(obs.sensor, sc.tank, tuple(sc.objects), obs.sigma_S_per_m, tank_mesh=mesh,
                           focus_m=None if mesh is not None else sc.poses[solve, :3], **options)
-        I_bem[np.isin(idx, solve)] = receiver_currents(sweep.conductance(sc.poses[solve]).K_S, obs.emitter) \
+        I_bem[solved] = receiver_currents(sweep.conductance(sc.poses[solve]).K_S, obs.emitter) \
             * obs.U_V[solve, None]
     c_nodes = np.log(I_bem / I_model[idx])
     s = arc_length(obs.sensor, obs.poses, passes)
     c, loo = along_passes(c_nodes, idx, s, passes)
     u_hat = theta / combined_scales(effects)
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
-    solved = np.isin(idx, solve)   # the figures: where it was solved
-    c_nodes, I_bem, idx = c_nodes[solved], I_bem[solved], solve
+    c_nodes, I_bem, idx = c_nodes[solved], I_bem[solved], solve   # the figures: where it was solved
     info = {"effect": candidate.name, "label": effects[0].label, "poses": idx.tolist(), "theta": theta.tolist(),
             "model_vs_bem_rms": rms(np.expm1(c_nodes)), "change_rms": rms(I_model[idx] / problem.I_base[idx] - 1),
             "loo_rms": rms(loo),

@@ -444,7 +444,8 @@ def diagnose(
 
         for secant in reversed(budget.get("bem_secants") or []):   # the chosen scene already solved by the BEM
             check = check or check_from_secant(selection.chosen[-1], secant, floor)
-        exact, second_order = taylor_step_is_exact(problem, selection.chosen[-1], anchored.anchors, noise)
+        exact, second_order = (False, 0.0) if check is not None else \
+            taylor_step_is_exact(problem, selection.chosen[-1], anchored.anchors, noise)
         if check is None and exact:
             notes.append(f"{selection.chosen[-1].name} not checked by new BEM solves: it is the BEM's own pose "
                          "derivatives at its BEM poses, whose Taylor step's second-order term (doubled for the cross "

@@ -99,19 +99,30 @@ class MapFrame:
         :meth:`~electrosense.meshes.sensor.SensorDescription.lateral_mirror`); a cylinder's rotations need none."""
         return self.symmetric and self.sensor.lateral_mirror() is not None
 
+    def _box_fold(self, x, y):
+        """(sx, sy, swap) of a box's fold: the signs that reflect x and y into x, y >= 0, then, in a square tank,
+        the swap of x and y across its diagonal; no reflection where :attr:`mirrors` is False."""
+        P = len(x)
+        if not self.mirrors:
+            return np.ones(P), np.ones(P), np.zeros(P, bool)
+        sx, sy = np.where(x < 0, -1.0, 1.0), np.where(y < 0, -1.0, 1.0)
+        square = abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12
+        return sx, sy, (np.abs(y) > np.abs(x)) & square
+
+    def _cylinder_side(self, x, y, yaw):
+        """(P,) -1 where a cylinder's fold reflects the pose (the sensor's centre on its own -y side), else 1."""
+        v = -x * np.sin(yaw) + y * np.cos(yaw)
+        return np.where((v < 0) & self.mirrors, -1.0, 1.0)
+
     def reflected(self, poses) -> np.ndarray:
         """(P,) bool: the fold of each pose reflects it (an odd number of mirror planes): its K is the folded
         pose's with the electrodes permuted by the sensor's lateral mirror (the identity without sectors)."""
         p = np.asarray(poses, float).reshape(-1, 4)
         x, y, yaw = p[:, 0], p[:, 1], p[:, 3]
-        if not self.mirrors:
-            return np.zeros(len(p), bool)
         if self.cylinder:
-            return -x * np.sin(yaw) + y * np.cos(yaw) < 0
-        odd = (x < 0) ^ (y < 0)
-        if abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:
-            odd ^= np.abs(y) > np.abs(x)
-        return odd
+            return self._cylinder_side(x, y, yaw) < 0
+        sx, sy, swap = self._box_fold(x, y)
+        return (sx * sy < 0) ^ swap
 
     @property
     def n_features(self) -> int:
@@ -131,7 +142,7 @@ class MapFrame:
             if self.symmetric:   # the sensor's own frame: rotated by -yaw, mirrored to y' >= 0
                 cs, sn = np.cos(yaw), np.sin(yaw)
                 u, v = x * cs + y * sn, -x * sn + y * cs
-                sgn = np.where((v < 0) & self.mirrors, -1.0, 1.0)
+                sgn = self._cylinder_side(x, y, yaw)
                 v = sgn * v
                 # d(u, v)/d(x, y, yaw)
                 du = np.stack([cs, sn, v * sgn], axis=-1)
@@ -160,17 +171,12 @@ class MapFrame:
                     dcols += [Jx, Jy]
         else:
             lo, hi = self.tank.water_bounds_m
-            sx = sy = np.ones(P)
-            swap = np.zeros(P, bool)
-            if self.mirrors:
-                sx, sy = np.where(x < 0, -1.0, 1.0), np.where(y < 0, -1.0, 1.0)
-                x, y = sx * x, sy * y
-                yaw = np.where(sx < 0, np.pi - yaw, yaw)
-                yaw = np.where(sy < 0, -yaw, yaw)
-                if abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:
-                    swap = y > x
-                    x, y = np.where(swap, y, x), np.where(swap, x, y)
-                    yaw = np.where(swap, 0.5 * np.pi - yaw, yaw)
+            sx, sy, swap = self._box_fold(x, y)
+            x, y = sx * x, sy * y
+            yaw = np.where(sx < 0, np.pi - yaw, yaw)
+            yaw = np.where(sy < 0, -yaw, yaw)
+            x, y = np.where(swap, y, x), np.where(swap, x, y)
+            yaw = np.where(swap, 0.5 * np.pi - yaw, yaw)
             cs, sn = np.cos(yaw), np.sin(yaw)
             cols, dcols = [], []
             for sign in (1.0, -1.0):

@@ -204,6 +204,9 @@ class TankMap:
         pairs = list(zip(*self._iu))
         self._rec = [pairs.index((min(k, e), max(k, e))) for k in range(n) if k != e]
         self.frame = MapFrame(self.sensor, self.tank, self.objects, self.band, self.warp_m)
+        perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
+        # the sensor's lateral mirror where the fold reflects poses (None: nothing to permute)
+        self._perm = None if perm is None or np.array_equal(perm, np.arange(len(perm))) else perm
         self.ref_index = np.zeros(0, int) if self.ref_index is None else np.asarray(self.ref_index, int)
         self.K_ref = np.zeros((0, n, n)) if self.K_ref is None else np.asarray(self.K_ref, float)
         if self.fitted is None:
@@ -228,8 +231,8 @@ class TankMap:
         """K (P, ..., n, n) with the electrodes permuted by the sensor's lateral mirror at the poses whose fold
         reflects them (:meth:`MapFrame.reflected`): from a pose's frame to its folded pose's, and back (an
         involution). A copy; K itself where nothing is reflected."""
-        perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
-        if perm is None or np.array_equal(perm, np.arange(len(perm))):
+        perm = self._perm
+        if perm is None:
             return K
         out = np.array(K, float, copy=True)
         r = self.frame.reflected(poses)
@@ -301,8 +304,7 @@ class TankMap:
         err = estimated_error(self._parts[0].X, self.leave_one_out, F)
         if len(self._parts) > 1:
             err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
-        perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
-        e = self.sensor.emitter - 1
+        perm, e = self._perm, self.sensor.emitter - 1
         if perm is not None and perm[e] == e:   # a reflected pose's receivers are the folded pose's, permuted
             receivers = [k for k in range(len(perm)) if k != e]
             order = [receivers.index(perm[k]) for k in receivers]
