@@ -819,7 +819,8 @@ def potential_figure(
     ax.set_ylabel("y (m)")
     if title:
         ax.set_title(title)
-    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 4))
+    # three columns: four labels of "electrode k (receiver)" length overflow the figure's width
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), 3))
     return save(fig, png_path)
 
 
