@@ -22,8 +22,9 @@ def _mask(n=64):
     return m
 
 
-def _write_series(folder, E=8, dead=(), seed=0):
-    """A series made by the model itself: known unknowns, 1 % noise per voltage... of the changes' size."""
+def _write_series(folder, E=8, dead=(), seed=0, water=0.0):
+    """A series made by the model itself: known unknowns, noise of 0.02 % of the change's RMS per voltage; the
+    tank file measured with every voltage scaled by ``1 + water`` (the water's change since the reference)."""
     rng = np.random.default_rng(seed)
     inj, mp = ktc_patterns(E)
     truth = KtcTruth(_mask(), 0.23)
@@ -34,7 +35,7 @@ def _write_series(folder, E=8, dead=(), seed=0):
     s = 0.03
     off = 1e-3 * rng.standard_normal(E - 1)
     U0 = s * volts(fw.impedance("ref", geom, zeta), inj, mp) + off
-    U1 = s * volts(fw.impedance("data1", geom, zeta), inj, mp) + off
+    U1 = (1 + water) * s * volts(fw.impedance("data1", geom, zeta), inj, mp) + off
     noise = 2e-4 * np.sqrt(np.mean((U1 - U0) ** 2))
     U0 = U0 + noise * rng.standard_normal(U0.shape)
     U1 = U1 + noise * rng.standard_normal(U1.shape)
@@ -62,6 +63,18 @@ def test_a_series_made_by_the_model_is_recovered_and_predicted(tmp_path):
     m = pred["data1"]["metrics"]
     assert m["electrodes_out_of_use"] == [3] and m["patterns_left_out"]
     assert m["difference_rms_rel"] < 0.1 and np.isfinite(m["total_rms_rel"])
+    assert abs(m["water_change_rel"]) < 3 * m["water_change_rel_se"] + 1e-3
+
+
+def test_the_waters_change_since_the_reference_is_found_and_scored_held_out(tmp_path):
+    _write_series(tmp_path / "fit", E=8)
+    _write_series(tmp_path / "other", E=8, seed=1, water=-0.03)
+    fit = fit_ktc(read_ktc_folder(tmp_path / "fit"), n_modes=6, progress=lambda s: None, max_nfev=8)
+    m = predict_folder(fit, read_ktc_folder(tmp_path / "other"), "other", progress=lambda s: None)["data1"]["metrics"]
+    assert m["water_change_rel"] == pytest.approx(-0.03, abs=2e-3)
+    assert m["water_change_rel_se"] < 2e-3
+    assert m["difference_rms_rel_reference_water"] > 5 * m["difference_rms_rel"]     # the scale swamps the change
+    assert m["difference_rms_rel"] < 0.1
 
 
 def test_bad_folders_are_refused_in_one_line(tmp_path):

@@ -132,7 +132,7 @@ def candidates_figure(path, diag_metrics: dict, ref_floor: float) -> Path:
     ax.set_yticks(range(len(names)), names, fontsize=7)
     ax.set_xlabel("held-out RMS (% of RMS V)")
     ax.set_title("empty tank, held out by pattern", fontsize=8)
-    ax.legend(fontsize=6)
+    ax.legend(fontsize=6, loc="center right")     # the middle bars are the short ones
     ax = axes[0, 1]
     t = diag_metrics.get("tank_change_candidates", {})
     if t:

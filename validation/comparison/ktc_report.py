@@ -17,19 +17,23 @@ def summary_text(m: dict) -> str:
              f"{m['ref_rms_over_floor']:.2f}x; goal <= 1.5x)"]
     for k, v in m.get("fit_tanks", {}).items():
         lines.append(f"fit tank {k}: change fitted {_pct(v['fitted_rms_rel'])}, held out by tank "
-                     f"{_pct(v['heldout_rms_rel'])} (floor {_pct(v['difference_floor_rel'])}, drift "
-                     f"{100 * v['drift']:+.2f} %)")
+                     f"{_pct(v['heldout_rms_rel'])} ({_pct(v['heldout_rms_rel_reference_water'])} with the reference's "
+                     f"water; floor {_pct(v['difference_floor_rel'])}, drift {100 * v['drift']:+.2f} %)")
     for k, v in m.get("predicted", {}).items():
         if "error" in v:
             lines.append(f"predicted {k}: not modelled ({v['error']})")
             continue
         lines.append(f"predicted {k}: change {_pct(v['difference_rms_rel'])} of itself (floor "
-                     f"{_pct(v['difference_floor_rel'])}), total {_pct(v['total_rms_rel'])}; its drift "
-                     f"{100 * v['diagnosis_drift']:+.2f} % would leave {_pct(v['diagnosis_difference_rms_rel_after_drift'])}")
+                     f"{_pct(v['difference_floor_rel'])}; water {100 * v['water_change_rel']:+.2f} "
+                     f"+- {100 * v['water_change_rel_se']:.2f} % since the reference; "
+                     f"{_pct(v['difference_rms_rel_reference_water'])} with the reference's water), "
+                     f"total {_pct(v['total_rms_rel'])}")
     s = m.get("predicted_summary")
     if s:
         lines.append(f"predicted changes: median {_pct(s['difference_rms_rel_median'])}, max "
-                     f"{_pct(s['difference_rms_rel_max'])} over {s['files']} files (goal: median <= 15 %, none > 35 %)")
+                     f"{_pct(s['difference_rms_rel_max'])} over {s['files']} files (goal: median <= 15 %, none > 35 %); "
+                     f"with the reference's water: median {_pct(s['reference_water_median'])}, max "
+                     f"{_pct(s['reference_water_max'])}")
     sec = m.get("seconds", {})
     if "wall_s" in sec:
         lines.append(f"time: {sec['wall_s']:.0f} s wall, {sec['cpu_s']:.0f} s CPU")

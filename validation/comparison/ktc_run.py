@@ -6,8 +6,11 @@
 * ``ref_rms_rel``: the empty tank of the fit folder on held-out patterns, beside its floor;
 * ``fitted``: every unknown with its standard error (``null``: not determined), the derived conductivity and
   contact impedances for a current unit of 1 mA, ``not_separable`` and ``correlated``;
-* ``fit_tanks``: the fit folder's tanks, fitted (with their drift) and held out by tank (no drift);
-* ``predicted``: per predicted file ``difference_rms_rel``, ``difference_floor_rel``, ``total_rms_rel``;
+* ``fit_tanks``: the fit folder's tanks, fitted (with their drift) and held out by tank (the drift from
+  :func:`~electrosense.validation.comparison.ktc.water_change`, and ``..._reference_water`` without it);
+* ``predicted``: per predicted file ``difference_rms_rel`` (the water's change since the reference taken from the
+  file, cross-fitted by pattern), ``difference_rms_rel_reference_water`` (without it), ``water_change_rel`` and
+  its standard error, ``difference_floor_rel``, ``total_rms_rel``;
 * ``diagnosis``: where the gap lies and what each effect explains
   (:mod:`electrosense.validation.diagnosis.ktc_gap`).
 """
@@ -98,7 +101,8 @@ def run_ktc(fit_folder, predict_folders, out_dir: Path, n_modes: int = 30, figur
             meas = np.where(b.mask, b.measured, np.nan)
             held = fit.heldout["tanks"][b.tank]
             fit_tanks[b.tank] = {"fitted_rms_rel": rms_rel(np.where(b.mask, p, np.nan) - meas, meas),
-                                 "heldout_rms_rel": rms_rel(held, meas),
+                                 "heldout_rms_rel": rms_rel(held["water"], meas),
+                                 "heldout_rms_rel_reference_water": rms_rel(held["reference_water"], meas),
                                  "drift": fit.values[f"drift_{b.tank}"],
                                  "difference_floor_rel": floors[labels[0]][f"{b.tank}.mat (change)"]["floor_rms_rel"]}
     metrics["fit_tanks"] = fit_tanks
@@ -112,10 +116,14 @@ def run_ktc(fit_folder, predict_folders, out_dir: Path, n_modes: int = 30, figur
             predictions[f"{lab}/{name}"] = r
     metrics["predicted"] = {k: (r["metrics"] if "metrics" in r else {"error": r["error"]})
                             for k, r in predictions.items()}
-    vals = [r["metrics"]["difference_rms_rel"] for r in predictions.values() if "metrics" in r]
-    if vals:
+    scored = [r["metrics"] for r in predictions.values() if "metrics" in r]
+    if scored:
+        vals = [m["difference_rms_rel"] for m in scored]
+        strict = [m["difference_rms_rel_reference_water"] for m in scored]
         metrics["predicted_summary"] = {"difference_rms_rel_median": float(np.median(vals)),
-                                        "difference_rms_rel_max": float(np.max(vals)), "files": len(vals)}
+                                        "difference_rms_rel_max": float(np.max(vals)), "files": len(vals),
+                                        "reference_water_median": float(np.median(strict)),
+                                        "reference_water_max": float(np.max(strict))}
     t2 = time.perf_counter()
     diag = None
     if diagnosis:

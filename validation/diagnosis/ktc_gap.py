@@ -19,8 +19,9 @@ scored on the rest:
   electrodes+offsets`` (the electrodes spanning the water: the 2-D
   assumption, scale refitted);
 * on the tanks' changes, held out by tank (fitted on the other tanks):
-  ``none``, ``channel_gains``, ``2-D electrodes``; and ``drift`` (one scale per tank,
-  fitted on that tank itself: it explains, it cannot predict).
+  ``none``, ``channel_gains``, ``2-D electrodes``; and the water's change since the
+  reference (one scale per tank, cross-fitted by pattern:
+  :func:`~electrosense.validation.comparison.ktc.water_change`).
 
 The shrink of a candidate is ``1 - heldout / heldout(none)``.
 """
@@ -29,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from electrosense.validation.bench.transfer.ktc_mat import usable
-from electrosense.validation.comparison.ktc import pattern_folds, rms_rel
+from electrosense.validation.comparison.ktc import pattern_folds, rms_rel, water_change
 from electrosense.validation.comparison.ktc_model import volts
 
 __all__ = ["diagnose_ktc", "pattern_families", "by_electrode", "heldout_linear"]
@@ -200,15 +201,16 @@ def diagnose_ktc(fit, folder, predictions: dict, progress=print) -> dict:
         G = np.vstack([_channel_columns(c, M) for c in rows_cols])
         res["channel_gains"] = heldout_linear(y2, G, m2, t2)
         res["2-D electrodes"] = np.where(m2, y2 - np.concatenate([c.ravel() for c in rows_V2]), np.nan)
-        # drift: one scale per tank on that tank (explains, cannot predict)
-        drift = np.full(len(y2), np.nan)
-        for i in range(len(blocks)):
-            on = (t2 == i) & m2
-            vt = np.concatenate([c.ravel() for c in rows_Vt])[on]
-            r0 = (y2 - dv)[on]
-            a = float(vt @ r0 / (vt @ vt))
-            drift[on] = r0 - a * vt
-        res["drift (per tank, not predictive)"] = drift
+        # the water's change since the reference: one scale per tank, each fold of its patterns scored with the
+        # scale of the other fold (water_change)
+        water = np.full(len(y2), np.nan)
+        vt_all = np.concatenate([c.ravel() for c in rows_Vt])
+        for i, b in enumerate(blocks):
+            on = t2 == i
+            shape = b.mask.shape
+            water[on] = water_change(np.where(m2[on], y2[on] - dv[on], np.nan).reshape(shape),
+                                     vt_all[on].reshape(shape), pattern_folds(shape[0]))["residual"].ravel()
+        res["water_change"] = water
         for name, r in res.items():
             per = {b.tank: rms_rel(r[t2 == i], meas[t2 == i]) for i, b in enumerate(blocks)}
             tank_table[name] = {"heldout_rms_rel_by_tank": per, "median": float(np.median(list(per.values())))}
