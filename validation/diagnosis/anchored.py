@@ -239,6 +239,7 @@ class AnchoredBaseline:
     #                                              the BEM poses; at the observations' conductivity)
     wall_regions: tuple = ()
     focus_m: np.ndarray | None = None  # the points the BEM's tank mesh was graded towards
+    bem_sweep: object = None  # () -> the anchors' PoseSweep (sigma 1 S/m, their tank mesh), built on first call
 
     @property
     def interpolation_rms(self) -> float:
@@ -594,7 +595,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
         wall_derivatives=(derivatives["dK_dwall_S_per_m"] * obs.sigma_S_per_m if "dK_dwall_S_per_m" in derivatives
                           else None),
-        wall_regions=TANK_REGIONS if derivatives else (), focus_m=focus,
+        wall_regions=TANK_REGIONS if derivatives else (), focus_m=focus, bem_sweep=get_sweep,
     )
 
 

@@ -11,8 +11,9 @@ where the BEM leaves more than the noise floor that the effect model claimed
 to reach, the diagnosis says that its effect model, not the data, made the
 answer.
 
-Where the BEM leaves more than both the noise floor and the effect model's own gap,
-the parameters are then refined on the BEM itself, a defect correction
+Where the BEM leaves more than both the effect model's own gap and what the
+noise leaves at these poses (the floor, plus two standard deviations of an RMS
+of that many samples), the parameters are then refined on the BEM itself, a defect correction
 (Gauss-Newton on the BEM's residual with the effect model's Jacobian: each
 step one BEM solve of the changed scene; it converges while the effect model's
 sensitivities are within a factor of two of the BEM's, and a step that does
@@ -33,7 +34,7 @@ import numpy as np
 
 from electrosense.validation.diagnosis.fitting import _split
 
-__all__ = ["needs_bem_check", "bem_check", "taylor_step_is_exact"]
+__all__ = ["needs_bem_check", "bem_check", "taylor_remainder_bound"]
 
 
 def needs_bem_check(effects) -> bool:
@@ -41,16 +42,18 @@ def needs_bem_check(effects) -> bool:
     return any(e.geometric or e.name == "contact_impedance" for e in effects)
 
 
-def taylor_step_is_exact(problem, candidate, anchors: np.ndarray, noise: float) -> tuple[bool, float]:
-    """Whether the BEM check of a pose or heading offset could only repeat what the baseline already says.
+def taylor_remainder_bound(problem, candidate, anchors: np.ndarray) -> np.ndarray | None:
+    """How far a BEM check of a pose or heading offset could move from what the baseline already says, per pose.
 
     A pose offset is predicted from the BEM's own derivatives (:mod:`.pose_gradient`): at the baseline's BEM
     poses ``anchors``, where the check is made, the gradient *is* the BEM's, and the step's only approximation is
-    its Taylor remainder. When the whole second-order term there (the diagonal second derivatives, as the
-    prediction has them), doubled for the cross derivatives that it leaves out and for those second derivatives'
-    own error, moves no receiver current by a third of the noise, the remainder is smaller still and a BEM
-    solve at the moved poses cannot differ from the prediction by what the noise could show. Returns ``(exact,
-    the largest doubled second-order term, relative)``; ``(False, nan)`` for any other candidate.
+    its Taylor remainder. The whole second-order term there (the diagonal second derivatives, as the prediction
+    has them), doubled for the cross derivatives that it leaves out and for those second derivatives' own error,
+    bounds it: where that moves no receiver current by a third of the noise, a BEM solve at the moved pose cannot
+    differ from the prediction by what the noise could show, and only the other poses need solving.
+
+    Returns the doubled second-order term at each anchor (relative, the largest over the receivers), or None for
+    any candidate other than a pose offset (or a baseline without pose derivatives).
     """
     from electrosense.validation.diagnosis.anchored import _receiver_entries
     from electrosense.validation.diagnosis.fitting import scenario
@@ -58,15 +61,14 @@ def taylor_step_is_exact(problem, candidate, anchors: np.ndarray, noise: float) 
 
     pg = problem.pose_gradient
     if pg is None or not len(anchors) or any(e.name != "pose_offset" for e in candidate.effects):
-        return False, float("nan")
+        return None
     idx = np.asarray(anchors)
     obs = problem.obs
     moved = scenario(problem, candidate.effects, np.asarray(candidate.fit.theta, float), np.arange(obs.n_poses))
     d = moved.poses[idx][:, POSE_AXES] - obs.poses[idx][:, POSE_AXES]
     d[:, 2] = np.angle(np.exp(1j * d[:, 2]))
     second = 0.5 * np.einsum("pk,pkq->pq", d**2, pg.H[idx])[:, _receiver_entries(obs.sensor)]
-    size = 2.0 * float(np.max(np.abs(second))) if second.size else 0.0
-    return size < noise / 3.0, size
+    return 2.0 * np.max(np.abs(second), axis=1) if second.size else np.zeros(len(idx))
 
 
 def _jacobian(fun, theta: np.ndarray, steps: np.ndarray) -> np.ndarray:
@@ -115,7 +117,7 @@ def check_from_secant(candidate, secant: dict, floor: float) -> dict | None:
 
 
 def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options: dict | None = None,
-              n_poses: int = 12, refine_steps: int = 2, progress=None) -> dict | None:
+              n_poses: int = 12, refine_steps: int = 2, progress=None, anchor_sweep=None) -> dict | None:
     """The bench against ``candidate`` evaluated by its effect model and by the BEM, at up to ``n_poses`` of the
     baseline's BEM poses ``anchors`` (sample indices), then its parameters refined on the BEM (module doc);
     None when nothing in it needs the check.
@@ -124,6 +126,10 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     the BEM's at the effect model's parameters (``gap_before``, ``gap_effect_model``, ``gap_bem``), and
     ``confirmed``: the BEM reaches what the effect model claimed (within 1.5 times the noise floor, or within 25 %
     of the effect model's gap plus one floor); after the refinement ``params_bem`` and ``gap_bem_refined``.
+
+    ``anchor_sweep``: a callable returning the anchors' own :class:`~electrosense.bem.PoseSweep` (1 S/m, their
+    tank mesh). A scene that keeps the believed tank, objects and electrodes (a pose or heading offset) is solved
+    on it: the same mesh as the baseline, so that the two differ by the effect alone, and no tank to assemble.
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import default_bem_options
@@ -144,6 +150,9 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     def by_bem(theta):
         sc = scenario(problem, effects, theta, rows)
         z = None if sc.contact_ohm_m2 is None else np.asarray(sc.contact_ohm_m2, float)
+        if anchor_sweep is not None and z is None and sc.tank == obs.tank and tuple(sc.objects) == tuple(obs.objects):
+            K = anchor_sweep().conductance(sc.poses[idx]).K_S * obs.sigma_S_per_m
+            return problem.currents(K, sc, idx, idx, contact=False)
         opts = dict(options)
         if sc.tank is not None:
             opts.setdefault("focus_m", trajectory_focus_m(obs.sensor, sc.poses))
@@ -167,9 +176,13 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     lower, upper = combined_bounds(effects)
     best, best_gap = theta, gap_bem
     r = residual(I_bem).ravel()
+    # what the noise alone leaves at these few poses: the floor, plus two standard deviations of an RMS of r.size
+    # samples (1 / sqrt(2 N) of it, relative)
+    noise_reach = floor * (1.0 + 2.0 / np.sqrt(2.0 * max(r.size, 1)))
+    out["noise_reach"] = noise_reach
     for step in range(refine_steps):
-        if best_gap <= max(floor, gap_model):   # the BEM already reaches what the model claimed: a step would fit
-            break                               # the noise of these few poses
+        if best_gap <= max(noise_reach, gap_model):  # the BEM already reaches what the model claimed, or the noise
+            break                                    # of these poses: a step would fit that noise
         try:
             J = _jacobian(lambda t: residual(predict(problem, effects, t, idx)).ravel(), best, 0.05 * scales)
         except ValueError as exc:  # the effect model refuses both sides of a parameter (a sphere through a wall)

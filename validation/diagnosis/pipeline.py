@@ -440,22 +440,32 @@ def diagnose(
     check = None
     if anchored is not None and selection.verdict in ("explained", "partly explained") and selection.chosen \
             and bem_check_poses > 0:
-        from electrosense.validation.diagnosis.bem_check import bem_check, check_from_secant, taylor_step_is_exact
+        from electrosense.validation.diagnosis.bem_check import bem_check, check_from_secant, taylor_remainder_bound
 
         for secant in reversed(budget.get("bem_secants") or []):   # the chosen scene already solved by the BEM
             check = check or check_from_secant(selection.chosen[-1], secant, floor)
-        exact, second_order = (False, 0.0) if check is not None else \
-            taylor_step_is_exact(problem, selection.chosen[-1], anchored.anchors, noise)
-        if check is None and exact:
-            notes.append(f"{selection.chosen[-1].name} not checked by new BEM solves: it is the BEM's own pose "
-                         "derivatives at its BEM poses, whose Taylor step's second-order term (doubled for the cross "
-                         f"terms and its own error) moves no current by more than {100 * second_order:.4f} %, a third "
-                         f"of the noise being {100 * noise / 3:.4f} %")
-        elif check is None:
+        anchors = np.asarray(anchored.anchors)
+        remainder = None if check is not None else \
+            taylor_remainder_bound(problem, selection.chosen[-1], anchors)
+        if remainder is not None:       # solve only where the Taylor step could differ from the BEM by noise/3
+            needed = int(np.sum(remainder >= noise / 3.0))
+            order = np.argsort(-remainder)
+            # at least a few poses once any is needed: a refinement on one or two would fit their noise
+            take = 0 if needed == 0 else min(len(anchors), bem_check_poses, max(needed, MIN_CHECK_POSES))
+            certified = remainder[order[take:]]
+            if len(certified):
+                notes.append(f"{selection.chosen[-1].name} " + ("not checked by new BEM solves" if take == 0 else
+                             f"checked by new BEM solves at {take} of its {len(anchors)} BEM poses") +
+                             ": it is the BEM's own pose derivatives at its BEM poses, whose Taylor step's second-order"
+                             " term (doubled for the cross terms and its own error) moves no current "
+                             f"{'there' if take == 0 else 'at the others'} by more than "
+                             f"{100 * float(certified.max()):.4f} %, a third of the noise being {100 * noise / 3:.4f} %")
+            anchors = np.sort(anchors[order[:take]])
+        if check is None and len(anchors):
             try:
-                check = bem_check(problem, selection.chosen[-1], anchored.anchors, floor,
+                check = bem_check(problem, selection.chosen[-1], anchors, floor,
                                   {k: v for k, v in (model_options or {}).items() if k != "psm_model"},
-                                  n_poses=bem_check_poses, progress=say)
+                                  n_poses=bem_check_poses, progress=say, anchor_sweep=anchored.bem_sweep)
             except Exception as exc:  # the check is extra evidence; its failure is said, the diagnosis stands
                 notes.append(f"BEM check of the chosen effect not computed ({type(exc).__name__}: {exc})")
         if check is not None and "params_bem" in check and check["gap_bem_refined"] < check["gap_bem"]:
@@ -487,6 +497,9 @@ SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
 #: re-solved poses; 1-4 % for the shape derivative against moved-mesh solves): a quarter is 6-10x that. An object
 #: through the BEM field of the sensor: 10 % near a pass, 35-57 % when fitted far from where the effect is (a
 #: proxy for another effect): the whole of it.
+MIN_CHECK_POSES = 4
+"""The fewest BEM poses a pose offset's check solves once any needs it (:func:`~.bem_check.taylor_remainder_bound`)."""
+
 SECANT_REACH = {"tank_size": 0.25, "water_depth": 0.25, "unmodelled_object": 1.0}
 
 
