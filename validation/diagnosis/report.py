@@ -279,7 +279,8 @@ def _figures(d: Diagnosis, folder: Path) -> list:
         span = float(values.max() - values.min()) or 1.0
         for panel in panels:
             panel.y_range = (float(values.min()) - 0.06 * span, float(values.max()) + 0.06 * span)
-    figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png", ncols=len(d.obs.sensor.receivers)),
+    figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png", ncols=len(d.obs.sensor.receivers),
+                                     share_y=True),
                        "relative residual along the path, simulation / bench - 1, before and after the chosen "
                        "effect(s) (held-out predictions), one row per pass; grey band: the noise level"))
     table = d.where["by_place"]

@@ -203,6 +203,8 @@ def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, p
     fig, axes = new_figure(nrows, ncols, _px_to_in(panel_size), sharey=share_y)
     for i, panel in enumerate(panels):
         _draw_panel(axes.flat[i], panel)
+        if share_y and i % ncols:      # one y axis a row: its label and ticks on the first panel only
+            axes.flat[i].set_ylabel("")
     for ax in axes.flat[len(panels):]:
         ax.set_visible(False)
     _shared_legend(fig, list(zip(axes.flat, panels)))
