@@ -104,8 +104,28 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
     if key not in _CACHE:
         if len(_CACHE) >= 32:
             _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = _correction(sensor, float(sigma_S_per_m), z, sensor_mesh, tpc, surface_K_S)
+        arrays = (sensor_mesh.vertices_m, sensor_mesh.faces, sensor_mesh.electrode,
+                  np.array([float(sigma_S_per_m), tpc]), np.asarray([] if z is None else z, float).ravel(),
+                  np.frombuffer(repr(sensor).encode(), np.uint8))
+        _CACHE[key] = _stored(arrays, lambda: _correction(sensor, float(sigma_S_per_m), z, sensor_mesh, tpc,
+                                                          surface_K_S))
     return _CACHE[key].copy()
+
+
+def _stored(arrays, compute) -> np.ndarray:
+    """The correction stored on disk under the hash of ``arrays`` (the ``edge-corrections`` folder of the
+    cache root), else ``compute()``, stored: a later process with the same sensor mesh, conductivity and
+    contact impedance reads it back instead of solving the refined meridian problem again (seconds)."""
+    from electrosense.bem.block_cache import BlockCache, cache_root
+
+    cache = BlockCache(cache_root() / "edge-corrections")
+    key = cache.key(*arrays)
+    found = cache.load(key, ("dK_S",))
+    if found is not None:
+        return found[0]
+    dK = np.asarray(compute(), float)
+    cache.save(key, {"dK_S": dK})
+    return dK
 
 
 _CACHE: dict = {}

@@ -132,7 +132,8 @@ class PoseSweep:
         (where factorising costs more than reading).
     edge_correction : bool
         Add the sensor mesh's free-space electrode-edge error to every pose's
-        K (:mod:`electrosense.bem.edge_correction`; computed once, about a second).
+        K (:mod:`electrosense.bem.edge_correction`; a few seconds, computed once per sensor mesh, conductivity
+        and contact impedance, and kept on disk beside the sensor blocks).
     tank_mesh : LabelledMesh, optional
         The tank's mesh, made by the caller (e.g. a mesh of ``tank`` deformed
         smoothly, to difference K between shapes without remeshing); default:
