@@ -59,6 +59,7 @@ Example
 """
 from __future__ import annotations
 
+import copy
 import time
 
 import numpy as np
@@ -182,15 +183,48 @@ class PoseSweep:
         else:
             self._prepare_sensor()
         self.timings["sensor_block_s"] = time.perf_counter() - t0
-        self._K_correction = np.zeros((self.n, self.n))
-        if edge_correction:
+        self._edge_correction = bool(edge_correction)
+        self._mesh_options = dict(sensor_mesh_options, edge_length_m=edge_length_m)
+        self._prepare_edge_correction()
 
+    def _prepare_edge_correction(self):
+        self._K_correction = np.zeros((self.n, self.n))
+        if self._edge_correction:
             t0 = time.perf_counter()
-            self._K_correction = free_space_correction(sensor, self.sigma_S_per_m, contact_impedance_ohm_m2,
+            self._K_correction = free_space_correction(self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2,
                                                        self.sensor_mesh, surface_K_S=self._free_K,
-                                                       mesh_options=dict(sensor_mesh_options,
-                                                                         edge_length_m=edge_length_m))
+                                                       mesh_options=self._mesh_options)
             self.timings["edge_correction_s"] = time.perf_counter() - t0
+
+    def with_contact_impedance(self, contact_impedance_ohm_m2) -> "PoseSweep":
+        """This sweep with another contact impedance on the electrodes (ohm m^2, one or one per electrode).
+
+        The electrodes' condition enters only the sensor's own columns: the sensor block and the edge correction
+        are made anew, the tank's and objects' blocks (mesh, assembly, factors) are shared with this sweep. The
+        result is the sweep that the same arguments with ``contact_impedance_ohm_m2`` would build on this sweep's
+        tank mesh.
+
+        >>> from electrosense.meshes import Tank, preset
+        >>> sweep = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), edge_length_m=0.01)
+        >>> pose = [[0.05, 0.0, 0.0, 0.0]]
+        >>> K0 = sweep.conductance(pose).K_S
+        >>> K1 = sweep.with_contact_impedance(1e-3).conductance(pose).K_S
+        >>> bool(abs(K1[0, 0, 0]) < abs(K0[0, 0, 0]))      # a contact impedance in series: less current
+        True
+        """
+        if self.tank is None and not self.objects:      # no tank blocks to share
+            return PoseSweep(self.sensor, None, (), self.sigma_S_per_m, contact_impedance_ohm_m2,
+                             tol=self.tol, block_cache=self.block_cache, edge_correction=self._edge_correction,
+                             **self._mesh_options)
+        new = copy.copy(self)
+        new.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
+        new.z_c = contact_impedances(contact_impedance_ohm_m2, self.n)
+        new.timings = {}
+        t0 = time.perf_counter()
+        new._prepare_sensor()
+        new.timings["sensor_block_s"] = time.perf_counter() - t0
+        new._prepare_edge_correction()
+        return new
 
     def _prepare_free(self):
         """Alone in unbounded water K does not depend on the pose: one solve, as :func:`electrosense.bem.solve.solve_scene`

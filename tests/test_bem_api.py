@@ -162,6 +162,26 @@ def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
     np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)
 
 
+def test_another_contact_impedance_shares_the_tank_and_equals_a_sweep_built_with_it():
+    from electrosense.meshes import Sphere
+
+    tank = Tank((0.4, 0.3, 0.3))
+    ball = (Sphere(centre_m=(0.0, 0.08, 0.0), radius_m=0.02, conductivity_S_per_m=float("inf")),)
+    poses = np.array([[0.03, 0.0, 0.0, 0.2], [-0.1, 0.05, 0.0, 1.0]])
+    sweep = PoseSweep(preset("angels-2"), tank, ball, sigma_S_per_m=1.0, edge_length_m=H, tank_edge_length_m=0.04)
+    K0 = sweep.conductance(poses).K_S
+    z = [1e-3, 4e-4]
+    other = sweep.with_contact_impedance(z)
+    assert other._A_e is sweep._A_e                                   # the tank's blocks are not made again
+    built = PoseSweep(preset("angels-2"), tank, ball, sigma_S_per_m=1.0, contact_impedance_ohm_m2=z, edge_length_m=H,
+                      tank_mesh=sweep.tank_mesh)
+    # equal up to the float32 factors and the range finder's first sample (about 1e-8)
+    np.testing.assert_allclose(other.conductance(poses).K_S, built.conductance(poses).K_S, rtol=1e-6)
+    assert sweep.contact_impedance_ohm_m2 is None and other._lu is not sweep._lu   # the original is unchanged
+    np.testing.assert_allclose(sweep.conductance(poses).K_S, K0, rtol=1e-6)
+    assert np.all(np.abs(other.conductance(poses).K_S[:, 0, 0]) < np.abs(K0[:, 0, 0]))
+
+
 @pytest.mark.parametrize("scene", ["closed tank", "tank and a conducting ball", "objects in unbounded water"])
 def test_woodbury_poses_equal_the_factorised_schur_complement(scene, monkeypatch):
     """Each pose solved by the Woodbury formula on the once-factorised, regularised environment block gives the

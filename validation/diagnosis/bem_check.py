@@ -128,8 +128,9 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     of the effect model's gap plus one floor); after the refinement ``params_bem`` and ``gap_bem_refined``.
 
     ``anchor_sweep``: a callable returning the anchors' own :class:`~electrosense.bem.PoseSweep` (1 S/m, their
-    tank mesh). A scene that keeps the believed tank, objects and electrodes (a pose or heading offset) is solved
-    on it: the same mesh as the baseline, so that the two differ by the effect alone, and no tank to assemble.
+    tank mesh). A scene that keeps the believed tank and objects (a pose or heading offset, a contact impedance)
+    is solved on it (with its contact impedance: :meth:`~electrosense.bem.PoseSweep.with_contact_impedance`): the
+    same mesh as the baseline, so that the two differ by the effect alone, and no tank to assemble.
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import default_bem_options
@@ -150,8 +151,11 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
     def by_bem(theta):
         sc = scenario(problem, effects, theta, rows)
         z = None if sc.contact_ohm_m2 is None else np.asarray(sc.contact_ohm_m2, float)
-        if anchor_sweep is not None and z is None and sc.tank == obs.tank and tuple(sc.objects) == tuple(obs.objects):
-            K = anchor_sweep().conductance(sc.poses[idx]).K_S * obs.sigma_S_per_m
+        if anchor_sweep is not None and sc.tank == obs.tank and tuple(sc.objects) == tuple(obs.objects):
+            sweep = anchor_sweep()      # 1 S/m: a contact impedance z at sigma is z * sigma at 1 S/m
+            if z is not None:
+                sweep = sweep.with_contact_impedance(z * obs.sigma_S_per_m)
+            K = sweep.conductance(sc.poses[idx]).K_S * obs.sigma_S_per_m
             return problem.currents(K, sc, idx, idx, contact=False)
         opts = dict(options)
         if sc.tank is not None:
