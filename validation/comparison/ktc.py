@@ -67,7 +67,9 @@ def water_change(residual, total, folds) -> dict:
     Returns
     -------
     dict with ``residual`` (the corrected residual, NaN where not scored), ``k`` (fitted on all folds), ``k_se``
-    (its standard error under independent errors of the corrected residual's RMS) and ``k_by_fold``.
+    (its standard error under independent errors of the corrected residual's RMS: a lower bound where the errors
+    are correlated), ``k_fold_spread`` (half the range of the folds' ``k``: what the patterns themselves say of
+    it), ``k_by_fold`` and ``in_sample`` (True where a fold had to use its own ``k``: no other fold had data).
 
     Examples
     --------
@@ -87,9 +89,11 @@ def water_change(residual, total, folds) -> dict:
         return -float(np.sum(v[on] * r[on])) / vv if vv > 0 else 0.0
 
     out = np.full(r.shape, np.nan)
-    by_fold = {}
+    by_fold, in_sample = {}, False
     for f in np.unique(folds[ok]):
-        k_f = scale(ok & (folds != f)) if (ok & (folds != f)).any() else scale(ok)
+        others = ok & (folds != f)
+        in_sample |= not others.any()
+        k_f = scale(others) if others.any() else scale(ok)
         on = ok & (folds == f)
         out[on] = r[on] + k_f * v[on]
         by_fold[int(f)] = k_f
@@ -97,7 +101,10 @@ def water_change(residual, total, folds) -> dict:
     rest = r[ok] + k * v[ok]
     vv = float(np.sum(v[ok] ** 2))
     se = float(np.sqrt(np.mean(rest ** 2) / vv)) if vv > 0 and rest.size else float("nan")
-    return {"residual": out, "k": k, "k_se": se, "k_by_fold": by_fold}
+    fold_k = [scale(ok & (folds == f)) for f in by_fold]
+    spread = 0.5 * (max(fold_k) - min(fold_k)) if len(fold_k) > 1 else float("nan")
+    return {"residual": out, "k": k, "k_se": se, "k_fold_spread": spread, "k_by_fold": by_fold,
+            "in_sample": bool(in_sample)}
 
 
 def file_floors(folder: KtcFolder) -> dict:
@@ -294,18 +301,22 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
         meas_tot = np.where(ok, d.voltages_V, np.nan)
         # the water's change since the reference: one scale for the file, each fold of patterns corrected by the
         # scale fitted on the other fold (the only thing taken from the file; nothing about its objects)
-        water = water_change(dpm - dm, np.where(ok, folder.ref.voltages_V + dp, np.nan),
-                             pattern_folds(d.injection.shape[1]))
+        # what the scale multiplies: the medium's voltages, not the instrument's offsets
+        medium = folder.ref.voltages_V - offsets[None] + dp
         folds = pattern_folds(d.injection.shape[1])
-        gain = 1.0 + np.array([water["k_by_fold"].get(int(f), water["k"]) for f in folds])[:, None]
+        water = water_change(dpm - dm, np.where(ok, medium, np.nan), folds)
+        k_f = np.array([water["k_by_fold"].get(int(f), water["k"]) for f in folds])[:, None]
         out[name] = {"predicted": dm + water["residual"],
-                     "predicted_reference_water": dpm, "measured": dm, "mask": ok, "total_predicted": tot * gain,
+                     "predicted_reference_water": dpm, "measured": dm, "mask": ok, "total_predicted": tot + k_f * (tot - offsets[None]),
                      "objects": fw.objects[key], "truth": truth,
                      "metrics": {"difference_rms_rel": rms_rel(water["residual"], dm),
                                  "difference_rms_rel_reference_water": rms_rel(dpm - dm, dm),
                                  "water_change_rel": water["k"], "water_change_rel_se": water["k_se"],
+                                 "water_change_rel_fold_spread": water["k_fold_spread"],
+                                 "water_change_in_sample": water["in_sample"],
                                  "difference_floor_rel": fl["floor_rms_rel"],
-                                 "total_rms_rel": rms_rel(np.where(ok, tot * gain, np.nan) - meas_tot, meas_tot),
+                                 "total_rms_rel": rms_rel(np.where(ok, tot + k_f * (tot - offsets[None]), np.nan)
+                                                          - meas_tot, meas_tot),
                                  "total_rms_rel_reference_water": rms_rel(np.where(ok, tot, np.nan) - meas_tot,
                                                                           meas_tot),
                                  "amplitude_measured_over_predicted": float(np.nansum(dpm * dm) / np.nansum(dpm ** 2)),

@@ -25,7 +25,8 @@ def summary_text(m: dict) -> str:
             continue
         lines.append(f"predicted {k}: change {_pct(v['difference_rms_rel'])} of itself (floor "
                      f"{_pct(v['difference_floor_rel'])}; water {100 * v['water_change_rel']:+.2f} "
-                     f"+- {100 * v['water_change_rel_se']:.2f} % since the reference; "
+                     f"+- {100 * v['water_change_rel_se']:.2f} % since the reference, its two folds "
+                     f"+- {100 * v['water_change_rel_fold_spread']:.2f} %; "
                      f"{_pct(v['difference_rms_rel_reference_water'])} with the reference's water), "
                      f"total {_pct(v['total_rms_rel'])}")
     s = m.get("predicted_summary")
