@@ -452,14 +452,16 @@ def diagnose(
             order = np.argsort(-remainder)
             # at least a few poses once any is needed: a refinement on one or two would fit their noise
             take = 0 if needed == 0 else min(len(anchors), bem_check_poses, max(needed, MIN_CHECK_POSES))
-            certified = remainder[order[take:]]
-            if len(certified):
-                notes.append(f"{selection.chosen[-1].name} " + ("not checked by new BEM solves" if take == 0 else
-                             f"checked by new BEM solves at {take} of its {len(anchors)} BEM poses") +
-                             ": it is the BEM's own pose derivatives at its BEM poses, whose Taylor step's second-order"
-                             " term (doubled for the cross terms and its own error) moves no current "
-                             f"{'there' if take == 0 else 'at the others'} by more than "
-                             f"{100 * float(certified.max()):.4f} %, a third of the noise being {100 * noise / 3:.4f} %")
+            below = remainder[remainder < noise / 3.0]
+            if len(below):
+                solved = "not checked by new BEM solves" if take == 0 else (
+                    f"checked by new BEM solves at {take} of its {len(anchors)} BEM poses"
+                    + (f" (the {take} largest of the {needed} where the Taylor step's remainder could reach a third "
+                       "of the noise)" if take < needed else ""))
+                notes.append(f"{selection.chosen[-1].name} {solved}: at {len(below)} of its BEM poses it is the BEM's "
+                             "own pose derivatives, whose Taylor step's second-order term (doubled for the cross terms "
+                             f"and its own error) moves no current by more than {100 * float(below.max()):.4f} %, a "
+                             f"third of the noise being {100 * noise / 3:.4f} %")
             anchors = np.sort(anchors[order[:take]])
         if check is None and len(anchors):
             try:
@@ -488,6 +490,9 @@ def diagnose(
                      time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check, detection)
 
 
+#: the fewest BEM poses a pose offset's check solves once any needs it (:func:`~.bem_check.taylor_remainder_bound`)
+MIN_CHECK_POSES = 4
+
 #: geometric candidates whose fitted scene is solved by the BEM when their held-out improvement is significant
 SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
 
@@ -497,9 +502,6 @@ SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
 #: re-solved poses; 1-4 % for the shape derivative against moved-mesh solves): a quarter is 6-10x that. An object
 #: through the BEM field of the sensor: 10 % near a pass, 35-57 % when fitted far from where the effect is (a
 #: proxy for another effect): the whole of it.
-MIN_CHECK_POSES = 4
-"""The fewest BEM poses a pose offset's check solves once any needs it (:func:`~.bem_check.taylor_remainder_bound`)."""
-
 SECANT_REACH = {"tank_size": 0.25, "water_depth": 0.25, "unmodelled_object": 1.0}
 
 

@@ -104,8 +104,10 @@ def save(fig, png_path, vector: str | None = VECTOR_FORMAT) -> Path:
             # the layout is in inches, the same for both: computed once (a panel grid's layout is half a save)
             engine = fig.get_layout_engine()
             fig.set_layout_engine("none")
-            fig.savefig(png_path.with_suffix("." + vector), facecolor="white")
-            fig.set_layout_engine(engine)
+            try:
+                fig.savefig(png_path.with_suffix("." + vector), facecolor="white")
+            finally:
+                fig.set_layout_engine(engine)
     return png_path
 
 
