@@ -51,7 +51,9 @@ True
 """
 from __future__ import annotations
 
+import functools
 import hashlib
+from pathlib import Path
 
 import numpy as np
 
@@ -69,7 +71,7 @@ MERIDIAN_GRADING = 1.15
 
 def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2, sensor_mesh,
                           targets_per_class: int | None = None, surface_K_S=None,
-                          mesh_options: dict | None = None) -> np.ndarray:
+                          mesh_options: dict | None = None, disk_cache: bool = True) -> np.ndarray:
     """``dK`` (n, n) in siemens: the converged free-space K minus the surface mesh's free-space K.
 
     Parameters
@@ -89,6 +91,9 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         For a sensor with sectors: the options of :func:`electrosense.meshes.sensor_mesh.mesh_sensor` that made
         ``sensor_mesh`` (``edge_length_m`` among them), from which the companion mesh of the sector-edge
         term is made.
+    disk_cache : bool
+        Keep the correction on disk for later processes (the ``edge-corrections`` folder of the cache root,
+        keyed by the inputs and the sources of :mod:`electrosense.bem` and :mod:`electrosense.meshes`).
     """
     if sensor.has_sectors:
         return _sector_correction(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
@@ -104,12 +109,27 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
     if key not in _CACHE:
         if len(_CACHE) >= 32:
             _CACHE.pop(next(iter(_CACHE)))
+        compute = lambda: _correction(sensor, float(sigma_S_per_m), z, sensor_mesh, tpc, surface_K_S)  # noqa: E731
         arrays = (sensor_mesh.vertices_m, sensor_mesh.faces, sensor_mesh.electrode,
                   np.array([float(sigma_S_per_m), tpc]), np.asarray([] if z is None else z, float).ravel(),
-                  np.frombuffer(repr(sensor).encode(), np.uint8))
-        _CACHE[key] = _stored(arrays, lambda: _correction(sensor, float(sigma_S_per_m), z, sensor_mesh, tpc,
-                                                          surface_K_S))
+                  np.frombuffer(repr(sensor).encode(), np.uint8), np.frombuffer(_source_digest(), np.uint8))
+        _CACHE[key] = _stored(arrays, compute) if disk_cache else compute()
     return _CACHE[key].copy()
+
+
+@functools.lru_cache(maxsize=1)
+def _source_digest() -> bytes:
+    """SHA-256 of the sources of the bem and meshes packages: a stored correction is read back only by the code
+    that made it."""
+    import electrosense.bem
+    import electrosense.meshes
+
+    h = hashlib.sha256()
+    for package in (electrosense.bem, electrosense.meshes):
+        for path in sorted(Path(package.__file__).parent.rglob("*.py")):
+            h.update(path.name.encode())
+            h.update(path.read_bytes())
+    return h.digest()
 
 
 def _stored(arrays, compute) -> np.ndarray:

@@ -193,7 +193,8 @@ class PoseSweep:
             t0 = time.perf_counter()
             self._K_correction = free_space_correction(self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2,
                                                        self.sensor_mesh, surface_K_S=self._free_K,
-                                                       mesh_options=self._mesh_options)
+                                                       mesh_options=self._mesh_options,
+                                                       disk_cache=self.block_cache is not False)
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def with_contact_impedance(self, contact_impedance_ohm_m2) -> "PoseSweep":
@@ -216,7 +217,11 @@ class PoseSweep:
             return PoseSweep(self.sensor, None, (), self.sigma_S_per_m, contact_impedance_ohm_m2,
                              tol=self.tol, block_cache=self.block_cache, edge_correction=self._edge_correction,
                              **self._mesh_options)
+        if not self._env_ready and (self.focus_m is not None or self._given_tank_mesh is not None):
+            self._prepare_environment(np.zeros((0, 4)))    # once here, then shared by every copy
         new = copy.copy(self)
+        # one trial impedance among many: its sensor block is not worth a disk entry unless the caller asked
+        new.block_cache = False if self.block_cache is None else self.block_cache
         new.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
         new.z_c = contact_impedances(contact_impedance_ohm_m2, self.n)
         new.timings = {}

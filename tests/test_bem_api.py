@@ -180,6 +180,9 @@ def test_another_contact_impedance_shares_the_tank_and_equals_a_sweep_built_with
     assert sweep.contact_impedance_ohm_m2 is None and other._lu is not sweep._lu   # the original is unchanged
     np.testing.assert_allclose(sweep.conductance(poses).K_S, K0, rtol=1e-6)
     assert np.all(np.abs(other.conductance(poses).K_S[:, 0, 0]) < np.abs(K0[:, 0, 0]))
+    # a sweep whose tank mesh is known before any pose (its focus given) makes the tank once, for every copy
+    fresh = PoseSweep(preset("angels-2"), tank, ball, sigma_S_per_m=1.0, edge_length_m=H, tank_mesh=sweep.tank_mesh)
+    assert fresh.with_contact_impedance(z)._A_e is fresh._A_e
 
 
 @pytest.mark.parametrize("scene", ["closed tank", "tank and a conducting ball", "objects in unbounded water"])
