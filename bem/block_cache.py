@@ -27,6 +27,7 @@ True
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import shutil
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["BlockCache", "CACHE_MIN_TRIANGLES", "default_cache_dir"]
+__all__ = ["BlockCache", "CACHE_MIN_TRIANGLES", "default_cache_dir", "model_source_files", "source_digest"]
 
 #: sensor meshes with fewer triangles are factorised afresh (under a second on 2 cores: not worth a disk entry;
 #: 3 800 triangles take 2.5 s to assemble and factorise, 0.1 s to read back from a 58 MB entry)
@@ -60,6 +61,33 @@ def cache_root() -> Path:
 
         root = platformdirs.user_cache_dir("electrosense")
     return Path(root)
+
+
+def model_source_files(packages=("meshes", "bem")) -> list[tuple[str, Path]]:
+    """``(name, path)`` of every ``.py`` file of the named packages of electrosense, wherever they are installed,
+    named from the package down (``"bem/sweep.py"``).
+
+    >>> names = [name for name, _ in model_source_files()]
+    >>> "bem/sweep.py" in names and "meshes/tank.py" in names
+    True
+    """
+    import importlib
+
+    out = []
+    for package in packages:
+        root = Path(importlib.import_module(f"electrosense.{package}").__path__[0])
+        out += [(f"{package}/{p.relative_to(root).as_posix()}", p) for p in sorted(root.rglob("*.py"))]
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def source_digest(packages=("meshes", "bem")) -> str:
+    """SHA-256 (hex) of the names and bytes of :func:`model_source_files`: what a stored result was made by."""
+    digest = hashlib.sha256()
+    for name, path in model_source_files(packages):
+        digest.update(name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def default_cache_dir() -> Path:

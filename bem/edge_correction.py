@@ -51,13 +51,12 @@ True
 """
 from __future__ import annotations
 
-import functools
 import hashlib
-from pathlib import Path
 
 import numpy as np
 
 from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
+from electrosense.bem.block_cache import BlockCache, cache_root, source_digest
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.meridian import meridian_conductance, mesh_meridian
 from electrosense.bem.solution import solve
@@ -112,32 +111,15 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         compute = lambda: _correction(sensor, float(sigma_S_per_m), z, sensor_mesh, tpc, surface_K_S)  # noqa: E731
         arrays = (sensor_mesh.vertices_m, sensor_mesh.faces, sensor_mesh.electrode,
                   np.array([float(sigma_S_per_m), tpc]), np.asarray([] if z is None else z, float).ravel(),
-                  np.frombuffer(repr(sensor).encode(), np.uint8), np.frombuffer(_source_digest(), np.uint8))
+                  np.frombuffer(repr(sensor).encode(), np.uint8), np.frombuffer(source_digest().encode(), np.uint8))
         _CACHE[key] = _stored(arrays, compute) if disk_cache else compute()
     return _CACHE[key].copy()
-
-
-@functools.lru_cache(maxsize=1)
-def _source_digest() -> bytes:
-    """SHA-256 of the sources of the bem and meshes packages: a stored correction is read back only by the code
-    that made it."""
-    import electrosense.bem
-    import electrosense.meshes
-
-    h = hashlib.sha256()
-    for package in (electrosense.bem, electrosense.meshes):
-        for path in sorted(Path(package.__file__).parent.rglob("*.py")):
-            h.update(path.name.encode())
-            h.update(path.read_bytes())
-    return h.digest()
 
 
 def _stored(arrays, compute) -> np.ndarray:
     """The correction stored on disk under the hash of ``arrays`` (the ``edge-corrections`` folder of the
     cache root), else ``compute()``, stored: a later process with the same sensor mesh, conductivity and
     contact impedance reads it back instead of solving the refined meridian problem again (seconds)."""
-    from electrosense.bem.block_cache import BlockCache, cache_root
-
     cache = BlockCache(cache_root() / "edge-corrections")
     key = cache.key(*arrays)
     found = cache.load(key, ("dK_S",))

@@ -306,8 +306,9 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
         folds = pattern_folds(d.injection.shape[1])
         water = water_change(dpm - dm, np.where(ok, medium, np.nan), folds)
         k_f = np.array([water["k_by_fold"].get(int(f), water["k"]) for f in folds])[:, None]
+        tot_water = tot + k_f * (tot - offsets[None])
         out[name] = {"predicted": dm + water["residual"],
-                     "predicted_reference_water": dpm, "measured": dm, "mask": ok, "total_predicted": tot + k_f * (tot - offsets[None]),
+                     "predicted_reference_water": dpm, "measured": dm, "mask": ok, "total_predicted": tot_water,
                      "objects": fw.objects[key], "truth": truth,
                      "metrics": {"difference_rms_rel": rms_rel(water["residual"], dm),
                                  "difference_rms_rel_reference_water": rms_rel(dpm - dm, dm),
@@ -315,8 +316,7 @@ def predict_folder(fit: KtcFit, folder: KtcFolder, label: str, progress=print) -
                                  "water_change_rel_fold_spread": water["k_fold_spread"],
                                  "water_change_in_sample": water["in_sample"],
                                  "difference_floor_rel": fl["floor_rms_rel"],
-                                 "total_rms_rel": rms_rel(np.where(ok, tot + k_f * (tot - offsets[None]), np.nan)
-                                                          - meas_tot, meas_tot),
+                                 "total_rms_rel": rms_rel(np.where(ok, tot_water, np.nan) - meas_tot, meas_tot),
                                  "total_rms_rel_reference_water": rms_rel(np.where(ok, tot, np.nan) - meas_tot,
                                                                           meas_tot),
                                  "amplitude_measured_over_predicted": float(np.nansum(dpm * dm) / np.nansum(dpm ** 2)),

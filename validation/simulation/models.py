@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from electrosense.bem.block_cache import cache_root
+from electrosense.bem.block_cache import cache_root, source_digest
 from electrosense.bem.conductance import ConductanceMatrix
 from electrosense.meshes.pose import poses_array as _poses_from_any
 from electrosense.meshes.sensor import SensorDescription
@@ -59,7 +59,6 @@ __all__ = [
     "calibration_layout",
     "psm_cache_dir",
     "code_version",
-    "model_source_files",
     "poses_array",
 ]
 
@@ -93,12 +92,13 @@ def code_version(refresh: bool = False) -> str:
     """``"electrosense <version> src <hash>"``: the package version and a hash of the model sources.
 
     The hash covers every ``.py`` file of :mod:`meshes`, :mod:`bem` and
-    :mod:`psm`, so that an edited solver (an editable install keeps its version
+    :mod:`psm` (:func:`electrosense.bem.block_cache.source_digest`), so that an edited solver (an editable install keeps its version
     number) is told apart from the one that filled a cache or a sweep store.
     It is computed once per process; ``refresh=True`` reads the files again.
     """
     if refresh:
         _code_version.cache_clear()
+        source_digest.cache_clear()
     return _code_version()
 
 
@@ -110,28 +110,11 @@ def _code_version() -> str:
         package_version = version("electrosense")
     except Exception:  # not installed: running from a checkout
         package_version = "unknown"
-    digest = hashlib.sha256()
-    for name, path in model_source_files():
-        digest.update(name.encode())
-        digest.update(path.read_bytes())
-    return f"electrosense {package_version} src {digest.hexdigest()[:12]}"
+    return f"electrosense {package_version} src {source_digest(MODEL_PACKAGES)[:12]}"
 
 
-def model_source_files() -> list[tuple[str, Path]]:
-    """``(name, path)`` of every ``.py`` file of the model packages (meshes, bem, psm), wherever they are installed,
-    named from the package down (``"bem/sweep.py"``).
-
-    >>> names = [name for name, _ in model_source_files()]
-    >>> "bem/sweep.py" in names and "psm/kernels.py" in names and "meshes/tank.py" in names
-    True
-    """
-    import importlib
-
-    out = []
-    for package in ("meshes", "bem", "psm"):
-        root = Path(importlib.import_module(f"electrosense.{package}").__path__[0])
-        out += [(f"{package}/{p.relative_to(root).as_posix()}", p) for p in sorted(root.rglob("*.py"))]
-    return out
+#: the packages whose sources :func:`code_version` hashes
+MODEL_PACKAGES = ("meshes", "bem", "psm")
 
 
 # ------------------------------------------------------------------------------- PSM
