@@ -78,7 +78,10 @@ def test_conductivity_is_named_and_the_second_log_reuses_the_bem(small):
     params = next(c for c in d.ranking if c.name == "conductivity").fit.theta
     assert params[0] == pytest.approx(-0.025, abs=0.003)
     again = _diagnose(setup, poses, t, passes, I, 3, effects="conductivity", conductivity=-0.025)   # the cache
-    assert again.model_error["bem_poses_new"] == 0 and again.model_error["bem_poses_cached"] >= 1
+    # every BEM pose solved before serves again; a log whose noise asks for a smaller error may add a few
+    before = d.model_error["bem_poses_cached"] + d.model_error["bem_poses_new"]
+    assert again.model_error["bem_poses_cached"] >= before >= 1
+    assert again.model_error["bem_poses_new"] <= 0.1 * len(poses)
 
 
 @pytest.mark.slow

@@ -98,13 +98,34 @@ def default_bem_options(sensor, options: dict | None = None) -> dict:
 
 
 # ------------------------------------------------------------------ interpolation
+#: the RBF's linear trend spans the directions of the feature space along which the nodes spread by more than this
+#: (RMS, m): a few millimetres, well above a robot's position noise and well below a pass's length
+TREND_MIN_SPREAD_M = 5e-3
+
+
 class RBFInterpolant:
     """Cubic radial basis interpolation (phi = r^3) with a linear trend, and its leave-one-out errors.
 
     ``leave_one_out`` (B, k) is the error of predicting each node from all
     the others, in closed form: e_i = c_i / (M^-1)_ii with M the augmented
-    interpolation matrix (Rippa 1999). With fewer nodes than the trend has
-    terms, the trend is a constant.
+    interpolation matrix (Rippa 1999). The linear trend spans only the
+    directions along which the nodes spread by more than
+    :data:`TREND_MIN_SPREAD_M` (RMS): passes at one heading and depth lie
+    near a line of the feature space, and a trend along the robot's
+    position noise (a tenth of a millimetre) would be fitted to that noise,
+    its leave-one-out errors changing several-fold from one log of the same
+    path to the next. With fewer nodes than the trend has terms, the trend
+    is a constant.
+
+    Example
+    -------
+    Nodes on a line, jittered by 0.1 mm across it: the trend is along the line only.
+
+    >>> rng = np.random.default_rng(0)
+    >>> X = np.c_[np.linspace(0, 0.3, 9), 1e-4 * rng.standard_normal(9)]
+    >>> f = RBFInterpolant(X, np.sin(10 * X[:, :1]))
+    >>> f.axes.shape, bool(np.abs(f.leave_one_out).max() < 0.05)
+    ((2, 1), True)
     """
 
     def __init__(self, X: np.ndarray, y: np.ndarray):
@@ -113,7 +134,10 @@ class RBFInterpolant:
         self.shape = y.shape[1:]
         Y = y.reshape(len(y), -1)
         B, d = self.X.shape
-        self.linear = B > d + 2
+        self.centre = self.X.mean(axis=0)
+        _, spread, Vt = np.linalg.svd(self.X - self.centre, full_matrices=False)
+        self.axes = Vt[spread / np.sqrt(B) > TREND_MIN_SPREAD_M].T   # (d, t): the directions the nodes span
+        self.linear = B > self.axes.shape[1] + 2
         Pm = self._trend(self.X)
         q = Pm.shape[1]
         M = np.zeros((B + q, B + q))
@@ -133,7 +157,8 @@ class RBFInterpolant:
         return r**3
 
     def _trend(self, X):
-        return np.hstack([np.ones((len(X), 1)), X]) if self.linear else np.ones((len(X), 1))
+        ones = np.ones((len(X), 1))
+        return np.hstack([ones, (X - self.centre) @ self.axes]) if self.linear else ones
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, float)
@@ -416,12 +441,15 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         stored = entry.get(key) if covered and regions_ok else None
         cached_derivatives[key] = stored if stored is not None else np.full((len(cached_poses),) + shape, np.nan)
         derivatives[key][exact >= 0] = cached_derivatives[key][exact[exact >= 0]]
-    n_carried = _carry_cached(sensor, obs.poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives)
+    carried = _carry_cached(sensor, obs.poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives)
+    n_carried = len(carried)
     # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
     # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
     # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
     cached_usable = psm_usable(model, cached_poses, tank) if len(cached_poses) else np.zeros(0, bool)
-    off_log = ~np.isin(np.arange(len(cached_poses)), exact[exact >= 0])  # cached anchors off this log's poses
+    # cached anchors off this log's poses; one carried to a sample is that sample (its twin a fraction of a
+    # millimetre away would make the interpolation matrix nearly singular and its leave-one-out errors noise)
+    off_log = ~np.isin(np.arange(len(cached_poses)), np.concatenate([exact[exact >= 0], carried]))
     extra = off_log & cached_usable
     K_psm = np.full((P, n, n), np.nan)
     psm_poses = np.vstack([obs.poses[ok], cached_poses[extra]])
@@ -599,7 +627,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     )
 
 
-def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives) -> int:
+def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem,
+                  derivatives) -> np.ndarray:
     """Carry the cached BEM poses within :data:`DERIVATIVE_REUSE_M` of a sample to it, by their own derivatives.
 
     Another log of the same path logs the same nominal poses with the robot's own position noise (a tenth of a
@@ -608,23 +637,24 @@ def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_deriva
     pose and wall derivatives is carried to the sample to first order (x, y and yaw from the pose derivatives,
     z from the floor's and the surface's: the sensor rising is the floor moving away and the surface coming
     closer), the error second order in the offset; the sample then counts as a BEM pose, with those
-    derivatives. Fills ``K_bem`` and ``derivatives`` in place; returns how many samples were carried.
+    derivatives. Fills ``K_bem`` and ``derivatives`` in place; returns the cached poses carried (indices).
     """
     from scipy.spatial import cKDTree
 
     from electrosense.validation.diagnosis.pose_gradient import apply_pair_log
 
     if not len(cached_poses) or "dK_dpose" not in derivatives or "dK_dwall_S_per_m" not in derivatives:
-        return 0
+        return np.zeros(0, int)
     dP, dW = cached_derivatives["dK_dpose"], cached_derivatives["dK_dwall_S_per_m"]
     known = np.all(np.isfinite(dP.reshape(len(dP), -1)), axis=1) & np.all(np.isfinite(dW.reshape(len(dW), -1)), axis=1)
+    none = np.zeros(0, int)
     if not known.any():
-        return 0
+        return none
     d, j = cKDTree(pose_features(sensor, cached_poses[known])).query(F)
     j = np.flatnonzero(known)[j]
     take = np.flatnonzero((exact < 0) & (d < DERIVATIVE_REUSE_M))
     if not len(take):
-        return 0
+        return none
     src = j[take]
     n = cached_K.shape[-1]
     iu = np.triu_indices(n, 1)
@@ -636,7 +666,7 @@ def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_deriva
     K_bem[take] = apply_pair_log(cached_K[src], np.einsum("pk,pkq->pq", delta, G))
     for key, values in derivatives.items():
         values[take] = cached_derivatives[key][src]
-    return int(len(take))
+    return np.unique(src)
 
 
 def _every_pass_has(values: np.ndarray, passes: list, at_least: int = 2) -> bool:

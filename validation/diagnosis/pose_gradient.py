@@ -70,12 +70,20 @@ def pair_log(K: np.ndarray) -> np.ndarray:
 
 
 def apply_pair_log(K: np.ndarray, dL: np.ndarray) -> np.ndarray:
-    """K (p, n, n) with every off-diagonal entry scaled by exp(dL) (p, pairs), symmetric, zero row sums restored."""
+    """K (p, n, n) with both entries of every pair scaled by exp(dL) (p, pairs), zero row sums restored.
+
+    The two entries of a pair keep their own values: a BEM's K is symmetric only to its discretisation (a few
+    1e-4), and a step of zero must give back the K it was given.
+
+    >>> K = np.array([[[-2.0, 1.0, 1.0], [1.001, -2.0, 0.999], [1.0, 1.0, -2.0]]])
+    >>> bool(np.allclose(apply_pair_log(K, np.zeros((1, 3)))[0, 1], [1.001, -2.0, 0.999]))
+    True
+    """
     n = K.shape[-1]
     iu = np.triu_indices(n, 1)
     out = np.array(K, float)
     out[:, iu[0], iu[1]] *= np.exp(dL)
-    out[:, iu[1], iu[0]] = out[:, iu[0], iu[1]]
+    out[:, iu[1], iu[0]] *= np.exp(dL)
     off = out * (1 - np.eye(n))
     return off - np.eye(n) * off.sum(axis=-1, keepdims=True)
 
