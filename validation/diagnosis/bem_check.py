@@ -34,7 +34,25 @@ import numpy as np
 
 from electrosense.validation.diagnosis.fitting import _split
 
-__all__ = ["needs_bem_check", "bem_check", "taylor_remainder_bound"]
+__all__ = ["needs_bem_check", "bem_check", "taylor_remainder_bound", "check_pose_count", "CHECK_RESIDUALS"]
+
+
+#: residuals (poses x receivers) a BEM check compares: an effect model as exact as the BEM leaves an RMS of them
+#: above 1.5x the noise floor (the check's refusal) with probability P(chi2_30 / 30 > 2.25) = 1e-4, and a model error
+#: e shows as sqrt(floor^2 + e^2) whatever their number; more poses only sharpen the decision near its threshold
+CHECK_RESIDUALS = 30
+
+#: the fewest poses of a check: a refinement on the BEM at one or two would fit their noise
+MIN_CHECK_POSES = 4
+
+
+def check_pose_count(n_receivers: int) -> int:
+    """BEM poses of a check: enough for :data:`CHECK_RESIDUALS` residuals, at least :data:`MIN_CHECK_POSES`.
+
+    >>> check_pose_count(5), check_pose_count(2), check_pose_count(12)
+    (6, 15, 4)
+    """
+    return max(MIN_CHECK_POSES, -(-CHECK_RESIDUALS // max(int(n_receivers), 1)))
 
 
 def needs_bem_check(effects) -> bool:
@@ -117,9 +135,10 @@ def check_from_secant(candidate, secant: dict, floor: float) -> dict | None:
 
 
 def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options: dict | None = None,
-              n_poses: int = 12, refine_steps: int = 2, progress=None, anchor_sweep=None) -> dict | None:
+              n_poses: int | None = None, refine_steps: int = 2, progress=None, anchor_sweep=None) -> dict | None:
     """The bench against ``candidate`` evaluated by its effect model and by the BEM, at up to ``n_poses`` of the
-    baseline's BEM poses ``anchors`` (sample indices), then its parameters refined on the BEM (module doc);
+    baseline's BEM poses ``anchors`` (sample indices; default :func:`check_pose_count`), then its parameters
+    refined on the BEM (module doc);
     None when nothing in it needs the check.
 
     Returns a dict: the poses, the RMS relative gaps there of the baseline, the effect model's prediction and
@@ -143,6 +162,7 @@ def bem_check(problem, candidate, anchors: np.ndarray, floor: float, bem_options
         return None
     say = progress or (lambda s: None)
     obs = problem.obs
+    n_poses = check_pose_count(obs.n_receivers) if n_poses is None else n_poses
     idx = np.asarray(anchors)[np.unique(np.linspace(0, len(anchors) - 1, min(n_poses, len(anchors))).round()
                                         .astype(int))]
     rows = np.arange(obs.n_poses)

@@ -207,7 +207,7 @@ def diagnose(
     psm_model=None,
     model_error: float = 0.0,
     bem_correction_poses: int = 0,
-    bem_check_poses: int = 12,
+    bem_check_poses: int | None = None,
     statistical: bool = True,
     progress=None,
     baseline=None,
@@ -255,10 +255,12 @@ def diagnose(
         improvement and goodness of fit against the noise model, false-alarm rate
         :data:`~electrosense.validation.diagnosis.detection.ALPHA`); False: the thresholds of
         :class:`SelectionRules` in units of the noise floor.
-    bem_check_poses : int
+    bem_check_poses : int, optional
         With the anchored baseline: solve the chosen explanation's fitted scene with the BEM at this many of
         the baseline's BEM poses, when it holds a geometric effect or a contact impedance
-        (:mod:`electrosense.validation.diagnosis.bem_check`; 0: skip).
+        (:mod:`electrosense.validation.diagnosis.bem_check`; 0: skip; default: enough poses for
+        :data:`~electrosense.validation.diagnosis.bem_check.CHECK_RESIDUALS` residuals,
+        :func:`~electrosense.validation.diagnosis.bem_check.check_pose_count`).
     progress : callable(str), optional
     baseline : AnchoredBaseline, optional
         A baseline computed elsewhere with its estimated error, used as the anchored one (a tank map's:
@@ -438,9 +440,18 @@ def diagnose(
     ambiguity = ambiguity_set(selection, ranking, rules, floor)
     notes += [s["stop"] for s in selection.steps if "within the model's own error" in s.get("stop", "")]
     check = None
+    if bem_check_poses is None:
+        from electrosense.validation.diagnosis.bem_check import check_pose_count
+
+        bem_check_poses = check_pose_count(obs.n_receivers)
     if anchored is not None and selection.verdict in ("explained", "partly explained") and selection.chosen \
             and bem_check_poses > 0:
-        from electrosense.validation.diagnosis.bem_check import bem_check, check_from_secant, taylor_remainder_bound
+        from electrosense.validation.diagnosis.bem_check import (
+            MIN_CHECK_POSES,
+            bem_check,
+            check_from_secant,
+            taylor_remainder_bound,
+        )
 
         for secant in reversed(budget.get("bem_secants") or []):   # the chosen scene already solved by the BEM
             check = check or check_from_secant(selection.chosen[-1], secant, floor)
@@ -489,9 +500,6 @@ def diagnose(
     return Diagnosis(obs, model, effect_name, noise, r0, where, mask, folds, ranking, selection, confusable,
                      time.perf_counter() - t0, split, notes, problem.I_base, budget, ambiguity, check, detection)
 
-
-#: the fewest BEM poses a pose offset's check solves once any needs it (:func:`~.bem_check.taylor_remainder_bound`)
-MIN_CHECK_POSES = 4
 
 #: geometric candidates whose fitted scene is solved by the BEM when their held-out improvement is significant
 SECANT_CANDIDATES = ("tank_size", "water_depth", "unmodelled_object")
