@@ -229,13 +229,17 @@ def test_axisymmetric_reduction_matches_the_full_collocation(free_solution):
 def test_pose_sweep_reuses_the_sensor_block_from_the_disk_cache(tmp_path):
     poses = np.array([[0.02, 0.01, 0.0, 0.3]])
     first = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), sigma_S_per_m=1.0, edge_length_m=H,
-                      tank_edge_length_m=0.04, block_cache=tmp_path)
+                      tank_edge_length_m=0.04, block_cache=tmp_path, cache_environment=True)
     assert first.timings["sensor_block_cached"] is False
     assert len(list(tmp_path.iterdir())) == 1   # one entry, no temporary folder left behind
     second = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), sigma_S_per_m=1.0, edge_length_m=H,
-                       tank_edge_length_m=0.04, block_cache=tmp_path)
+                       tank_edge_length_m=0.04, block_cache=tmp_path, cache_environment=True)
     assert second.timings["sensor_block_cached"] is True
-    np.testing.assert_allclose(second.conductance(poses).K_S, first.conductance(poses).K_S, rtol=1e-12)
+    K_first = first.conductance(poses).K_S       # the tank's block made, factorised and stored
+    assert first.timings["environment_block_cached"] is False
+    K_second = second.conductance(poses).K_S     # ... and read back
+    assert second.timings["environment_block_cached"] is True
+    np.testing.assert_allclose(K_second, K_first, rtol=1e-12)
     # another conductivity changes the block (through the flux scaling): a new entry, not a stale one
     other = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), sigma_S_per_m=2.0, edge_length_m=H,
                       tank_edge_length_m=0.04, block_cache=tmp_path, contact_impedance_ohm_m2=1e-3)

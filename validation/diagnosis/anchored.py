@@ -468,7 +468,10 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         if sweep is None:
             from electrosense.bem import PoseSweep
 
-            sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus, **bem_options)
+            # its tank mesh serves every later log of this path (the BEM checks of pose offsets and contact
+            # impedances solve on it): its factors are kept on disk with the sensor's
+            sweep = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus,
+                              **{"cache_environment": True, **bem_options})
         return sweep
 
     def run_bem(idx):
