@@ -68,9 +68,14 @@ class MeridianField:
     half_length_m: float
 
     def __post_init__(self):
-        from scipy.interpolate import RectBivariateSpline
+        from scipy.interpolate import NdBSpline, RectBivariateSpline
 
-        self._splines = [RectBivariateSpline(self.x_m, self.r_m, ui) for ui in self.u]
+        # bicubic interpolating splines of every u_i on the one grid: the same knots, so one tensor-product
+        # spline with a coefficient per electrode evaluates them all at once
+        splines = [RectBivariateSpline(self.x_m, self.r_m, ui) for ui in self.u]
+        tx, tr = splines[0].get_knots()
+        coefficients = np.stack([s.get_coeffs().reshape(len(tx) - 4, len(tr) - 4) for s in splines], axis=-1)
+        self._spline = NdBSpline((tx, tr), coefficients, 3)
 
     @property
     def n_electrodes(self) -> int:
@@ -93,22 +98,19 @@ class MeridianField:
         ey, ez = q[inside, 1] / safe, q[inside, 2] / safe
         on_axis = ri < 1e-9
         ey[on_axis], ez[on_axis] = 1.0, 0.0
-        for i, s in enumerate(self._splines):
-            fx = s(xi, ri, dx=1, grid=False)
-            fr = s(xi, ri, dy=1, grid=False)
-            fxx = s(xi, ri, dx=2, grid=False)
-            fxr = s(xi, ri, dx=1, dy=1, grid=False)
-            frr = s(xi, ri, dy=2, grid=False)
-            f_r = np.where(on_axis, frr, fr / safe)   # (1/r) du/dr, its limit on the axis
-            grad[inside, i] = np.column_stack([fx, fr * ey, fr * ez])
-            H = np.zeros((len(xi), 3, 3))
-            H[:, 0, 0] = fxx
-            H[:, 0, 1] = H[:, 1, 0] = fxr * ey
-            H[:, 0, 2] = H[:, 2, 0] = fxr * ez
-            H[:, 1, 1] = frr * ey**2 + f_r * ez**2
-            H[:, 2, 2] = frr * ez**2 + f_r * ey**2
-            H[:, 1, 2] = H[:, 2, 1] = (frr - f_r) * ey * ez
-            hess[inside, i] = H
+        xr = np.column_stack([xi, ri])
+        fx, fr, fxx, fxr, frr = (self._spline(xr, nu=nu) for nu in ((1, 0), (0, 1), (2, 0), (1, 1), (0, 2)))
+        ey, ez, on_axis, safe = ey[:, None], ez[:, None], on_axis[:, None], safe[:, None]   # (p, 1): by electrode
+        f_r = np.where(on_axis, frr, fr / safe)   # (1/r) du/dr, its limit on the axis
+        grad[inside] = np.stack([fx, fr * ey, fr * ez], axis=-1)
+        H = np.zeros((len(xi), n, 3, 3))
+        H[..., 0, 0] = fxx
+        H[..., 0, 1] = H[..., 1, 0] = fxr * ey
+        H[..., 0, 2] = H[..., 2, 0] = fxr * ez
+        H[..., 1, 1] = frr * ey**2 + f_r * ez**2
+        H[..., 2, 2] = frr * ez**2 + f_r * ey**2
+        H[..., 1, 2] = H[..., 2, 1] = (frr - f_r) * ey * ez
+        hess[inside] = H
         return grad, hess
 
 

@@ -108,14 +108,15 @@ class RBFInterpolant:
 
     ``leave_one_out`` (B, k) is the error of predicting each node from all
     the others, in closed form: e_i = c_i / (M^-1)_ii with M the augmented
-    interpolation matrix (Rippa 1999). The linear trend spans only the
-    directions along which the nodes spread by more than
-    :data:`TREND_MIN_SPREAD_M` (RMS): passes at one heading and depth lie
-    near a line of the feature space, and a trend along the robot's
-    position noise (a tenth of a millimetre) would be fitted to that noise,
-    its leave-one-out errors changing several-fold from one log of the same
-    path to the next. With fewer nodes than the trend has terms, the trend
-    is a constant.
+    interpolation matrix (Rippa 1999). The linear trend is in every
+    feature (``min_trend_spread_m`` None), or only along the directions
+    along which the nodes spread by more than ``min_trend_spread_m`` (RMS;
+    the anchored baseline's :data:`TREND_MIN_SPREAD_M`): passes at one
+    heading and depth lie near a line of the feature space, and a trend
+    along the robot's position noise (a tenth of a millimetre) is fitted to
+    that noise, its leave-one-out errors changing several-fold from one log
+    of the same path to the next. With fewer nodes than the trend has terms,
+    the trend is a constant.
 
     Example
     -------
@@ -123,20 +124,23 @@ class RBFInterpolant:
 
     >>> rng = np.random.default_rng(0)
     >>> X = np.c_[np.linspace(0, 0.3, 9), 1e-4 * rng.standard_normal(9)]
-    >>> f = RBFInterpolant(X, np.sin(10 * X[:, :1]))
+    >>> f = RBFInterpolant(X, np.sin(10 * X[:, :1]), min_trend_spread_m=TREND_MIN_SPREAD_M)
     >>> f.axes.shape, bool(np.abs(f.leave_one_out).max() < 0.05)
     ((2, 1), True)
     """
 
-    def __init__(self, X: np.ndarray, y: np.ndarray):
+    def __init__(self, X: np.ndarray, y: np.ndarray, min_trend_spread_m: float | None = None):
         self.X = np.asarray(X, float)
         y = np.asarray(y, float)
         self.shape = y.shape[1:]
         Y = y.reshape(len(y), -1)
         B, d = self.X.shape
-        self.centre = self.X.mean(axis=0)
-        _, spread, Vt = np.linalg.svd(self.X - self.centre, full_matrices=False)
-        self.axes = Vt[spread / np.sqrt(B) > TREND_MIN_SPREAD_M].T   # (d, t): the directions the nodes span
+        if min_trend_spread_m is None:      # every feature (the trend [1, X] that stored coefficients assume)
+            self.centre, self.axes = np.zeros(d), np.eye(d)
+        else:                               # the directions the nodes span
+            self.centre = self.X.mean(axis=0)
+            _, spread, Vt = np.linalg.svd(self.X - self.centre, full_matrices=False)
+            self.axes = Vt[spread / np.sqrt(B) > min_trend_spread_m].T   # (d, t)
         self.linear = B > self.axes.shape[1] + 2
         Pm = self._trend(self.X)
         q = Pm.shape[1]
@@ -741,7 +745,7 @@ def _fit_base(K_bem, F, group, have, K_ref, usable, cached_off, K_ref_cached, ca
     # matrix, and the leave-one-out errors from its inverse, meaningless: keep the first (this log's)
     keep = np.sort(np.unique(same_pose_groups(X, NODE_MERGE_M), return_index=True)[1])
     X, Lv, on_usable, from_log = X[keep], Lv[keep], on_usable[keep], from_log[keep]
-    interp = RBFInterpolant(X, Lv)
+    interp = RBFInterpolant(X, Lv, min_trend_spread_m=TREND_MIN_SPREAD_M)
     loo = np.abs(np.expm1(interp.leave_one_out[:, rec]))  # (B, m) relative error of receiver currents
     at = loo[on_usable]
     return {"X": X, "L": Lv, "interp": interp, "loo": loo, "from_log": from_log,
