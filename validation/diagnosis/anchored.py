@@ -446,13 +446,13 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
         cached_derivatives[key] = stored if stored is not None else np.full((len(cached_poses),) + shape, np.nan)
         derivatives[key][exact >= 0] = cached_derivatives[key][exact[exact >= 0]]
     carried = _carry_cached(sensor, obs.poses, F, exact, cached_poses, cached_K, cached_derivatives, K_bem, derivatives)
-    n_carried = len(carried)
     # the PSM at the logged poses it accepts and at the cached anchors off them, in one evaluation: one image
     # series for all, so that the ratio BEM / PSM is the same function at every node (two evaluations settle
     # their image series on different pose sets and differ by up to a few 1e-3 near the walls)
     cached_usable = psm_usable(model, cached_poses, tank) if len(cached_poses) else np.zeros(0, bool)
-    # cached anchors off this log's poses; one carried to a sample is that sample (its twin a fraction of a
-    # millimetre away would make the interpolation matrix nearly singular and its leave-one-out errors noise)
+    # cached anchors off this log's poses; one carried to a sample is that sample (kept as a node beside it, a
+    # fraction of a millimetre away, each would predict the other in the leave-one-out test: the error estimate
+    # there would be the carry's, not the interpolation's)
     off_log = ~np.isin(np.arange(len(cached_poses)), np.concatenate([exact[exact >= 0], carried]))
     extra = off_log & cached_usable
     K_psm = np.full((P, n, n), np.nan)
@@ -624,7 +624,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     anchors = np.flatnonzero(have)
     return AnchoredBaseline(
         K=K * obs.sigma_S_per_m, error=error, anchors=anchors, refused=np.flatnonzero(~ok), n_bem_new=n_new,
-        n_cached=int(np.sum(exact >= 0)) + n_carried + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
+        n_cached=int(np.sum(exact >= 0)) + len(carried) + int(bases[base][2].sum()), target=target, rounds=rounds, base=base,
         psm_vs_bem_rms=float(np.sqrt(np.mean(psm_vs_bem**2))) if psm_vs_bem.size else float("nan"),
         loo_rms=float(np.sqrt(np.mean(loo_all**2))) if loo_all.size else 0.0,
         seconds=time.perf_counter() - t0, bem_error=bem_error, stopped=stopped, pose_gradient=grad,
@@ -644,17 +644,18 @@ def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_deriva
     pose and wall derivatives is carried to the sample to first order (x, y and yaw from the pose derivatives,
     z from the floor's and the surface's: the sensor rising is the floor moving away and the surface coming
     closer), the error second order in the offset; the sample then counts as a BEM pose, with those
-    derivatives. Fills ``K_bem`` and ``derivatives`` in place; returns the cached poses carried (indices).
+    derivatives. Fills ``K_bem`` and ``derivatives`` in place; returns, for each sample carried, the index of the
+    cached pose it was carried from.
     """
     from scipy.spatial import cKDTree
 
     from electrosense.validation.diagnosis.pose_gradient import apply_pair_log
 
+    none = np.zeros(0, int)
     if not len(cached_poses) or "dK_dpose" not in derivatives or "dK_dwall_S_per_m" not in derivatives:
-        return np.zeros(0, int)
+        return none
     dP, dW = cached_derivatives["dK_dpose"], cached_derivatives["dK_dwall_S_per_m"]
     known = np.all(np.isfinite(dP.reshape(len(dP), -1)), axis=1) & np.all(np.isfinite(dW.reshape(len(dW), -1)), axis=1)
-    none = np.zeros(0, int)
     if not known.any():
         return none
     d, j = cKDTree(pose_features(sensor, cached_poses[known])).query(F)
@@ -673,7 +674,7 @@ def _carry_cached(sensor, poses, F, exact, cached_poses, cached_K, cached_deriva
     K_bem[take] = apply_pair_log(cached_K[src], np.einsum("pk,pkq->pq", delta, G))
     for key, values in derivatives.items():
         values[take] = cached_derivatives[key][src]
-    return np.unique(src)
+    return src
 
 
 def _every_pass_has(values: np.ndarray, passes: list, at_least: int = 2) -> bool:
