@@ -99,10 +99,13 @@ def bem_secant(problem, candidate, tank_mesh, bem_options: dict, n_poses: int = 
     I_bem = I_model[idx].copy()   # the model itself where the change is negligible
     if len(solve):
         options = {k: v for k, v in bem_options.items() if k in ("edge_length_m",)}
-        sweep = PoseSweep(obs.sensor, sc.tank, tuple(sc.objects), obs.sigma_S_per_m, tank_mesh=mesh,
+        # at 1 S/m, as the anchors: K is linear in the water's conductivity (no contact impedance here; the
+        # BEM's objects are insulators or perfect conductors), and the sensor's block and edge correction are
+        # then the anchors' own, read back from the disk cache
+        sweep = PoseSweep(obs.sensor, sc.tank, tuple(sc.objects), 1.0, tank_mesh=mesh,
                           focus_m=None if mesh is not None else sc.poses[solve, :3], **options)
-        I_bem[solved] = receiver_currents(sweep.conductance(sc.poses[solve]).K_S, obs.emitter) \
-            * obs.U_V[solve, None]
+        K = sweep.conductance(sc.poses[solve]).K_S * obs.sigma_S_per_m
+        I_bem[solved] = receiver_currents(K, obs.emitter) * obs.U_V[solve, None]
     c_nodes = np.log(I_bem / I_model[idx])
     s = arc_length(obs.sensor, obs.poses, passes)
     c, loo = along_passes(c_nodes, idx, s, passes)
