@@ -36,7 +36,7 @@ from electrosense.psm.model import PolySphericalModel
 from electrosense.psm.objects import object_terms
 from electrosense.psm.potential_coefficients import potential_coefficients
 
-__all__ = ["conductance", "conductance_array", "sphere_centres_m", "PlacementError", "MAX_IMAGE_SHELLS"]
+__all__ = ["conductance", "conductance_array", "sphere_centres_m", "boundary_probe_indices", "PlacementError", "MAX_IMAGE_SHELLS"]
 
 #: the complete series gives up (with an error) beyond this many shells
 MAX_IMAGE_SHELLS = 16
@@ -114,8 +114,9 @@ def _kernel_call(model, X, sigma, images: ImageSet, obj_centres, obj_coef, serie
     return K
 
 
-def _probe_indices(X: np.ndarray, tank: Tank, max_probes: int = 24) -> np.ndarray:
-    """Poses nearest to each boundary (where the series converges slowest), plus a spread."""
+def boundary_probe_indices(X: np.ndarray, tank: Tank, max_probes: int = 24) -> np.ndarray:
+    """Indices of the poses (sphere centres ``X`` (P, n, 3)) nearest each boundary, where the image series
+    converges slowest, plus a spread of the others: at most ``max_probes``."""
     P = X.shape[0]
     if P <= max_probes:
         return np.arange(P)
@@ -153,7 +154,7 @@ def conductance_array(model, poses, sigma_S_per_m, tank=None, images="complete",
         return K, info
     # complete series: Richardson pairs (N/2, N), N = 4, 8, 12, ...; the next N is much more accurate,
     # so |K_N - K_next| estimates the error of K_N: keep the first N whose estimate is below the tolerance
-    probe = X[_probe_indices(X, tank)]
+    probe = X[boundary_probe_indices(X, tank)]
     previous = _kernel_call(model, probe, sigma, image_sources(tank, "complete", 4), obj_centres, obj_coef, series)
     for shells in range(4, MAX_IMAGE_SHELLS + 1, 4):
         nxt = _kernel_call(model, probe, sigma, image_sources(tank, "complete", shells + 4), obj_centres, obj_coef, series)

@@ -183,3 +183,27 @@ def test_observations_refuse_bad_input(setup):
         Observations(np.zeros((10, 4)), np.full((10, 3), np.nan), setup.sensor, setup.tank, 0.0354)
     with pytest.raises(DiagnosisInputError, match="too few"):
         Observations(np.zeros((3, 4)), np.ones((3, 3)), setup.sensor, setup.tank, 0.0354)
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_effect_model_image_shells_converged_in_changes(seed):
+    """The PSM effect model's image series, chosen on changes, is right to its tolerance against a much longer one
+    (random sensor, tank and passes near the walls)."""
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.diagnosis.forward import IMAGE_CHANGE_TOLERANCE, PSMEffectModel
+    from electrosense.validation.diagnosis.unseen import random_passes, random_setup
+
+    rng = np.random.default_rng(seed)
+    s = random_setup(rng)
+    poses, _, _ = random_passes(s, rng, n_passes=2, per_pass=15)
+    m = PSMEffectModel(s.sensor, s.sigma_S_per_m)
+    shells = m.choose_image_shells(poses, s.tank)
+    lx, ly, lz = s.tank.size_m
+    changed = Tank((lx + 0.006, ly, lz), s.tank.water_depth_m - 0.004)   # not one of its probes
+    off = ~np.eye(m.model.n, dtype=bool)
+
+    def change(n):
+        return m._K(poses, changed, image_shells=n)[:, off] / m._K(poses, s.tank, image_shells=n)[:, off] - 1
+
+    ref = change(28)
+    assert np.max(np.abs(change(shells) - ref)) <= 2 * IMAGE_CHANGE_TOLERANCE * np.max(np.abs(ref))
