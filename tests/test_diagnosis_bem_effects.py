@@ -106,3 +106,35 @@ def test_the_chosen_scene_solved_by_its_secant_is_not_solved_again():
     assert check_from_secant(chosen, {**secant, "label": "tank_size"}, 5e-4) is None
     # the BEM far from what the model claimed: not confirmed
     assert not check_from_secant(chosen, {**secant, "gap_bem": 3e-3}, 5e-4)["confirmed"]
+
+
+def test_the_secant_stops_where_the_model_is_already_the_bem(bench, monkeypatch):
+    """A fitted tank solved at the poses of largest change first; the others only where the model misses there."""
+    from types import SimpleNamespace
+
+    import electrosense.validation.diagnosis.bem_check as bem_check
+    from electrosense.validation.diagnosis.bem_secant import bem_secant
+
+    problem, g, sweep = bench
+    obs = problem.obs
+    monkeypatch.setattr(bem_check, "check_pose_count", lambda m: 4)
+    problem.wall_gradient = wall_gradient(problem, g.info["dK_dwall_S_per_m"], g.info["wall_regions"], g.K_S)
+    try:
+        form = library(obs)["tank_size"][1]   # the walls at x alone
+        fitted = SimpleNamespace(effects=(form,), fit=SimpleNamespace(theta=np.array([0.01])), name="tank_size")
+        every = np.arange(obs.n_poses)
+        I_model = predict(problem, [form], fitted.fit.theta, every)
+        change = np.max(np.abs(I_model / problem.I_base - 1), axis=1)
+        staged, some = bem_secant(problem, fitted, sweep.tank_mesh, OPTIONS, enough=np.inf)
+        full, every_info = bem_secant(problem, fitted, sweep.tank_mesh, OPTIONS, enough=0.0)
+    finally:
+        problem.wall_gradient = None
+    at = np.array(some["poses"])
+    assert sorted(at.tolist()) == sorted(np.argsort(-change)[:4].tolist())
+    assert len(every_info["poses"]) == obs.n_poses
+    # the first poses see the BEM the full solve sees there; the others keep the model (correction 0), whose
+    # error there is no larger than where the change is largest (what the first step's test assumes)
+    assert np.allclose(staged.c[at], full.c[at], rtol=1e-9, atol=1e-12)
+    rest = np.setdiff1d(every, at)
+    assert np.all(staged.c[rest] == 0.0)
+    assert np.max(np.abs(full.c[rest])) <= 1.5 * np.max(np.abs(full.c[at])), (full.c[rest], full.c[at])

@@ -565,7 +565,7 @@ def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, 
     from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, default_tank_edge_length_m
     from electrosense.meshes.tank_mesh import mesh_tank
     from electrosense.validation.diagnosis.anchored import default_bem_options
-    from electrosense.validation.diagnosis.bem_secant import bem_secant
+    from electrosense.validation.diagnosis.bem_secant import SECANT_ENOUGH, bem_secant
     from electrosense.validation.diagnosis.detection import ALPHA
     from electrosense.validation.diagnosis.effects import combined_scales
     from electrosense.validation.diagnosis.select import score_candidate
@@ -598,7 +598,8 @@ def refine_on_bem(problem, ranking: list, lib: dict, detection: dict, anchored, 
             effect = current.effects[0]
             try:
                 correction, info = bem_secant(problem, current, mesh, options, progress=say,
-                                              negligible=noise / (3 * secant_reach(current.name)))
+                                              negligible=noise / (3 * secant_reach(current.name)),
+                                              enough=SECANT_ENOUGH * noise)
             except (ValueError, np.linalg.LinAlgError) as exc:   # the scene cannot be solved: the candidate stays
                 say(f"{current.name}: its fitted scene not solved by the BEM ({type(exc).__name__}: {exc})")
                 break
