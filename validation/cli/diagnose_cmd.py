@@ -37,11 +37,12 @@ from electrosense.validation.diagnosis.effects import EFFECT_NAMES
               help="Relative error of the effect model on what the tank does; samples where the tank matters most "
                    "(close to the walls) are weighted down accordingly (0: equal weights).")
 @click.option("--no-figures", is_flag=True, help="Write diagnosis.json and a page without figures.")
+@click.option("--pdf", "vector_pdf", is_flag=True, help="A vector PDF beside each figure's PNG, for a paper.")
 @click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Tank map of the logs' sensor, tank and depth (esense map build): the baseline is the map at the "
                    "logged poses, with its estimated error; no new BEM.")
 def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses, bem_correction_poses, max_effects,
-             model_error, no_figures, map_file):
+             model_error, no_figures, vector_pdf, map_file):
     """Diagnose the gap between bench LOG(s) and the simulation.
 
     Fits every candidate effect (conductivity, temperature_drift,
@@ -96,7 +97,7 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
                       rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
                       model_error=model_error, bem_correction_poses=bem_correction_poses,
                       progress=lambda s: click.echo(f"  {s}"), baseline=baseline)
-    page = write_report(d, outdir, figures=not no_figures)
+    page = write_report(d, outdir, figures=not no_figures, vector="pdf" if vector_pdf else None)
     base = d.model_error.get("baseline_rms")
     click.echo(f"noise {100 * d.noise:.3f} %, baseline error "
                f"{'unknown' if base is None else f'{100 * base:.3f} %'}, noise floor {100 * d.noise_floor:.3f} %; "

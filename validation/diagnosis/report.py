@@ -245,7 +245,7 @@ def write_json(d: Diagnosis, path) -> Path:
     return path
 
 
-def _figures(d: Diagnosis, folder: Path) -> list:
+def _figures(d: Diagnosis, folder: Path, vector: str | None = None) -> list:
     """Residual along the path (before/after, per receiver, one row per pass), the gap by place, the ranking.
 
     Residuals are shown as simulation / bench - 1, the sign convention of every
@@ -280,7 +280,7 @@ def _figures(d: Diagnosis, folder: Path) -> list:
         for panel in panels:
             panel.y_range = (float(values.min()) - 0.06 * span, float(values.max()) + 0.06 * span)
     figs.append(Figure(curves_figure(panels, folder / "residual_along_path.png", ncols=len(d.obs.sensor.receivers),
-                                     share_y=True),
+                                     share_y=True, vector=vector),
                        "relative residual along the path, simulation / bench - 1, before and after the chosen "
                        "effect(s) (held-out predictions), one row per pass; grey band: the noise level"))
     table = d.where["by_place"]
@@ -289,21 +289,25 @@ def _figures(d: Diagnosis, folder: Path) -> list:
                                       {"share of the squared gap": [r["share"] for r in table],
                                        "share of the samples": [r["fraction"] for r in table]},
                                       folder / "gap_by_place.png", "where the gap lies", "share", log=False,
-                                      counts=[r["n"] for r in table]),
+                                      counts=[r["n"] for r in table], vector=vector),
                            "share of the squared gap by place, against the share of the samples there "
                            "(n: samples in the place)"))
     names = [c.name.replace("_", " ") for c in d.ranking]
     figs.append(Figure(bar_figure(names, {"held-out gap": [100 * c.heldout_gap for c in d.ranking]},
                                   folder / "ranking.png", "candidates alone", "held-out RMS gap (%)",
                                   horizontal=True,
-                                  lines={"gap before": 100 * d.gap_before, "noise (1 sigma)": 100 * d.noise}),
+                                  lines={"gap before": 100 * d.gap_before, "noise (1 sigma)": 100 * d.noise},
+                                  vector=vector),
                        "held-out gap left by each candidate alone (best first), against the gap before and the "
                        "noise level; a logarithmic axis when the gaps span more than a factor 30"))
     return figs
 
 
-def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
-    """Write ``diagnosis.json`` and ``index.html`` (with figures unless ``figures=False``) into ``outdir``."""
+def write_report(d: Diagnosis, outdir, figures: bool = True, vector: str | None = None) -> Path:
+    """Write ``diagnosis.json`` and ``index.html`` (with figures unless ``figures=False``) into ``outdir``.
+
+    The figures are PNGs for the page; ``vector="pdf"`` (or ``"svg"``) writes a vector copy beside each, for a
+    paper (it doubles the figures' time, about 2.5 s of a later log's 20)."""
     from electrosense.validation.report.html import Section, Table, write_html
 
     out = Path(outdir)
@@ -315,7 +319,7 @@ def write_report(d: Diagnosis, outdir, figures: bool = True) -> Path:
     figs = []
     if figures:
         try:
-            figs = _figures(d, out)
+            figs = _figures(d, out, vector)
         except Exception as exc:  # a figure must never cost the diagnosis
             notes.append(f"figures not drawn: {exc}")
     summary = Table(

@@ -42,6 +42,7 @@ from electrosense.validation.report.style import (
     DPI,
     PANEL_SIZE_IN,
     RELATIVE_ERROR_LABEL,
+    VECTOR_FORMAT,
     colour_of,
     new_figure,
     save,
@@ -179,7 +180,7 @@ def _shared_legend(fig, axes_panels):
 
 
 def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, panel_size=PANEL_SIZE_IN,
-                  title: str = "", share_y: bool = False) -> Path:
+                  title: str = "", share_y: bool = False, vector: str | None = VECTOR_FORMAT) -> Path:
     """Draw panels of 2D curves on a grid (``ncols`` per row) and save a PNG (and a PDF beside it).
 
     Parameters
@@ -194,6 +195,8 @@ def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, p
         Heading above the whole figure.
     share_y : bool
         One y range for all panels.
+    vector : str or None
+        The vector copy beside the PNG (:func:`~electrosense.validation.report.style.save`; None: none).
     """
     panels = list(panels)
     if not panels:
@@ -210,12 +213,12 @@ def curves_figure(panels: Sequence[Panel], png_path, ncols: int | None = None, p
     _shared_legend(fig, list(zip(axes.flat, panels)))
     if title:
         fig.suptitle(title)
-    return save(fig, png_path)
+    return save(fig, png_path, vector)
 
 
 def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_label: str, panel_size=None,
                y_max: float | None = None, counts: Sequence[int] | None = None, log: bool | None = None,
-               horizontal: bool | None = None, lines: dict | None = None) -> Path:
+               horizontal: bool | None = None, lines: dict | None = None, vector: str | None = VECTOR_FORMAT) -> Path:
     """Grouped bars: one group per category, one bar colour per key of ``values``.
 
     Parameters
@@ -238,6 +241,8 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
         default: with more than 5 categories.
     lines : dict, optional
         Label -> value: reference levels drawn across the bars (a noise level, say).
+    vector : str or None
+        The vector copy beside the PNG (None: none).
     """
     if not len(categories) or not values:
         raise ValueError("bar_figure needs categories and at least one series of values")
@@ -309,7 +314,7 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
             ax.set_ylim(0, 1.12 * y_max)
     ax.set_title(title)
     _shared_legend(fig, [(ax, Panel(title, "", y_label))])
-    return save(fig, png_path)
+    return save(fig, png_path, vector)
 
 
 # ---------------------------------------------------------------- path helpers
