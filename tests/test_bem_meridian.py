@@ -10,6 +10,7 @@ import pytest
 
 from electrosense.bem.meridian import (
     converged_conductance,
+    layer_operators,
     meridian_conductance,
     mesh_meridian,
     ring_double_layer,
@@ -157,3 +158,13 @@ def test_edge_correction_carries_over_to_a_sensor_near_a_wall():
         default = conductance_matrix(scene, 0.05, edge_correction=correct).S_S
         refined = conductance_matrix(scene, 0.05, edge_correction=correct, **finer).S_S
         assert low <= np.abs(default / refined - 1).max() < high
+
+
+def test_operators_assembled_once_serve_every_contact_impedance():
+    sensor = preset("angels-2")
+    mesh = mesh_meridian(sensor)
+    operators = layer_operators(mesh)
+    for z in (None, 1e-3, [1e-4, 1e-2]):
+        fresh = meridian_conductance(sensor, 0.05, z, mesh=mesh).K_S
+        again = meridian_conductance(sensor, 0.05, z, mesh=mesh, operators=operators).K_S
+        assert np.array_equal(fresh, again)

@@ -97,7 +97,7 @@ def _disk_path(sensor_json: str, sigma_S_per_m: float):
 
 @functools.lru_cache(maxsize=16)
 def _cached(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
-    """Computed once per sensor and conductivity, kept on disk (7 meridian BEM solves)."""
+    """Computed once per sensor and conductivity, kept on disk (7 meridian BEM solves on one assembly)."""
     import os
 
     path = _disk_path(sensor_json, sigma_S_per_m)
@@ -119,14 +119,17 @@ def _cached(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
 
 
 def _compute(sensor_json: str, sigma_S_per_m: float) -> EffectiveAreas:
-    from electrosense.bem.meridian import meridian_conductance
+    from electrosense.bem.meridian import layer_operators, meridian_conductance, mesh_meridian
 
     sensor = SensorDescription.from_dict(json.loads(sensor_json))
     A0 = electrode_areas_m2(sensor)
-    K0 = meridian_conductance(sensor, sigma_S_per_m).K_S
+    mesh = mesh_meridian(sensor)
+    operators = layer_operators(mesh)   # the same for every contact impedance
+    K0 = meridian_conductance(sensor, sigma_S_per_m, mesh=mesh, operators=operators).K_S
     areas, errors = [], []
     for z in Z_GRID_OHM_M2:
-        Kz = meridian_conductance(sensor, sigma_S_per_m, contact_impedance_ohm_m2=float(z)).K_S
+        Kz = meridian_conductance(sensor, sigma_S_per_m, contact_impedance_ohm_m2=float(z), mesh=mesh,
+                                  operators=operators).K_S
         A, e = _fit_areas(K0, Kz, float(z), areas[-1] if areas else A0)
         areas.append(A)
         errors.append(e)
