@@ -342,12 +342,17 @@ def test_electrode_heights_found_and_the_rest_split_on_a_synthetic_phantom(tmp_p
     scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
     comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
     d, _, _, _ = diagnose_transfer(comp, scene, 1.0, settings["bem"], settings["protocol"])
-    assert "electrode_heights" in d["chosen"], d["chosen"]
+    assert d["chosen"] == "electrode_heights" and d["verdict"] == "explained", d["engine"]["steps"]
     assert d["shrink"] > 0.8
-    found = np.array(d["candidates"][d["chosen"]]["height_offsets_mm"]) * 1e-3
+    # the engine's answer: the heights made exact on the BEM where they were fitted (Newton steps on its solves)
+    assert len(d["engine"]["bem_secants"][0]["solves"]) >= 2
+    found = np.array(list(d["engine"]["parameters"]["electrode_heights"].values()))
     assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
-    se = np.array(d["candidates"][d["chosen"]]["height_offsets_mm_se"]) * 1e-3      # the noise's share
+    se = np.array(list(d["engine"]["standard_errors"]["electrode_heights"].values()))      # the noise's share
     assert np.all(np.abs(found - found.mean() - dz) < 4 * se + 2e-4)
+    # the table's own Gauss-Newton refinement of the linear candidate agrees
+    found = np.array(d["candidates"]["electrode_heights, refined on the BEM"]["height_offsets_mm"]) * 1e-3
+    assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
     shares = d["remaining"]["shares"]
     assert abs(sum(shares.values()) - 1) < 1e-9
 
@@ -443,6 +448,11 @@ def test_a_multiplexer_group_gain_is_found_on_held_out_set_ups(tmp_path):
     assert stated > 0.02                                             # the groups' 9 % shows on the ball set-up
     assert cand["heldout_setups"]["empty_to_objects_rms_rel"] < 0.1 * stated
     assert cand["heldout_setups"]["Avg1"] == cand["heldout_setups"]["empty_to_objects_rms_rel"]
-    assert abs(cand["heldout_rms_rel"] - diag["gap_before"]) < 0.2 * diag["gap_before"]    # drives cannot tell
+    parity_gap = comp.metrics["empty_heldout_rms_rel"]                 # odd drives held out, fitted on the even
+    assert abs(cand["heldout_rms_rel"] - parity_gap) < 0.2 * parity_gap    # drives held out by parity cannot tell
+    # the engine holds out every fifth drive (both parities in each fold): it sees the classes and names them
+    assert diag["chosen"] == "pair_parity_gains" and diag["verdict"] == "explained", diag["engine"]["steps"]
+    gains = diag["engine"]["parameters"]["pair_parity_gains"]
+    assert abs(gains["gain_odd-odd"] + 0.09) < 0.01 and abs(gains["gain_even-odd"]) < 0.01
     found = cand["heldout_setups"]["fitted_on_the_empty_tank"]["pair_parity_gains_rel"]
     assert abs(found["odd-odd"] - 0.91) < 0.01 and abs(found["even-odd"] - 1) < 0.01

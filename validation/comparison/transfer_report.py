@@ -200,8 +200,20 @@ def report_markdown(m: dict) -> str:
         lines += [f"- Diagnosis: {m['diagnosis']['error']}."]
     elif "diagnosis" in m:
         d = m["diagnosis"]
-        lines += [(f"- Diagnosis: chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} -> {d['gap_after']:.4f} "
-                   f"({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
+        e = d.get("engine", {})
+        det = e.get("detection", {})
+        lines += [(f"- Diagnosis ({d.get('verdict', '')}): chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} "
+                   f"-> {d['gap_after']:.4f} ({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
+                  *([f"  - the engine: {e['engine']}; {e['noise_model']}; detection: best improvement "
+                     f"{det['improvement']:.1f} s^2 against a threshold of {det['improvement_threshold']:.1f} s^2 "
+                     f"(p = {det['p_detection']:.3g})"] if det else []),
+                  *[f"  - {name}.{p} = {v:.4g} (95 % interval {lo:.4g} to {hi:.4g})"
+                    for name, ps in e.get("parameters", {}).items() for p, v in ps.items()
+                    for lo, hi in [e["interval_95"][name][p]]],
+                  *[f"  - {s['effect']} made exact on the BEM at its fitted scene: held-out "
+                    f"{s['heldout_rms_rel_linear']:.4f} (linear) -> {s['heldout_rms_rel']:.4f} in "
+                    f"{len(s['solves'])} solve(s)" for s in e.get("bem_secants", [])],
+                  "  - the linear candidates about the one solve, scored on the odd drives (the table below):",
                   *([f"  - stated geometry fitted on the empty tank, object set-ups predicted: "
                      f"{d['stated_geometry_heldout_setups']['empty_to_objects_rms_rel']:.4f}"]
                     if d.get("stated_geometry_heldout_setups") else []),

@@ -29,8 +29,14 @@ even drive patterns and scored on the odd ones
 Every candidate is also fitted on the empty tank and scored on the object
 set-ups (:func:`heldout_setups`: ``heldout_setups`` of each candidate),
 which held-out drives cannot do for what differs between odd and even drives.
-``chosen`` is the candidate with the smallest held-out gap (``none`` when
-the empty tank is already within 1.5x the measurement's own floor); what it leaves
+The choice (``chosen``, ``verdict``, ``gap_before``, ``gap_after``) is the
+pose diagnosis's: the blocks and the common mode as the engine's effects
+(:mod:`electrosense.validation.diagnosis.transfer_engine`: whole drive
+patterns held out, a BIC charge per parameter, the detection test at a
+stated false-alarm rate with the log's reciprocity floor as its noise,
+forward selection), each significant geometric block made exact on the BEM
+at its fitted scene (:func:`_solver_at`); the table of linear candidates
+(``candidates``, scored on the odd drives) stays beside it. What it leaves
 is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
 (the tank's symmetric shape, scatter that reciprocal pairs share, the part
 that breaks reciprocity). Contact impedances come from the drive pairs' own
@@ -72,7 +78,7 @@ from electrosense.validation.comparison.transfer import (
     solved_transfer_ohm,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, fit_common_mode, instrument_reference
-from electrosense.validation.diagnosis.select import SelectionRules
+from electrosense.validation.diagnosis.transfer_engine import Block, TransferProblem, diagnose_rows
 from electrosense.validation.diagnosis.transfer_remainder import where_the_rest_lies
 
 __all__ = [
@@ -82,6 +88,7 @@ __all__ = [
     "channel_blocks",
     "contact_impedances",
     "diagnose_transfer",
+    "engine_blocks",
     "moved_electrodes",
     "position_blocks",
     "refine_positions",
@@ -516,6 +523,98 @@ def contact_impedances(K_S, drive_pairs, drive_Z_ohm, electrodes) -> dict:
             "z_c_ohm_m2": np.round(r_el * areas[:n_e], 6).tolist()}
 
 
+def engine_blocks(blocks: dict, Z_model, measure, tank, R_ring_m: float | None, wall, ring) -> list[Block]:
+    """The column blocks of :func:`diagnose_transfer` as the engine's :class:`~.transfer_engine.Block`: each
+    parameter in physical units with the largest plausible magnitude as its bound.
+
+    Bounds: a gain's relative change 0.5; an offset the largest model magnitude; a ground's share of the current
+    1; the depth 0.4 of itself; the ring's and the floor's radius 0.3 of the ring's; an electrode's move half the
+    electrodes' spacing along the ring. The channels' mean gain (the scale's), the ring's rigid rotation and its
+    mean height are gauges (the last parameter is minus the sum of the others).
+
+    >>> Zm = np.array([1.0, 2.0, 3.0]); meas = np.array([[1, 2], [2, 3], [1, 2]])
+    >>> [(b.name, b.param_names, b.gauge) for b in engine_blocks(channel_blocks(Zm, meas), Zm, meas, None, None, [], [])]
+    ... # doctest: +NORMALIZE_WHITESPACE
+    [('channel_gains', ('gain_rel_change_m1-2', 'gain_rel_change_m2-3'), True),
+     ('channel_offsets', ('offset_m1-2_ohm', 'offset_m2-3_ohm'), False), ('common_offset', ('offset_ohm',), False)]
+    """
+    pairs = [f"m{p}-{q}" for p, q in np.unique(measure, axis=0).tolist()]
+    offset = float(np.max(np.abs(Z_model)))
+    spacing = np.pi * R_ring_m / max(len(ring), 1) if R_ring_m else 0.01
+    discs = [f"e{w.index + 1}" for w in wall]
+    spec = {
+        "channel_gains": ([f"gain_rel_change_{p}" for p in pairs], "1", 0.5, True,
+                          "each measurement channel reads (1 + g) times its voltage"),
+        "channel_offsets": ([f"offset_{p}_ohm" for p in pairs], "ohm", offset, False,
+                            "each measurement channel adds a fixed voltage per unit current"),
+        "common_offset": (["offset_ohm"], "ohm", offset, False, "every channel adds one fixed voltage"),
+        "pair_parity_gains": (["gain_even-odd", "gain_odd-even", "gain_odd-odd"], "1", 0.5, False,
+                              "a gain per class of (drive pair, measurement pair) by their places' parity"),
+        "electrode_angles": ([f"arc_{d}_m" for d in discs], "m", spacing, True,
+                             "each ring electrode moved along the ring (the ring's rigid rotation as gauge)"),
+        "electrode_heights": ([f"up_{d}_m" for d in discs], "m", spacing, True,
+                              "each ring electrode moved up the wall (the ring's mean height as gauge)"),
+        "water_depth": (["depth_change_m"], "m", 0.4 * getattr(tank, "water_depth_m", 0.0), False,
+                        "the water deeper by d than stated"),
+        "ring_radius": (["ring_radius_change_m"], "m", 0.3 * (R_ring_m or 0.0), False,
+                        "the tank wider by dR at the ring (both radii scaled)"),
+        "wall_taper": (["floor_radius_change_m"], "m", 0.3 * (R_ring_m or 0.0), False,
+                       "the tank's floor radius larger by dF (the wall's taper)"),
+    }
+    out = []
+    for name, cols in blocks.items():
+        if name == "scale":
+            continue
+        names, unit, bound, gauge, describe = spec.get(name, (["fraction"], "1", 1.0, False,
+                                                              "a share of the drive current returns through "
+                                                              f"electrode {name.rsplit('_', 1)[-1]}"))
+        out.append(Block(name, np.stack(cols, axis=1), tuple(names), unit, bound, gauge, describe))
+    return out
+
+
+#: the blocks whose fitted scene the BEM can solve (:func:`_solver_at`)
+GEOMETRIC_BLOCKS = ("electrode_angles", "electrode_heights", "water_depth", "ring_radius", "wall_taper")
+
+
+def _solver_at(scene, wall, R_ring_m, sigma_S_per_m: float, bem_options: dict, comparison):
+    """``solve_at(name, theta) -> (|Z| (R,), fraction, note, columns)``: the BEM of ``scene`` with a geometric block's
+    physical parameters ``theta`` applied (:data:`GEOMETRIC_BLOCKS`); an electrode move that would leave the wall
+    or cross a neighbour shortened (:func:`step_on_the_wall`) and said, one that cannot be placed at all refused;
+    an electrode block's columns at the moved scene (:func:`position_blocks`), else None."""
+    tank = scene.tank
+    drive, measure = comparison.table.drive, comparison.table.measure
+
+    def changed(name, theta):
+        if name in ("electrode_angles", "electrode_heights"):
+            zero = np.zeros(len(wall))
+            d_arc, d_up = (theta, zero) if name == "electrode_angles" else (zero, theta)
+            fraction, why = step_on_the_wall(scene, wall, zero, zero, d_arc, d_up)
+            if fraction == 0:
+                raise ValueError(f"no fraction of the fitted move can be placed: it {why}")
+            note = f"shortened to {fraction:g} of the fitted move, which {why}" if fraction < 1 else ""
+            return moved_electrodes(scene, wall, fraction * d_arc, fraction * d_up), fraction, note
+        if name == "water_depth":
+            return replace(scene, tank=replace(tank, water_depth_m=tank.water_depth_m + float(theta[0]))), 1.0, ""
+        if name == "ring_radius":
+            f = 1 + float(theta[0]) / R_ring_m
+            return reshaped_tank(scene, f * tank.radius_m, f * tank.floor_radius_m), 1.0, ""
+        if name == "wall_taper":
+            return reshaped_tank(scene, floor_radius_m=tank.floor_radius_m + float(theta[0])), 1.0, ""
+        raise ValueError(f"{name} is not a geometric block")
+
+    def solve_at(name, theta):
+        moved, fraction, note = changed(name, np.asarray(theta, float))
+        sol = solve_scene(moved, sigma_S_per_m, **bem_options)
+        Z = np.abs(model_transfer_ohm(sol.conductance.K_S, drive, measure))
+        columns = None
+        if name in ("electrode_angles", "electrode_heights"):   # the BEM's sensitivities where it now is
+            here = [w for w in wall_discs(moved) if w.index in {v.index for v in wall}]
+            columns = np.stack(position_blocks(sol, here, comparison)[name], axis=1)
+        return Z, fraction, note, columns
+
+    return solve_at
+
+
 def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict):
     """Every candidate about the comparison's BEM solution, the choice, and the contact impedances.
 
@@ -628,19 +727,31 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
             cands[f"{name}, refined on the BEM"], resid[f"{name}, refined on the BEM"] = refined, res
         seconds["position_refinement_s"] = time.perf_counter() - t0
     resid = {"stated geometry": comparison.residual, **resid}
-    gap_before = comparison.metrics["empty_heldout_rms_rel"]
     floor = comparison.metrics["noise_floor"]["per_measurement_rms_rel"]
-    ceiling = SelectionRules().none_ceiling
-    at_floor = gap_before <= ceiling * floor     # the gap is the measurement's own noise
-    chosen = "none" if at_floor else min(cands, key=lambda k: cands[k]["heldout_rms_rel"])
-    gap_after = gap_before if at_floor else cands[chosen]["heldout_rms_rel"]
+    # the choice: the pose diagnosis's engine on these rows (:mod:`.transfer_engine`)
+    t0 = time.perf_counter()
+    Z_signed, V_cm, _ = common_mode_rows(K0, drive, meas, instrument_reference(K0.shape[0], ring, floating)
+                                         if ring else list(range(1, K0.shape[0] + 1)))
+    problem = TransferProblem.scaled(comparison.drive_index, Zm, Zd, np.sign(Z_signed),
+                                     engine_blocks(blocks, Zm, meas, tank, R_ring, wall, ring), V_cm)
+    engine, after = diagnose_rows(problem, floor, solve_at=_solver_at(scene, wall, R_ring, sigma_S_per_m,
+                                                                      bem_options, comparison),
+                                  solvable=GEOMETRIC_BLOCKS)
+    seconds["engine_s"] = time.perf_counter() - t0
+    chosen = engine["chosen"] or "unexplained"
     held = comparison.held_out
     r0 = comparison.residual[held]
     worst = np.argsort(-np.abs(r0))[:4]
     diagnosis = {
-        "chosen": chosen, "gap_before": gap_before, "gap_after": gap_after, "shrink": 1 - gap_after / gap_before,
-        "rule": (f"an effect is named unless the empty tank's held-out gap is within {ceiling}x "
-                 "the measurement's own floor per measurement (reciprocity): then `none`, as in the pose diagnosis"),
+        "chosen": chosen, "verdict": engine["verdict"], "gap_before": engine["gap_before"],
+        "gap_after": engine["gap_after"], "shrink": engine["shrink"],
+        "rule": ("the pose diagnosis's engine (:mod:`transfer_engine`): each candidate fitted on four fifths of the "
+                 "drive patterns and scored on the rest, a BIC charge per parameter, an effect named only when the "
+                 f"best held-out improvement passes the detection test at a {engine['detection']['alpha']:.0%} "
+                 "false-alarm rate under the log's reciprocity floor as white noise; combinations by forward "
+                 "selection"),
+        "engine": engine,
+        "smallest_heldout_candidate": min(cands, key=lambda k: cands[k]["heldout_rms_rel"]),
         "candidates": cands,
         "stated_geometry_heldout_setups": across.get("scale"),
         "skipped": skipped,
@@ -649,7 +760,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
                                     "rel": float(r0[i])} for i in worst],
         "gap_before_split": where_the_rest_lies(drive, meas, comparison.offsets, comparison.residual, ring=ring),
         "remaining": where_the_rest_lies(drive, meas, comparison.offsets,
-                                         resid["stated geometry" if at_floor else chosen], ring=ring)}
+                                         comparison.residual if engine["chosen"] in ("none", "") else after,
+                                         ring=ring)}
     return diagnosis, resid, shape, seconds
 
 

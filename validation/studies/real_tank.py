@@ -21,8 +21,12 @@ Run: ``esense study real_tank --data FILE.mat|LOG.csv --scene pail.toml -o DIR``
   reciprocity), water depth, the tank's shape at the ring (radius; taper of
   the wall; one solve each), current returning through electrodes off the
   ring; contact impedances from the drive pairs' voltages (they cannot
-  change a four-electrode transfer impedance). ``diagnosis.chosen`` is the
-  candidate with the smallest held-out gap. ``diagnosis.one_geometry``
+  change a four-electrode transfer impedance). ``diagnosis.chosen`` and
+  ``diagnosis.verdict`` come from the pose diagnosis's engine
+  (:mod:`electrosense.validation.diagnosis.transfer_engine`: held-out drive
+  patterns, a detection test at a stated false-alarm rate, forward
+  selection, geometric candidates made exact on the BEM where they were
+  fitted). ``diagnosis.one_geometry``
   asks whether one tank shape explains both the empty tank and the balls:
   the ring radius the empty tank's fit wants against the one at which each
   ball's measured/simulated amplitude is 1.
