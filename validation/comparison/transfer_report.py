@@ -202,7 +202,9 @@ def report_markdown(m: dict) -> str:
         d = m["diagnosis"]
         e = d.get("engine", {})
         det = e.get("detection", {})
-        lines += [(f"- Diagnosis ({d.get('verdict', '')}): chosen {d['chosen']}, held-out gap {d['gap_before']:.4f} "
+        named = (f"nothing named (nearest: {e['combination']})" if d["chosen"] == "unexplained" and e
+                 else f"chosen {d['chosen']}")
+        lines += [(f"- Diagnosis ({d.get('verdict', '')}): {named}, held-out gap {d['gap_before']:.4f} "
                    f"-> {d['gap_after']:.4f} ({100 * d['shrink']:.0f} % shrink; goal >= 50 %)."),
                   *([f"  - the engine: {e['engine']}; {e['noise_model']}; detection: best improvement "
                      f"{det['improvement']:.1f} s^2 against a threshold of {det['improvement_threshold']:.1f} s^2 "

@@ -343,7 +343,8 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
     :meth:`TransferProblem.physical`), for the candidates named in ``solvable`` whose held-out improvement alone
     passes the detection test (:func:`bem_secants`). Returns a JSON-ready dict and the chosen combination's
     held-out relative residual (R,) (the baseline's where nothing is named). The dict: ``verdict``, ``chosen``
-    (``a+b``, ``none`` or ``""`` when unexplained), ``gap_before`` / ``gap_after`` (held-out RMS, relative),
+    (``a+b``, ``none`` or ``""`` when unexplained), ``combination`` (the selection's last, named or not),
+    ``gap_before`` / ``gap_after`` (held-out RMS, relative),
     ``parameters`` / ``standard_errors`` / ``interval_95`` of the chosen combination, ``ranking`` (every
     candidate alone), ``detection`` and ``steps``.
     """
@@ -379,6 +380,7 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
         "noise_model": f"white relative noise of {100 * noise:.3g} % per measurement (the log's reciprocity floor)",
         "verdict": selection.verdict,
         "chosen": chosen,
+        "combination": final.name,      # the selection's last combination: the nearest where nothing is named
         "gap_before": base.heldout_gap,
         "gap_after": final.heldout_gap,
         "shrink": 1 - final.heldout_gap / base.heldout_gap if base.heldout_gap > 0 else 0.0,
