@@ -350,8 +350,8 @@ def test_electrode_heights_found_and_the_rest_split_on_a_synthetic_phantom(tmp_p
     assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
     se = np.array(list(d["engine"]["standard_errors"]["electrode_heights"].values()))      # the noise's share
     assert np.all(np.abs(found - found.mean() - dz) < 4 * se + 2e-4)
-    # the table's own Gauss-Newton refinement of the linear candidate agrees
-    found = np.array(d["candidates"]["electrode_heights, refined on the BEM"]["height_offsets_mm"]) * 1e-3
+    # the table lists it beside the linear candidates, in mm
+    found = np.array(d["candidates"]["electrode_heights, made exact on the BEM"]["height_offsets_mm"]) * 1e-3
     assert np.abs(found - found.mean() - dz).max() < 0.25 * np.abs(dz).max()
     shares = d["remaining"]["shares"]
     assert abs(sum(shares.values()) - 1) < 1e-9
@@ -394,12 +394,12 @@ def test_transfer_modules_examples_run(module):
 
 def test_a_fitted_move_off_the_wall_is_shortened_and_said(tmp_path):
     """A linear fit that puts an electrode 1.3 m up the wall (out of the water, as one did on a real file): the BEM
-    refinement halves the step until every disc is on the wall, says so, and solves; a move of which no half fits
-    (onto the neighbour and beyond the floor at once) is refused without a solve."""
+    step at the fitted scene halves the move until every disc is on the wall, says so, and solves; a move of which
+    no half fits (onto the neighbour and beyond the floor at once) is refused without a solve."""
     from electrosense.meshes.scene_file import load_scene, load_scene_settings
     from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
     from electrosense.validation.comparison.transfer import compare_transfer_log
-    from electrosense.validation.diagnosis.transfer import refine_positions, step_on_the_wall, wall_discs
+    from electrosense.validation.diagnosis.transfer import solver_at, step_on_the_wall, wall_discs
 
     mat = _synthetic_phantom(tmp_path, np.random.default_rng(2), noise=2e-4)
     log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
@@ -407,12 +407,12 @@ def test_a_fitted_move_off_the_wall_is_shortened_and_said(tmp_path):
     comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
     wall = [w for w in wall_discs(scene) if w.index + 1 in settings["protocol"]["ring"]]
     up = np.zeros(len(wall))
-    up[0] = 1300.0
-    fitted = {"height_offsets_mm": up.tolist(), "heldout_rms_rel": 1.0, "twofold_rms_rel": 1.0, "n_parameters": 9}
-    best, res = refine_positions(comp, scene, wall, "electrode_heights", fitted, 1.0, settings["bem"], steps=1)
-    assert res is not None and best["steps"] == 1 and "shortened to" in best["notes"][0]
-    assert "is not on the tank's boundary" in best["notes"][0]
-    assert abs(best["height_offsets_mm"][0]) < 1e3 * scene.tank.water_depth_m
+    up[0] = 1.3
+    solve_at = solver_at(scene, wall, None, 1.0, settings["bem"], comp)
+    Z, fraction, note, columns = solve_at("electrode_heights", up)
+    assert Z.shape == comp.Z_model_ohm.shape and columns.shape == (len(Z), len(wall)) and "shortened to" in note
+    assert "is not on the tank's boundary" in note
+    assert abs(fraction * up[0]) < scene.tank.water_depth_m
     f, why = step_on_the_wall(scene, wall, np.zeros(len(wall)), np.zeros(len(wall)),
                               np.r_[1e3, np.zeros(len(wall) - 1)], np.r_[-1e3, np.zeros(len(wall) - 1)])
     assert f == 0 and why

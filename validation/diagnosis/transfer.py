@@ -22,9 +22,12 @@ even drive patterns and scored on the odd ones
   instrument reading a complex fraction of a common-mode voltage
   (:mod:`electrosense.validation.diagnosis.common_mode`; nonlinear, its own
   fit, scored alike);
-* the best electrode-position candidate refined on the BEM
-  (:func:`refine_positions`: the electrodes moved, the scene solved again,
-  every step kept in the water).
+* each geometric candidate that passes the detection test made exact on the
+  BEM at its fitted scene (:func:`solver_at`, the engine's
+  :func:`~electrosense.validation.diagnosis.transfer_engine.bem_secants`:
+  the electrodes moved or the tank changed, the scene solved again, the
+  electrodes' sensitivities taken anew there, every move kept in the water),
+  listed beside the linear ones as ``<name>, made exact on the BEM``.
 
 Every candidate is also fitted on the empty tank and scored on the object
 set-ups (:func:`heldout_setups`: ``heldout_setups`` of each candidate),
@@ -35,7 +38,7 @@ pose diagnosis's: the blocks and the common mode as the engine's effects
 patterns held out, a BIC charge per parameter, the detection test at a
 stated false-alarm rate with the log's reciprocity floor as its noise,
 forward selection), each significant geometric block made exact on the BEM
-at its fitted scene (:func:`_solver_at`); the table of linear candidates
+at its fitted scene (:func:`solver_at`); the table of linear candidates
 (``candidates``, scored on the odd drives) stays beside it. What it leaves
 is split by :func:`~electrosense.validation.diagnosis.transfer_remainder.where_the_rest_lies`
 (the tank's symmetric shape, scatter that reciprocal pairs share, the part
@@ -71,7 +74,6 @@ from electrosense.meshes.cylinder_tank_mesh import disc_problems
 from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
-    compare_empty_tank,
     model_transfer_ohm,
     ring_pair_places,
     score_fit,
@@ -89,9 +91,9 @@ __all__ = [
     "contact_impedances",
     "diagnose_transfer",
     "engine_blocks",
+    "solver_at",
     "moved_electrodes",
     "position_blocks",
-    "refine_positions",
     "one_geometry",
     "reshaped_tank",
     "score_candidates",
@@ -365,66 +367,6 @@ def moved_electrodes(scene, wall, arc_m=None, up_m=None):
     return replace(scene, electrodes=tuple(es))
 
 
-def refine_positions(comparison, scene, wall, name: str, fitted: dict, sigma_S_per_m: float, bem_options: dict,
-                     steps: int = 3) -> tuple[dict, np.ndarray]:
-    """Gauss-Newton on the BEM for an electrode-position candidate: move the electrodes as fitted, solve, fit again.
-
-    The linear fit about the stated scene is only as good as one solve's
-    sensitivities and a first-order step; each step here solves the scene
-    with the electrodes where the last fit put them and fits the remaining
-    offsets about it (the even drives, as always; the odd ones scored).
-    Every step stays in the water: one that would put a disc off the wall,
-    across the floor or the free surface, or onto another disc is halved
-    (:func:`step_on_the_wall`) and, where no half of it is possible, refused;
-    a solve that fails ends the refinement. Either is said in the result's
-    ``notes``. ``fitted``: the candidate's scores and parameters from
-    :func:`score_candidates`. Returns its refined scores and parameters and
-    the 2-fold residuals (None when no step improved on ``fitted``).
-    """
-    n = len(wall)
-    d_arc = 1e-3 * np.asarray(fitted.get("arc_offsets_mm", np.zeros(n)))
-    d_up = 1e-3 * np.asarray(fitted.get("height_offsets_mm", np.zeros(n)))
-    arc, up = np.zeros(n), np.zeros(n)
-    t = comparison.table
-    best, res, notes = fitted, None, []
-    for step in range(1, steps + 1):
-        fraction, why = step_on_the_wall(scene, wall, arc, up, d_arc, d_up)
-        if fraction == 0:
-            notes.append(f"step {step} refused: even 1/64 of it {why}")
-            break
-        if fraction < 1:
-            notes.append(f"step {step} shortened to {fraction:g} of the fitted move, which {why}")
-        arc, up = arc + fraction * d_arc, up + fraction * d_up
-        moved = moved_electrodes(scene, wall, arc, up)
-        try:
-            sol = solve_scene(moved, sigma_S_per_m, **bem_options)
-        except (ValueError, MemoryError) as exc:
-            notes.append(f"step {step}: the moved scene could not be solved ({exc}); refinement stopped")
-            break
-        try:
-            comp = compare_empty_tank(t, sol, sigma_S_per_m)
-        except ValueError as exc:                      # e.g. signs flipped: the moved scene is not the log's
-            notes.append(f"step {step}: the moved scene does not match the log ({exc}); refinement stopped")
-            break
-        blocks = {"scale": [comp.Z_model_ohm],
-                  **position_blocks(sol, [w for w in wall_discs(moved) if w.index in {v.index for v in wall}], comp)}
-        cands, resid = score_candidates(blocks, [name], comp.Z_measured_ohm, comp.folds)
-        c = cands[name]
-        d_arc = 1e-3 * np.asarray(c.get("arc_offsets_mm", np.zeros(n)))
-        d_up = 1e-3 * np.asarray(c.get("height_offsets_mm", np.zeros(n)))
-        c = {**c, "steps": step}
-        if "arc_offsets_mm" in fitted:
-            c["arc_offsets_mm"] = np.round(1e3 * (arc + d_arc), 2).tolist()
-        if "height_offsets_mm" in fitted:
-            c["height_offsets_mm"] = np.round(1e3 * (up + d_up), 2).tolist()
-        if c["heldout_rms_rel"] >= best["heldout_rms_rel"]:
-            break
-        best, res = c, resid[name]
-    if notes:
-        best = {**best, "notes": notes}
-    return best, res
-
-
 def step_on_the_wall(scene, wall, arc_m, up_m, d_arc_m, d_up_m, halvings: int = 6) -> tuple[float, str]:
     """The largest fraction (1, 1/2, ... 1/2**halvings, else 0) of a move that keeps every wall disc placeable.
 
@@ -572,11 +514,36 @@ def engine_blocks(blocks: dict, Z_model, measure, tank, R_ring_m: float | None, 
     return out
 
 
-#: the blocks whose fitted scene the BEM can solve (:func:`_solver_at`)
+def bem_stepped_row(step: dict, R_ring_m: float | None = None) -> dict:
+    """A row of the candidates' table for a block made exact on the BEM (an item of the engine's ``bem_secants``):
+    its held-out gap (the engine's folds: every row held out once, so also its ``twofold_rms_rel``), its
+    parameters as :func:`block_parameters` states them (electrode moves in mm; ``R_ring_m`` for the ring's
+    radius) with their standard errors.
+
+    >>> row = bem_stepped_row({"effect": "electrode_heights", "heldout_rms_rel": 0.01, "solves": [{}, {}],
+    ...                        "parameters": {"up_e1_m": 0.002, "up_e2_m": -0.002},
+    ...                        "standard_errors": {"up_e1_m": 1e-4, "up_e2_m": 1e-4}})
+    >>> row["height_offsets_mm"], row["height_offsets_mm_se"], row["n_parameters"], row["steps"]
+    ([2.0, -2.0], [0.1, 0.1], 1, 2)
+    """
+    name = step["effect"]
+    values, errors = np.array(list(step["parameters"].values())), np.array(list(step["standard_errors"].values()))
+    params = block_parameters(name, values, 1.0, R_ring_m)
+    row = {"heldout_rms_rel": step["heldout_rms_rel"], "twofold_rms_rel": step["heldout_rms_rel"],
+           "n_parameters": max(len(values) - (name in ("electrode_angles", "electrode_heights")), 1),
+           "heldout_by": "whole drive patterns, every fifth in a fold (the engine's folds)",
+           "steps": len(step["solves"]), **params,
+           **_standard_errors(params, block_parameters(name, values + errors, 1.0, R_ring_m))}
+    notes = [s["note"] for s in step["solves"] if s.get("note")] + [s["refused"] for s in step["solves"]
+                                                                     if s.get("refused")]
+    return {**row, "notes": notes} if notes else row
+
+
+#: the blocks whose fitted scene the BEM can solve (:func:`solver_at`)
 GEOMETRIC_BLOCKS = ("electrode_angles", "electrode_heights", "water_depth", "ring_radius", "wall_taper")
 
 
-def _solver_at(scene, wall, R_ring_m, sigma_S_per_m: float, bem_options: dict, comparison):
+def solver_at(scene, wall, R_ring_m, sigma_S_per_m: float, bem_options: dict, comparison):
     """``solve_at(name, theta) -> (|Z| (R,), fraction, note, columns)``: the BEM of ``scene`` with a geometric block's
     physical parameters ``theta`` applied (:data:`GEOMETRIC_BLOCKS`); an electrode move that would leave the wall
     or cross a neighbour shortened (:func:`step_on_the_wall`) and said, one that cannot be placed at all refused;
@@ -718,26 +685,20 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     for name, scores in across.items():
         if name in cands:
             cands[name]["heldout_setups"] = scores
-    if wall:        # the best electrode-position candidate, refined on the BEM
-        t0 = time.perf_counter()
-        name = min(("electrode_angles", "electrode_heights", "electrode_angles+electrode_heights"),
-                   key=lambda k: cands[k]["heldout_rms_rel"])
-        refined, res = refine_positions(comparison, scene, wall, name, cands[name], sigma_S_per_m, bem_options)
-        if res is not None:
-            cands[f"{name}, refined on the BEM"], resid[f"{name}, refined on the BEM"] = refined, res
-        seconds["position_refinement_s"] = time.perf_counter() - t0
     resid = {"stated geometry": comparison.residual, **resid}
     floor = comparison.metrics["noise_floor"]["per_measurement_rms_rel"]
     # the choice: the pose diagnosis's engine on these rows (:mod:`.transfer_engine`)
     t0 = time.perf_counter()
-    Z_signed, V_cm, _ = common_mode_rows(K0, drive, meas, instrument_reference(K0.shape[0], ring, floating)
-                                         if ring else list(range(1, K0.shape[0] + 1)))
+    Z_signed, V_cm, _ = cm_designs["common_mode"]
     problem = TransferProblem.scaled(comparison.drive_index, Zm, Zd, np.sign(Z_signed),
                                      engine_blocks(blocks, Zm, meas, tank, R_ring, wall, ring), V_cm)
-    engine, after = diagnose_rows(problem, floor, solve_at=_solver_at(scene, wall, R_ring, sigma_S_per_m,
+    engine, after = diagnose_rows(problem, floor, solve_at=solver_at(scene, wall, R_ring, sigma_S_per_m,
                                                                       bem_options, comparison),
                                   solvable=GEOMETRIC_BLOCKS)
     seconds["engine_s"] = time.perf_counter() - t0
+    for step in engine["bem_secants"]:      # the BEM's answer beside the linear candidates
+        if step["heldout_rms_rel"] < step["heldout_rms_rel_linear"]:
+            cands[f"{step['effect']}, made exact on the BEM"] = bem_stepped_row(step, R_ring)
     chosen = engine["chosen"] or "unexplained"
     held = comparison.held_out
     r0 = comparison.residual[held]

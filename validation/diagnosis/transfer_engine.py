@@ -292,7 +292,8 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
     takes them: its derivative at the fitted parameters is then the BEM's too (a Newton step; the secant alone
     converges about linearly, halving the excess gap a solve on a synthetic phantom). The candidate is then
     fitted and scored again, and the scene at its new parameters solved again, ``iterations`` times at most, as
-    long as the penalised held-out score falls. Returns the ranking (re-sorted) and what each solve gave.
+    long as the penalised held-out score falls. Returns the ranking (re-sorted) and, per candidate, what each
+    solve gave and its final parameters with their standard errors.
     """
     everything = np.arange(problem.obs.n_poses)
     by_name = {c.name: c for c in ranking}
@@ -329,6 +330,8 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
                 break
             best = by_name[name] = again
         info["heldout_rms_rel"] = best.heldout_gap
+        values, errors = _named_parameters(problem, best)
+        info["parameters"], info["standard_errors"] = values.get(name, {}), errors.get(name, {})
         infos.append(info)
     return sorted(by_name.values(), key=lambda c: c.score), infos
 
