@@ -38,7 +38,7 @@ def test_noise_alone_is_answered_none_on_random_rings():
     verdicts = []
     for _ in range(8):
         n = int(rng.integers(8, 17))
-        out, _ = diagnose_rows(_problem(rng, n, lambda Zm, d, m: Zm, 2e-3), noise=2e-3)
+        out, _, _ = diagnose_rows(_problem(rng, n, lambda Zm, d, m: Zm, 2e-3), noise=2e-3)
         verdicts.append(out["verdict"])
         assert out["gap_before"] < 1.5 * 2e-3 and out["detection"]["alpha"] == 0.01
     assert verdicts.count("none") >= 7, verdicts
@@ -51,7 +51,7 @@ def test_injected_channel_gains_and_a_multiplexer_class_are_named(seed):
     rng = np.random.default_rng(seed)
     n = int(rng.integers(8, 17))
     g = 0.02 * rng.standard_normal(n)
-    out, _ = diagnose_rows(_problem(rng, n, lambda Zm, d, m: Zm * (1 + g[m[:, 0] - 1]), 2e-3), noise=2e-3)
+    out, _, _ = diagnose_rows(_problem(rng, n, lambda Zm, d, m: Zm * (1 + g[m[:, 0] - 1]), 2e-3), noise=2e-3)
     assert out["chosen"] == "channel_gains" and out["verdict"] == "explained", out["steps"]
     assert out["gap_after"] < 1.5 * 2e-3
     found = np.array(list(out["parameters"]["channel_gains"].values()))
@@ -60,7 +60,7 @@ def test_injected_channel_gains_and_a_multiplexer_class_are_named(seed):
     assert np.all(np.abs(found - truth) < 4 * se + 1e-3)
 
     odd_odd = lambda Zm, d, m: Zm * np.where((d[:, 0] % 2 == 0) & (m[:, 0] % 2 == 0), 0.96, 1.0)   # noqa: E731
-    out, _ = diagnose_rows(_problem(rng, n, odd_odd, 2e-3), noise=2e-3)
+    out, _, _ = diagnose_rows(_problem(rng, n, odd_odd, 2e-3), noise=2e-3)
     assert out["chosen"] == "pair_parity_gains", out["steps"]
     p = out["parameters"]["pair_parity_gains"]
     assert abs(p["gain_odd-odd"] + 0.04) < 0.005 and abs(p["gain_even-odd"]) < 0.005

@@ -118,8 +118,9 @@ def geometry_figure(folder, offsets, resid: dict, one: dict | None) -> Path:
 
 
 def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
-    """Where the gap lies, before any effect and after ``chosen``: shares of the parts (stacked, of the squared gap)
-    and, on an even ring, the mean by (drive, measurement) pair parity class."""
+    """Where the held-out gap lies, before any effect and after ``chosen`` (a label: the named combination, or the
+    nearest one where nothing is named): shares of the parts (stacked, of the squared gap) and, on an even ring,
+    the mean by (drive, measurement) pair parity class."""
     parity = before.get("by_pair_parity") and after.get("by_pair_parity")
     fig, ax = new_figure(1, 2 if parity else 1, panel_size_in=(5.2, 3.8))
     a = ax[0, 0]
@@ -130,17 +131,17 @@ def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
         bottom = 0.0
         for part, c in colours.items():
             v = 100 * split["shares"][part] * split["rms_rel"] ** 2 / before["rms_rel"] ** 2
-            label = {"shared_by_reciprocal_pairs": "shared by reciprocal pairs, beyond noise",
-                     "noise": "noise (breaks reciprocity, x2)"}.get(part, part.replace("_", " "))
+            label = {"shared_by_reciprocal_pairs": "shared by reciprocal\npairs, beyond noise",
+                     "noise": "noise (breaks\nreciprocity, x2)"}.get(part, part.replace("_", " "))
             a.bar(i, v, bottom=bottom, color=c, width=0.6, label=label if i == 0 else None)
             bottom += v
         a.annotate(f"RMS {100 * split['rms_rel']:.1f} %", (i, bottom), textcoords="offset points", xytext=(0, 3),
                    ha="center", fontsize=9)
     a.set_xticks([0, 1], labels, fontsize=8)
-    a.set_xlim(-0.6, 2.9)
+    a.set_xlim(-0.6, 3.4)
     a.set_ylim(0, 115)
-    a.set(ylabel="share of the stated geometry's squared gap (%)", title="where the gap lies (2-fold residuals)")
-    a.legend(fontsize=8, loc="upper right")
+    a.set(ylabel="share of the stated geometry's squared gap (%)", title="where the held-out gap lies")
+    a.legend(fontsize=7, loc="center right")
     if parity:
         b = ax[0, 1]
         keys = list(before["by_pair_parity"])
@@ -228,7 +229,8 @@ def report_markdown(m: dict) -> str:
                   *[f"  - {k}: not scored, its changed scene is not a valid one ({why})"
                     for k, why in d.get("skipped", {}).items()],
                   f"  - where the gap lies before any effect (stated geometry): {d['gap_before_split']['text']}.",
-                  *([f"  - where the rest lies (after {d['chosen']}): {d['remaining']['text']}."]
+                  *([f"  - where the rest lies (after {e.get('combination', d['chosen'])}"
+                     + (", not named" if d["chosen"] == "unexplained" else "") + f"): {d['remaining']['text']}."]
                     if d["chosen"] != "none" else [f"  - {d['rule']}."])]
         if "error" in d.get("one_geometry", {}):
             lines += [f"- One tank shape for both? {d['one_geometry']['error']}."]
@@ -277,7 +279,9 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
                         None if one_geometry is None or "error" in one_geometry else one_geometry)
     if "remaining" in metrics.get("diagnosis", {}):
         d = metrics["diagnosis"]
-        remainder_figure(folder, d["gap_before_split"], d["remaining"], d["chosen"])
+        label = d["chosen"] if d["chosen"] != "unexplained" else \
+            f"nearest (not named):\n{d.get('engine', {}).get('combination', '?')}"
+        remainder_figure(folder, d["gap_before_split"], d["remaining"], label)
         candidates_figure(folder, d, metrics["noise_floor"]["per_measurement_rms_rel"])
     path = folder / "report.md"
     text = report_markdown(metrics)

@@ -692,10 +692,12 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     Z_signed, V_cm, _ = cm_designs["common_mode"]
     problem = TransferProblem.scaled(comparison.drive_index, Zm, Zd, np.sign(Z_signed),
                                      engine_blocks(blocks, Zm, meas, tank, R_ring, wall, ring), V_cm)
-    engine, after = diagnose_rows(problem, floor, solve_at=solver_at(scene, wall, R_ring, sigma_S_per_m,
+    engine, *heldout = diagnose_rows(problem, floor, solve_at=solver_at(scene, wall, R_ring, sigma_S_per_m,
                                                                       bem_options, comparison),
                                   solvable=GEOMETRIC_BLOCKS)
     seconds["engine_s"] = time.perf_counter() - t0
+    # the engine's (measured - predicted) / model as the table's model / measured - 1
+    before, after = (-r * problem.Z_model / problem.Z_measured for r in heldout)
     for step in engine["bem_secants"]:      # the BEM's answer beside the linear candidates
         if step["heldout_rms_rel"] < step["heldout_rms_rel_linear"]:
             cands[f"{step['effect']}, made exact on the BEM"] = bem_stepped_row(step, R_ring)
@@ -719,10 +721,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         "contact_impedances": contact_impedances(K0, t.drive_pairs, t.drive_Z_ohm, scene.electrodes),
         "largest_heldout_errors": [{"drive": drive[held][i].tolist(), "measure": meas[held][i].tolist(),
                                     "rel": float(r0[i])} for i in worst],
-        "gap_before_split": where_the_rest_lies(drive, meas, comparison.offsets, comparison.residual, ring=ring),
-        "remaining": where_the_rest_lies(drive, meas, comparison.offsets,
-                                         comparison.residual if engine["chosen"] in ("none", "") else after,
-                                         ring=ring)}
+        "gap_before_split": where_the_rest_lies(drive, meas, comparison.offsets, before, ring=ring),
+        "remaining": where_the_rest_lies(drive, meas, comparison.offsets, after, ring=ring)}
     return diagnosis, resid, shape, seconds
 
 

@@ -56,7 +56,7 @@ Per-channel gains of 1 % and -1 % in a synthetic log (two channels, eight drive 
 >>> Zd = Zd * (1 + 1e-3 * rng.standard_normal(48))
 >>> blocks = [Block("channel_gains", np.c_[Zm * (channel == 0), Zm * (channel == 1)], ("gain_1", "gain_2"), "1",
 ...                 0.5, gauge=True)]
->>> out, _ = diagnose_rows(TransferProblem.scaled(drive_index, Zm, Zd, np.ones(48), blocks), noise=1e-3)
+>>> out, _, _ = diagnose_rows(TransferProblem.scaled(drive_index, Zm, Zd, np.ones(48), blocks), noise=1e-3)
 >>> out["verdict"], out["chosen"], [round(g, 3) for g in out["parameters"]["channel_gains"].values()]
 ('explained', 'channel_gains', [0.01, -0.01])
 """
@@ -337,15 +337,17 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
 
 
 def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: SelectionRules = SelectionRules(),
-                  alpha: float = ALPHA, lib: dict | None = None, solve_at=None, solvable=()) -> tuple[dict, np.ndarray]:
+                  alpha: float = ALPHA, lib: dict | None = None, solve_at=None,
+                  solvable=()) -> tuple[dict, np.ndarray, np.ndarray]:
     """The engine's diagnosis of a transfer problem: ranking, detection, selection, verdict.
 
     ``noise``: the relative noise per row (the reciprocity floor); ``folds`` default to whole drive patterns,
     every fifth in a fold (:func:`~.fitting.make_folds`). ``solve_at(name, theta) -> (|Z| (R,) model units,
     fraction of theta solved, note, the block's columns there or None)``: the BEM at a geometric candidate's fitted parameters (physical, every one,
     :meth:`TransferProblem.physical`), for the candidates named in ``solvable`` whose held-out improvement alone
-    passes the detection test (:func:`bem_secants`). Returns a JSON-ready dict and the chosen combination's
-    held-out relative residual (R,) (the baseline's where nothing is named). The dict: ``verdict``, ``chosen``
+    passes the detection test (:func:`bem_secants`). Returns a JSON-ready dict and the held-out relative
+    residuals (R,) of the baseline and of the selection's last combination (the baseline's where the verdict is
+    ``none``). The dict: ``verdict``, ``chosen``
     (``a+b``, ``none`` or ``""`` when unexplained), ``combination`` (the selection's last, named or not),
     ``gap_before`` / ``gap_after`` (held-out RMS, relative),
     ``parameters`` / ``standard_errors`` / ``interval_95`` of the chosen combination, ``ranking`` (every
@@ -397,4 +399,4 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
         "steps": selection.steps,
         "folds": "whole drive patterns, every fifth in a fold; segments of every pattern where the held-out patterns "
                  "alone see a parameter",
-    }, final.heldout[:, 0]
+    }, base.heldout[:, 0], final.heldout[:, 0]
