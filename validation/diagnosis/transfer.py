@@ -696,8 +696,9 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
                                                                       bem_options, comparison),
                                   solvable=GEOMETRIC_BLOCKS)
     seconds["engine_s"] = time.perf_counter() - t0
-    # the engine's (measured - predicted) / model as the table's model / measured - 1
-    before, after = (-r * problem.Z_model / problem.Z_measured for r in heldout)
+    # the engine's (measured - predicted) / model, turned to the table's sign (model / measured - 1 to first order;
+    # its RMS is then the engine's gaps)
+    before, after = (-r for r in heldout)
     for step in engine["bem_secants"]:      # the BEM's answer beside the linear candidates
         if step["heldout_rms_rel"] < step["heldout_rms_rel_linear"]:
             cands[f"{step['effect']}, made exact on the BEM"] = bem_stepped_row(step, R_ring)

@@ -70,7 +70,13 @@ from electrosense.validation.diagnosis.bem_secant import SecantCorrection
 from electrosense.validation.diagnosis.detection import ALPHA, diagnose_detection
 from electrosense.validation.diagnosis.effects import Effect
 from electrosense.validation.diagnosis.fitting import make_folds, predict
-from electrosense.validation.diagnosis.select import SelectionRules, forward_selection, rank_candidates, score_candidate
+from electrosense.validation.diagnosis.select import (
+    SelectionRules,
+    confusable_pairs,
+    forward_selection,
+    rank_candidates,
+    score_candidate,
+)
 
 __all__ = ["TransferRows", "TransferScenario", "Block", "TransferProblem", "transfer_library", "bem_secants",
            "diagnose_rows"]
@@ -351,7 +357,8 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
     (``a+b``, ``none`` or ``""`` when unexplained), ``combination`` (the selection's last, named or not),
     ``gap_before`` / ``gap_after`` (held-out RMS, relative),
     ``parameters`` / ``standard_errors`` / ``interval_95`` of the chosen combination, ``ranking`` (every
-    candidate alone), ``detection`` and ``steps``.
+    candidate alone), ``detection``, ``confusable`` (pairs of candidates whose sensitivities on these rows are
+    nearly parallel: what the data cannot separate) and ``steps``.
     """
     lib = transfer_library(problem) if lib is None else lib
     folds = make_folds(problem.obs) if folds is None else folds
@@ -395,6 +402,7 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
         "interval_95": _interval(values, errors),
         "ranking": [row(c) for c in ranking],
         "detection": {k: v for k, v in detection.items() if k not in ("null_sse",)},
+        "confusable": [{k: v for k, v in c.items() if k != "separate_by"} for c in confusable_pairs(ranking, rules)],
         "bem_secants": secants,
         "steps": selection.steps,
         "folds": "whole drive patterns, every fifth in a fold; segments of every pattern where the held-out patterns "

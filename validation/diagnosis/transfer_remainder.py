@@ -121,7 +121,7 @@ def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, r
         parity = {f"{'eo'[c // 2]}{'eo'[c % 2]}": float(s[classes == c].mean()) for c in range(4)
                   if np.any(classes == c)}
     main = max(shares, key=shares.get)
-    text = (f"of the gap (RMS {np.sqrt(total / n):.4f}, each half held out in turn), " +
+    text = (f"of the held-out gap (RMS {np.sqrt(total / n):.4f}), " +
             ", ".join(f"{100 * v:.0f} % {k.replace('_', ' ')}" for k, v in shares.items() if v > 0.005) +
             f"; most of it: {_MEANING[main]}; the {n_largest} largest rows hold "
             f"{100 * sum(x['share'] for x in largest):.0f} %")
