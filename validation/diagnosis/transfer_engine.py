@@ -164,7 +164,7 @@ class TransferProblem:
         self.I_base = self.Z_model[:, None]
         self.weight = np.ones_like(self.I_base)
         for b in self.blocks.values():
-            self.columns[b.name] = self._effect_columns(b)
+            self.columns[b.name] = self.effect_columns(b)
 
     @classmethod
     def scaled(cls, drive_index, Z_model, Z_measured, sign, blocks=(), V_cm=None) -> "TransferProblem":
@@ -176,7 +176,7 @@ class TransferProblem:
         return cls(TransferRows(np.asarray(drive_index)), s * Zm, Zd, np.asarray(sign, float),
                    None if V_cm is None else s * np.asarray(V_cm, float), blocks, scale=s)
 
-    def _effect_columns(self, b: Block) -> np.ndarray:
+    def effect_columns(self, b: Block) -> np.ndarray:
         """``b``'s columns orthogonal to the model in the relative metric (the scale refitted with them), the
         gauge direction removed."""
         X = np.asarray(b.columns, float).reshape(self.obs.n_poses, -1)
@@ -317,7 +317,7 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
                 break
             kept = problem.secants.pop(effect.label, None), problem.columns[name]
             if columns is not None:     # the BEM's own sensitivities where it was solved: a Newton step
-                problem.columns[name] = problem._effect_columns(
+                problem.columns[name] = problem.effect_columns(
                     replace(problem.blocks[name], columns=problem.scale * np.asarray(columns, float)))
             theta_hat = fraction * theta
             Z_block = predict(problem, [effect], theta_hat, everything)[:, 0]
