@@ -123,3 +123,24 @@ def test_regions_one_pixel_apart_stay_apart():
     m[20:40, 31:50] = 2
     objs = truth_objects(KtcTruth(m, 0.23))
     assert [o.is_conducting for o in objs] == [False, True] and not _overlapping_objects(objs)
+
+
+def test_the_empty_tanks_gap_is_diagnosed_by_the_engine(tmp_path):
+    """A scene fitted in eight evaluations leaves a gap of its own (the electrodes' height not converged): the
+    diagnosis engine (every fifth pattern held out, a detection test at 1 %) names one candidate that brings the
+    held-out gap to its noise, with an interval for each parameter, and no less than the linear table's best."""
+    from electrosense.validation.diagnosis.ktc_gap import diagnose_ktc
+
+    _write_series(tmp_path / "fit", E=8)
+    folder = read_ktc_folder(tmp_path / "fit")
+    fit = fit_ktc(folder, n_modes=6, progress=lambda s: None, max_nfev=8)
+    d = diagnose_ktc(fit, folder, {}, progress=lambda s: None)["metrics"]
+    e = d["empty_tank_engine"]
+    assert e["verdict"] == "explained" and d["empty_tank_chosen"] == e["chosen"] != "none", e["steps"]
+    assert e["gap_before"] > 2 * e["noise_rel"] and e["gap_after"] < 1.5 * e["noise_rel"]
+    table = d["empty_tank_candidates"]
+    assert e["gap_after"] < 1.5 * min(v["heldout_rms_rel"] for v in table.values())
+    for name, ps in e["parameters"].items():
+        for p, v in ps.items():
+            lo, hi = e["interval_95"][name][p]
+            assert lo < v < hi

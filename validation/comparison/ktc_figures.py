@@ -98,7 +98,8 @@ def gap_by_electrode_figure(path, diag_metrics: dict, predictions: dict, measure
     ax = axes[0, 0]
     ax.bar(e - 0.2, 100 * np.asarray(w["before"]["by_electrode_rel"]), 0.4, color=CYCLE[1], label="scene alone")
     ax.bar(e + 0.2, 100 * np.asarray(w["after"]["by_electrode_rel"]), 0.4, color=CYCLE[0],
-           label=f"with {diag_metrics['empty_tank_chosen']}")
+           label=(f"with {diag_metrics['empty_tank_chosen']}" if diag_metrics["empty_tank_chosen"] != "unexplained"
+                  else "with the nearest, not named: " + diag_metrics.get("empty_tank_engine", {}).get("combination", "?")))
     ax.set_ylabel("RMS gap (% of RMS V)")
     ax.set_title("empty tank, held-out patterns: the gap on the channels that read each electrode", fontsize=8)
     ax.legend(fontsize=7)

@@ -75,6 +75,16 @@ def write_ktc_report(out_dir, metrics, fit, fit_folder, predictions, diag, figur
                "|---|---|---|"]
         md += [f"| {k} | {_pct(v['heldout_rms_rel'])} | {100 * v['shrink']:.0f} % |"
                for k, v in d["empty_tank_candidates"].items()]
+        e = d.get("empty_tank_engine")
+        if e:
+            det = e["detection"]
+            md += ["", f"The diagnosis engine (every fifth pattern held out; {e['noise_model']}; detection at a "
+                       f"{100 * det['alpha']:.0f} % false-alarm rate): verdict **{e['verdict']}**, "
+                       + (f"chosen {e['chosen']}" if e["chosen"] else f"nothing named (nearest {e['combination']})")
+                       + f", held-out {_pct(e['gap_before'])} -> {_pct(e['gap_after'])}."]
+            md += [f"- {name}: " + ", ".join(f"{p} {v:.4g} (95 % {lo:.3g} to {hi:.3g})" for p, v in ps.items()
+                                            for lo, hi in [e["interval_95"][name][p]])
+                   for name, ps in e["parameters"].items()]
         md += ["", "Tanks' change, held out by tank (median over tanks):", "", "| candidate | median | per tank |",
                "|---|---|---|"]
         md += [f"| {k} | {_pct(v['median'])} | " + ", ".join(f"{t} {_pct(x)}" for t, x in

@@ -136,8 +136,11 @@ class Block:
 class TransferProblem:
     """A transfer log's diagnosis problem (the interface of :class:`~.effects.Problem` that the engine uses).
 
-    ``Z_model`` (R,): the model's magnitudes in the measured units (the scale applied); ``Z_measured`` (R,);
-    ``sign`` (R,): the signed transfer's sign; ``V_cm`` (R,): the common-mode voltage per unit current in the
+    ``Z_model`` (R,): the model's values in the measured units (the scale applied); ``Z_measured`` (R,);
+    ``norm`` (R,): what each row's residual is divided by. Without it the rows are magnitudes (an instrument that
+    demodulates |Z|) and each is relative to the model's own: ``norm = |Z_model|``. With it, signed values (a
+    voltage that changes sign across the ring) relative to a common size, e.g. the model's RMS. ``sign`` (R,):
+    the signed transfer's sign (magnitudes); ``V_cm`` (R,): the common-mode voltage per unit current in the
     measured units (None: no common-mode candidate); ``columns``: the blocks' columns as the effects apply them
     (orthogonal to the model, gauge removed); ``blocks``: the :class:`Block` of each.
     """
@@ -145,11 +148,12 @@ class TransferProblem:
     obs: TransferRows
     Z_model: np.ndarray
     Z_measured: np.ndarray
-    sign: np.ndarray
+    sign: np.ndarray | None = None
     V_cm: np.ndarray | None = None
     blocks: dict = field(default_factory=dict)
     columns: dict = field(default_factory=dict)
     scale: float = 1.0
+    norm: np.ndarray | None = None
     baseline_name: str = "BEM"
     secants: dict = field(default_factory=dict)
     object_field: object = None
@@ -157,33 +161,43 @@ class TransferProblem:
     I_base: np.ndarray = field(init=False)
 
     def __post_init__(self):
-        self.Z_model = np.abs(np.asarray(self.Z_model, float))
-        self.Z_measured = np.abs(np.asarray(self.Z_measured, float))
-        if np.any(self.Z_model == 0):
-            raise ValueError("the model gives a zero transfer impedance on a row: cannot form relative residuals")
+        self.Z_model, self.Z_measured = np.asarray(self.Z_model, float), np.asarray(self.Z_measured, float)
+        if self.norm is None:
+            self.Z_model, self.Z_measured = np.abs(self.Z_model), np.abs(self.Z_measured)
+            self.norm = self.Z_model
+        self.norm = np.broadcast_to(np.asarray(self.norm, float), self.Z_model.shape)
+        if np.any(self.norm == 0):
+            raise ValueError("a row's residual would be divided by zero (a zero model magnitude or norm)")
         self.I_base = self.Z_model[:, None]
         self.weight = np.ones_like(self.I_base)
         for b in self.blocks.values():
             self.columns[b.name] = self.effect_columns(b)
 
     @classmethod
-    def scaled(cls, drive_index, Z_model, Z_measured, sign, blocks=(), V_cm=None) -> "TransferProblem":
-        """The problem with the model scaled to the measured units (least squares of the relative residual on every
-        row) and the blocks' and the common mode's columns scaled alike (they are given in the model's units)."""
-        Zm, Zd = np.abs(np.asarray(Z_model, float)), np.abs(np.asarray(Z_measured, float))
-        s = float(np.mean(Zd / Zm))     # the mean ratio: the relative residual Zd / (s Zm) - 1 then has zero mean
+    def scaled(cls, drive_index, Z_model, Z_measured, sign=None, blocks=(), V_cm=None,
+               norm=None) -> "TransferProblem":
+        """The problem with the model scaled to the measured units and the blocks' and the common mode's columns
+        scaled alike (they are given in the model's units). The scale is the least squares of the residual in
+        its metric (``norm`` in the model's units, see the class; for magnitudes the mean ratio, so that the
+        relative residual has zero mean)."""
+        Zm, Zd = np.asarray(Z_model, float), np.asarray(Z_measured, float)
+        if norm is None:
+            Zm, Zd = np.abs(Zm), np.abs(Zd)
+        n = Zm if norm is None else np.broadcast_to(np.asarray(norm, float), Zm.shape)
+        s = float(np.sum(Zd * Zm / n**2) / np.sum(Zm**2 / n**2))
         blocks = {b.name: replace(b, columns=s * np.asarray(b.columns, float).reshape(len(Zm), -1)) for b in blocks}
-        return cls(TransferRows(np.asarray(drive_index)), s * Zm, Zd, np.asarray(sign, float),
-                   None if V_cm is None else s * np.asarray(V_cm, float), blocks, scale=s)
+        return cls(TransferRows(np.asarray(drive_index)), s * Zm, Zd, None if sign is None else np.asarray(sign, float),
+                   None if V_cm is None else s * np.asarray(V_cm, float), blocks, scale=s,
+                   norm=None if norm is None else s * n)
 
     def effect_columns(self, b: Block) -> np.ndarray:
-        """``b``'s columns orthogonal to the model in the relative metric (the scale refitted with them), the
+        """``b``'s columns orthogonal to the model in the residual's metric (the scale refitted with them), the
         gauge direction removed."""
         X = np.asarray(b.columns, float).reshape(self.obs.n_poses, -1)
-        z = np.ones(len(X))                         # the model's column in the relative residual's metric
-        Xr = X / self.Z_model[:, None]
+        z = self.Z_model / self.norm                # the model's column in the residual's metric
+        Xr = X / self.norm[:, None]
         Xr = Xr - z[:, None] * (z @ Xr) / (z @ z)
-        X = Xr * self.Z_model[:, None]
+        X = Xr * self.norm[:, None]
         return X[:, :-1] - X[:, -1:] if b.gauge and X.shape[1] > 1 else X
 
     def physical(self, name: str, theta) -> np.ndarray:
@@ -209,9 +223,9 @@ class TransferProblem:
         return Z[:, None]
 
     def relative_residual(self, I_pred: np.ndarray, idx) -> np.ndarray:
-        """(measured - predicted) / |model| at the rows ``idx``: (p, 1)."""
+        """(measured - predicted) / norm at the rows ``idx``: (p, 1)."""
         idx = np.asarray(idx)
-        return (self.Z_measured[idx, None] - I_pred) / self.Z_model[idx, None]
+        return (self.Z_measured[idx, None] - I_pred) / self.norm[idx, None]
 
 
 def _typical(col_rel: np.ndarray) -> float:
@@ -226,7 +240,7 @@ def _block_effect(problem: TransferProblem, b: Block) -> Effect:
     def apply(theta, sc, pb, idx):
         return replace(sc, added=sc.added + pb.columns[b.name][sc.rows] @ np.asarray(theta, float))
 
-    scales = tuple(_typical(X[:, j] / problem.Z_model) for j in range(X.shape[1]))
+    scales = tuple(_typical(X[:, j] / problem.norm) for j in range(X.shape[1]))
     return Effect(b.name, "", names, (b.units,) * len(names), scales, (-b.bound,) * len(names),
                   (b.bound,) * len(names), apply, describe=b.describe)
 
@@ -238,8 +252,8 @@ def _common_mode(theta, sc, pb, idx):
 def transfer_library(problem: TransferProblem) -> dict[str, list[Effect]]:
     """The candidates of ``problem``: one per block, the common mode where ``V_cm`` is given, and ``none``."""
     lib = {name: [_block_effect(problem, b)] for name, b in problem.blocks.items()}
-    if problem.V_cm is not None:
-        x = float(np.sqrt(np.mean((problem.V_cm / problem.Z_model) ** 2)))
+    if problem.V_cm is not None and problem.sign is not None:
+        x = float(np.sqrt(np.mean((problem.V_cm / problem.norm) ** 2)))
         lib["common_mode"] = [Effect(
             "common_mode", "", ("log_gain", "c_in_phase", "c_quadrature_sq"), ("1", "1", "1"),
             (TYPICAL_CHANGE_REL, TYPICAL_CHANGE_REL / max(x, 1e-12), (TYPICAL_CHANGE_REL / max(x, 1e-12)) ** 2),
@@ -268,7 +282,7 @@ def _named_parameters(problem: TransferProblem, c) -> tuple[dict, dict]:
                 T = np.vstack([np.eye(k), -np.ones((1, k))])
                 C = T @ C @ T.T
         sd = np.sqrt(np.clip(np.diag(C), 0, None))
-        if e.name == "common_mode":      # |c''| from c''^2 (delta method; at zero its se is that of sqrt)
+        if e.name == "common_mode" and e.name not in problem.blocks:      # |c''| from c''^2 (delta method; at zero its se is that of sqrt)
             q, sq = max(float(th[2]), 0.0), float(sd[2])
             th, sd = np.r_[th[:2], np.sqrt(q)], np.r_[sd[:2], sq / (2 * np.sqrt(q)) if q > 0 else np.sqrt(sq)]
             names = ["log_gain", "c_in_phase", "c_quadrature_abs"]
@@ -301,6 +315,8 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
     long as the penalised held-out score falls. Returns the ranking (re-sorted) and, per candidate, what each
     solve gave and its final parameters with their standard errors.
     """
+    if np.any(problem.Z_model <= 0):
+        raise ValueError("the BEM's steps correct magnitudes by their log-ratio: this problem's rows are signed")
     everything = np.arange(problem.obs.n_poses)
     by_name = {c.name: c for c in ranking}
     infos = []
@@ -343,11 +359,11 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
 
 
 def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: SelectionRules = SelectionRules(),
-                  alpha: float = ALPHA, lib: dict | None = None, solve_at=None,
-                  solvable=()) -> tuple[dict, np.ndarray, np.ndarray]:
+                  alpha: float = ALPHA, lib: dict | None = None, solve_at=None, solvable=(),
+                  noise_source: str = "the log's reciprocity floor") -> tuple[dict, np.ndarray, np.ndarray]:
     """The engine's diagnosis of a transfer problem: ranking, detection, selection, verdict.
 
-    ``noise``: the relative noise per row (the reciprocity floor); ``folds`` default to whole drive patterns,
+    ``noise``: the relative noise per row (``noise_source`` says where it comes from); ``folds`` default to whole drive patterns,
     every fifth in a fold (:func:`~.fitting.make_folds`). ``solve_at(name, theta) -> (|Z| (R,) model units,
     fraction of theta solved, note, the block's columns there or None)``: the BEM at a geometric candidate's fitted parameters (physical, every one,
     :meth:`TransferProblem.physical`), for the candidates named in ``solvable`` whose held-out improvement alone
@@ -389,7 +405,8 @@ def diagnose_rows(problem: TransferProblem, noise: float, folds=None, rules: Sel
     return {
         "engine": "the pose diagnosis's: held-out likelihood with a BIC charge per parameter, a detection test at a "
                   f"false-alarm rate of {alpha:.0%} (null drawn under the noise model), greedy forward selection",
-        "noise_model": f"white relative noise of {100 * noise:.3g} % per measurement (the log's reciprocity floor)",
+        "noise_rel": float(noise),
+        "noise_model": f"white relative noise of {100 * noise:.3g} % per measurement ({noise_source})",
         "verdict": selection.verdict,
         "chosen": chosen,
         "combination": final.name,      # the selection's last combination: the nearest where nothing is named
