@@ -104,19 +104,23 @@ TREND_MIN_SPREAD_M = 5e-3
 
 
 class RBFInterpolant:
-    """Cubic radial basis interpolation (phi = r^3) with a linear trend, and its leave-one-out errors.
+    """Polyharmonic radial basis interpolation with a polynomial trend, and its leave-one-out errors.
 
-    ``leave_one_out`` (B, k) is the error of predicting each node from all
-    the others, in closed form: e_i = c_i / (M^-1)_ii with M the augmented
-    interpolation matrix (Rippa 1999). The linear trend is in every
-    feature (``min_trend_spread_m`` None), or only along the directions
-    along which the nodes spread by more than ``min_trend_spread_m`` (RMS;
-    the anchored baseline's :data:`TREND_MIN_SPREAD_M`): passes at one
-    heading and depth lie near a line of the feature space, and a trend
-    along the robot's position noise (a tenth of a millimetre) is fitted to
-    that noise, its leave-one-out errors changing several-fold from one log
-    of the same path to the next. With fewer nodes than the trend has terms,
-    the trend is a constant.
+    ``degree`` 1: phi = r^3 with a linear trend; ``degree`` 2: phi = r^5 with a
+    quadratic trend, which converges faster on smooth data (a tank map of a
+    random 5-electrode sensor, 400 BEM poses: 0.020 % RMS at fresh poses
+    against 0.029 % with r^3, and 0.056 % against 0.072 % with 200); with
+    fewer nodes than the trend has terms, the degree falls to 1 (and the trend
+    to a constant below that). ``leave_one_out`` (B, k) is the error of
+    predicting each node from all the others, in closed form: e_i = c_i /
+    (M^-1)_ii with M the augmented interpolation matrix (Rippa 1999). The
+    trend is in every feature (``min_trend_spread_m`` None), or only along the
+    directions along which the nodes spread by more than
+    ``min_trend_spread_m`` (RMS; the anchored baseline's
+    :data:`TREND_MIN_SPREAD_M`): passes at one heading and depth lie near a
+    line of the feature space, and a trend along the robot's position noise (a
+    tenth of a millimetre) is fitted to that noise, its leave-one-out errors
+    changing several-fold from one log of the same path to the next.
 
     Example
     -------
@@ -127,21 +131,35 @@ class RBFInterpolant:
     >>> f = RBFInterpolant(X, np.sin(10 * X[:, :1]), min_trend_spread_m=TREND_MIN_SPREAD_M)
     >>> f.axes.shape, bool(np.abs(f.leave_one_out).max() < 0.05)
     ((2, 1), True)
+
+    The quintic on a smooth function of two variables, with its gradient:
+
+    >>> X = rng.uniform(-1, 1, (60, 2))
+    >>> f = RBFInterpolant(X, np.sin(X[:, :1]) * X[:, 1:], degree=2)
+    >>> v, g = f.value_and_gradient(np.array([[0.2, 0.5]]))
+    >>> f.power, bool(abs(v[0, 0] - np.sin(0.2) * 0.5) < 1e-3)
+    (5, True)
+    >>> bool(np.allclose(g[0, :, 0], [np.cos(0.2) * 0.5, np.sin(0.2)], atol=1e-2))
+    True
     """
 
-    def __init__(self, X: np.ndarray, y: np.ndarray, min_trend_spread_m: float | None = None):
+    def __init__(self, X: np.ndarray, y: np.ndarray, min_trend_spread_m: float | None = None, degree: int = 1):
         self.X = np.asarray(X, float)
         y = np.asarray(y, float)
         self.shape = y.shape[1:]
         Y = y.reshape(len(y), -1)
         B, d = self.X.shape
-        if min_trend_spread_m is None:      # every feature (the trend [1, X] that stored coefficients assume)
+        if min_trend_spread_m is None:      # every feature (the trend [1, X, ...] that stored coefficients assume)
             self.centre, self.axes = np.zeros(d), np.eye(d)
         else:                               # the directions the nodes span
             self.centre = self.X.mean(axis=0)
             _, spread, Vt = np.linalg.svd(self.X - self.centre, full_matrices=False)
             self.axes = Vt[spread / np.sqrt(B) > min_trend_spread_m].T   # (d, t)
-        self.linear = B > self.axes.shape[1] + 2
+        t = self.axes.shape[1]
+        self.degree = int(degree)
+        while self.degree > 1 and B <= trend_terms(t, self.degree) + 1:
+            self.degree -= 1
+        self.linear = B > t + 2
         Pm = self._trend(self.X)
         q = Pm.shape[1]
         M = np.zeros((B + q, B + q))
@@ -155,19 +173,82 @@ class RBFInterpolant:
         loo = self.coef[:B] / np.where(np.abs(diag) > 0, diag, np.inf)[:, None]
         self.leave_one_out = loo.reshape((B,) + self.shape)
 
+    @classmethod
+    def from_coefficients(cls, X: np.ndarray, coef: np.ndarray) -> "RBFInterpolant":
+        """The interpolant of stored nodes ``X`` (B, d) and coefficients ``coef`` (B + q, k), the trend in every
+        feature; its degree (and kernel) read from the number of trend terms q."""
+        self = cls.__new__(cls)
+        self.X, self.coef = np.asarray(X, float), np.asarray(coef, float)
+        B, d = self.X.shape
+        q = len(self.coef) - B
+        self.centre, self.axes, self.shape = np.zeros(d), np.eye(d), self.coef.shape[1:]
+        self.linear, self.degree = q > 1, 2 if q == trend_terms(d, 2) else 1
+        if q not in (1, trend_terms(d, 1), trend_terms(d, 2)):
+            raise ValueError(f"{q} trend coefficients fit no trend of {d} features")
+        return self
+
+    @property
+    def power(self) -> int:
+        """The kernel's power: phi = r ** power (3, or 5 with a quadratic trend)."""
+        return 2 * self.degree + 1
+
     @staticmethod
-    def _phi(A, B):
-        r = np.linalg.norm(A[:, None, :] - B[None, :, :], axis=-1)
-        return r**3
+    def _distance(A, B):
+        return np.sqrt(np.maximum(np.sum(A**2, axis=1)[:, None] + np.sum(B**2, axis=1)[None, :] - 2.0 * A @ B.T, 0.0))
+
+    def _phi(self, A, B):
+        return self._distance(A, B) ** self.power
 
     def _trend(self, X):
         ones = np.ones((len(X), 1))
-        return np.hstack([ones, (X - self.centre) @ self.axes]) if self.linear else ones
+        if not self.linear:
+            return ones
+        Z = (X - self.centre) @ self.axes
+        if self.degree == 1:
+            return np.hstack([ones, Z])
+        i, j = np.triu_indices(Z.shape[1])
+        return np.hstack([ones, Z, Z[:, i] * Z[:, j]])
 
     def __call__(self, X: np.ndarray) -> np.ndarray:
         X = np.asarray(X, float)
         A = np.hstack([self._phi(X, self.X), self._trend(X)])
         return (A @ self.coef).reshape((len(X),) + self.shape)
+
+    def value_and_gradient(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Values (p, k) and their gradient by the features (p, d, k) at ``X`` (p, d), one vectorised call."""
+        X = np.asarray(X, float)
+        B = len(self.X)
+        c = self.coef.reshape(len(self.coef), -1)
+        cb, ct = c[:B], c[B:]
+        r = self._distance(X, self.X)
+        values = (r**self.power) @ cb + self._trend(X) @ ct
+        # d/dX_j sum_b r_b^p c_b = p sum_b r_b^(p-2) (X_j - X_bj) c_b
+        w = self.power * r ** (self.power - 2)
+        G = X[:, :, None] * (w @ cb)[:, None, :] - np.stack([w @ (self.X[:, j, None] * cb) for j in range(X.shape[1])],
+                                                           axis=1)
+        if self.linear:
+            Z = (X - self.centre) @ self.axes
+            t = Z.shape[1]
+            dT = np.zeros((len(X), t, len(ct)))            # d trend / d Z
+            dT[:, np.arange(t), 1 + np.arange(t)] = 1.0
+            if self.degree == 2:
+                i, j = np.triu_indices(t)
+                k = 1 + t + np.arange(len(i))
+                dT[:, i, k] += Z[:, j]
+                dT[:, j, k] += Z[:, i]
+            G = G + np.einsum("dt,ptq,qk->pdk", self.axes, dT, ct)
+        return values, G
+
+
+def trend_terms(n_features: int, degree: int) -> int:
+    """The number of monomials of total degree at most ``degree`` in ``n_features`` variables (1, 1 + d, ...).
+
+    >>> trend_terms(4, 1), trend_terms(4, 2)
+    (5, 15)
+    """
+    from math import comb
+
+    return comb(n_features + degree, degree)
 
 
 def pose_features(sensor, poses: np.ndarray) -> np.ndarray:
