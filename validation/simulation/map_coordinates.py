@@ -124,6 +124,31 @@ class MapFrame:
         sx, sy, swap = self._box_fold(x, y)
         return (sx * sy < 0) ^ swap
 
+    def folded(self, poses) -> np.ndarray:
+        """(P, 4) the poses folded into the fundamental domain: the pose of each one's orbit under the tank's
+        symmetries at which the map was solved (same features; the identity where nothing folds).
+
+        >>> from electrosense.meshes import preset
+        >>> from electrosense.meshes.tank import Tank
+        >>> frame = MapFrame(preset("angels-4"), Tank((1.0, 0.8, 1.0)))
+        >>> P = np.array([[-0.2, 0.1, 0.0, 0.3], [0.1, -0.3, 0.0, 2.0]])
+        >>> Q = frame.folded(P)
+        >>> bool((Q[:, :2] >= 0).all()), bool(np.allclose(frame.features(Q), frame.features(P)))
+        (True, True)
+        """
+        p = np.array(poses, float).reshape(-1, 4)
+        if not self.symmetric:
+            return p
+        x, y, yaw = p[:, 0], p[:, 1], p[:, 3]
+        if self.cylinder:    # turned about the axis to heading 0, then reflected onto the +y side
+            c, s = np.cos(yaw), np.sin(yaw)
+            return np.c_[x * c + y * s, self._cylinder_side(x, y, yaw) * (-x * s + y * c), p[:, 2], np.zeros(len(p))]
+        sx, sy, swap = self._box_fold(x, y)
+        u, v = sx * x, sy * y
+        hx, hy = np.cos(yaw) * sx, np.sin(yaw) * sy         # the heading reflected with the position
+        u, v, hx, hy = np.where(swap, v, u), np.where(swap, u, v), np.where(swap, hy, hx), np.where(swap, hx, hy)
+        return np.c_[u, v, p[:, 2], np.arctan2(hy, hx)]
+
     @property
     def n_features(self) -> int:
         return 4 + int(self.band)

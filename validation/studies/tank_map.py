@@ -81,7 +81,8 @@ def test_poses(sensor, tank, z, rng, n, band=None):
 def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     """Receiver-current errors of the map against the reference BEM (the map's sensor mesh options) at ``P``:
     ``other``: on a tank mesh graded towards ``P`` (a fresh BEM as a user would run it); ``same``: on the map's own
-    tank mesh (the interpolation's error alone); ``bem_tank``: the BEM between the two tank meshes; ``bem_sensor``:
+    tank mesh at ``P`` folded into the map's fundamental domain, where that mesh is graded (the interpolation's
+    error alone); ``bem_tank``: the BEM between the two tank meshes; ``bem_sensor``:
     the BEM with its sensor mesh 0.7x the reference's at the first ``n_sensor_check`` poses (the reference's own
     discretisation, graded tank mesh)."""
     from electrosense.bem import PoseSweep
@@ -92,9 +93,11 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     focus = trajectory_focus_m(sensor, P)
     K_other = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
     out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
-    if m.focus_m is not None:
-        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, **m.bem_options).conductance(P).K_S
-        out["same"] = m.conductance(P)[:, r, e] / K_same[:, r, e] - 1
+    if m.focus_m is not None:   # the map's own tank mesh is graded to the fundamental domain: solved at the folded poses
+        Q = m.frame.folded(P)
+        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, **m.bem_options).conductance(Q).K_S
+        out["same"] = m.conductance(Q)[:, r, e] / K_same[:, r, e] - 1
+        K_same = m._mirrored(K_same, P)     # back to the poses' own frame (a sector sensor's permutation)
         out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
     if n_sensor_check:
         fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
