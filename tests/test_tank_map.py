@@ -27,7 +27,7 @@ from electrosense.validation.simulation.tank_map import (
 SENSOR = preset("angels-4")
 TANK = Tank((0.5, 0.4, 0.2))
 OPTIONS = {"tank_edge_length_m": 0.05, "edge_length_m": 0.01}   # coarse meshes: quick
-BUILD = dict(wall_gap_m=0.02, spacing_m=0.04, n_headings=8, first=12, first_ref=6, per_round=4, bem_options=OPTIONS,
+BUILD = dict(wall_gap_m=0.02, spacing_m=0.04, n_headings=8, first=12, first_ref=6, per_round=12, bem_options=OPTIONS,
              coarse_factor=2.0, workers=1)
 
 
@@ -36,6 +36,17 @@ def built(tmp_path_factory):
     path = tmp_path_factory.mktemp("map") / "m.npz"
     m = build_tank_map(SENSOR, TANK, 0.0, path=path, max_seconds=3, sigma_S_per_m=0.05, **BUILD)
     return m, path
+
+
+def test_a_spent_budget_stops_the_first_poses_but_leaves_a_map(tmp_path):
+    """The first poses come in rounds with the budget checked between them: a scene whose BEM is slow gets a map
+    from one round and the fewest reference poses, in about its budget, not a build that ignores it."""
+    from electrosense.validation.simulation.tank_map import MIN_REFERENCE_POSES
+
+    path = tmp_path / "quick.npz"
+    m = build_tank_map(SENSOR, TANK, 0.0, path=path, max_seconds=0, **{**BUILD, "per_round": 4})
+    assert len(m.nodes) == 4 and len(m.ref_index) == MIN_REFERENCE_POSES
+    assert np.all(np.isfinite(m.estimated_error(m.nodes[:2]))) and load_tank_map(path).history
 
 
 def _rec(K):

@@ -56,6 +56,10 @@ MAP_FORMAT = "electrosense tank map 4"
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
 RBF_DEGREE = 2
 
+#: the fewest reference poses a map with a coarse sensor mesh is built with, whatever its budget: its correction
+#: and the correction's estimated error need some
+MIN_REFERENCE_POSES = 4
+
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
 TARGET_MAX = 5e-4
@@ -565,16 +569,34 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                        sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, focus)
 
     try:
+        def spent(fidelity: str, k: int) -> bool:
+            """The budget cannot pay for ``k`` more poses of ``fidelity`` (their cost as measured so far)."""
+            return (time.perf_counter() - t0 > max_seconds
+                    or prior_cpu + cpu_now() + k * per_pose.get(fidelity, 0.0) > max_cpu_seconds)
+
+        # the first poses in chunks, the budget checked between them (a slow scene gets fewer, never none): at
+        # least one chunk of coarse poses and MIN_REFERENCE_POSES on the reference mesh make a map with its error
         if len(nodes) < first:
             say(f"BEM at {first - len(nodes)} first poses on {pool.workers} process(es)"
                 + (f", sensor mesh {coarse_factor:g}x coarser than the reference" if corrected else ""))
-            solve(_farthest_points(F, first - len(nodes), frame.features(nodes) if len(nodes) else None))
+            order = _farthest_points(F, first - len(nodes), frame.features(nodes) if len(nodes) else None)
+            for chunk in np.array_split(order, int(np.ceil(len(order) / per_round))):
+                if len(nodes) and spent("coarse", len(chunk)):
+                    say(f"time budget spent after {len(nodes)} first poses")
+                    break
+                solve(chunk)
         if corrected and len(ref_index) < first_ref:
-            say(f"reference BEM at {first_ref - len(ref_index)} of them (sensor mesh edge "
+            say(f"reference BEM at up to {first_ref - len(ref_index)} of them (sensor mesh edge "
                 f"{1e3 * options['edge_length_m']:.2f} mm)")
             X = frame.features(nodes)
-            spread = _farthest_points(X, first_ref - len(ref_index), X[ref_index] if len(ref_index) else None)
-            solve_ref(spread)
+            spread = _farthest_points(X, min(first_ref - len(ref_index), len(nodes) - len(ref_index)),
+                                      X[ref_index] if len(ref_index) else None)
+            for chunk in np.array_split(spread, max(1, int(np.ceil(len(spread) / MIN_REFERENCE_POSES)))):
+                if not len(chunk) or (len(ref_index) >= MIN_REFERENCE_POSES and spent("ref", len(chunk))):
+                    if len(chunk):
+                        say(f"time budget spent after {len(ref_index)} reference poses")
+                    break
+                solve_ref(chunk)
         while True:
             m = current_map()
             err_c = estimated_error(m._parts[0].X, m.leave_one_out, F).max(axis=1)
@@ -600,8 +622,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             # the next round: more coarse poses, or more reference ones, whichever error leads
             refine = corrected and rms_r > rms_c and len(ref_index) < len(nodes)
             k = max(4, per_round // 3) if refine else per_round
-            cost = k * per_pose.get("ref" if refine else "coarse", 0.0)
-            if time.perf_counter() - t0 > max_seconds or cpu + cost > max_cpu_seconds:
+            if spent("ref" if refine else "coarse", k):
                 say(f"time budget spent ({wall:.0f} s of {max_seconds:.0f} s wall, {cpu:.0f} s of "
                     f"{max_cpu_seconds:.0f} s CPU): the map is saved with its estimated error")
                 break
