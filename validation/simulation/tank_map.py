@@ -222,12 +222,12 @@ class TankMap:
         if self.fitted is None:
             iu = self._iu
             X = self.frame.features(self.nodes)
-            K_nodes = self._mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
+            K_nodes = self.mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
             interp = RBFInterpolant(X, np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu]), degree=RBF_DEGREE)
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
-                K_ref = self._mirrored(self.K_ref, self.nodes[self.ref_index])
+                K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
                 d = np.log(K_ref[:, iu[0], iu[1]] / K_nodes[self.ref_index][:, iu[0], iu[1]])
                 corr = RBFInterpolant(Xr, d, degree=RBF_DEGREE)
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out})
@@ -235,7 +235,7 @@ class TankMap:
         if "X_ref" in self.fitted:
             self._parts.append(RBFInterpolant.from_coefficients(self.fitted["X_ref"], self.fitted["coef_ref"]))
 
-    def _mirrored(self, K: np.ndarray, poses) -> np.ndarray:
+    def mirrored(self, K: np.ndarray, poses) -> np.ndarray:
         """K (P, ..., n, n) with the electrodes permuted by the sensor's lateral mirror at the poses whose fold
         reflects them (:meth:`MapFrame.reflected`): from a pose's frame to its folded pose's, and back (an
         involution). A copy; K itself where nothing is reflected."""
@@ -294,10 +294,10 @@ class TankMap:
         res = self.log_ratio(poses, jacobian)
         L, dL = res if jacobian else (res, None)
         off = self.K_free[iu] * np.exp(L) * sigma_S_per_m
-        K = self._mirrored(_assemble(off, n, iu), poses)
+        K = self.mirrored(_assemble(off, n, iu), poses)
         if not jacobian:
             return K
-        return K, self._mirrored(_assemble(off[:, None, :] * dL, n, iu), poses)
+        return K, self.mirrored(_assemble(off[:, None, :] * dL, n, iu), poses)
 
     def jacobian(self, poses, sigma_S_per_m: float = 1.0) -> np.ndarray:
         """dK / d(x, y, yaw) (P, 3, n, n) (analytic: the interpolant's derivative through the map's coordinates)."""
@@ -591,10 +591,9 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             X = frame.features(nodes)
             spread = _farthest_points(X, min(first_ref - len(ref_index), len(nodes) - len(ref_index)),
                                       X[ref_index] if len(ref_index) else None)
-            for chunk in np.array_split(spread, max(1, int(np.ceil(len(spread) / MIN_REFERENCE_POSES)))):
-                if not len(chunk) or (len(ref_index) >= MIN_REFERENCE_POSES and spent("ref", len(chunk))):
-                    if len(chunk):
-                        say(f"time budget spent after {len(ref_index)} reference poses")
+            for chunk in np.array_split(spread, int(np.ceil(len(spread) / MIN_REFERENCE_POSES))) if len(spread) else []:
+                if len(ref_index) >= MIN_REFERENCE_POSES and spent("ref", len(chunk)):
+                    say(f"time budget spent after {len(ref_index)} reference poses")
                     break
                 solve_ref(chunk)
         while True:

@@ -97,7 +97,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
         Q = m.frame.folded(P)
         K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, **m.bem_options).conductance(Q).K_S
         out["same"] = m.conductance(Q)[:, r, e] / K_same[:, r, e] - 1
-        K_same = m._mirrored(K_same, P)     # back to the poses' own frame (a sector sensor's permutation)
+        K_same = m.mirrored(K_same, P)     # back to the poses' own frame (a sector sensor's permutation)
         out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
     if n_sensor_check:
         fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
