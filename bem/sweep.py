@@ -180,7 +180,6 @@ class PoseSweep:
         self._env_ready = False
         self.timings = {}
         self._free_K = None   # K alone in unbounded water, when that is the whole problem
-        self._rank_hint = None   # first sample of the coupling's range finder: set at the first pose
         self._woodbury = None
         t0 = time.perf_counter()
         if tank is None and not self.objects:
@@ -421,16 +420,12 @@ class PoseSweep:
         """The sensor's unknowns (Ns, n) at one pose, the rank kept of the coupling, and the environment's
         unknowns (Ne + nc, n: the potential on the tank's faces, then the objects')."""
         A_se, A_es, r_e = self._coupling(pose)
-        # dominant right singular vectors by randomised range finding (bem.low_rank: a few products with
-        # ~rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3);
+        # dominant right singular vectors by blocked randomised range finding (bem.low_rank: a few products with
+        # about rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3); it depends on
+        # A_se alone, so a pose's K does not depend on which worker computed it or after which pose;
         # A_se V_k = U_k s_k, so W V_k^T = A_ss^-1 A_se V_k V_k^T
-        # (the same first sample at every pose, whatever came before: its size is set once, from the rank at
-        # the sweep's first pose, before the sweep is shipped to workers; a pose's K does not depend on
-        # which worker computed it or after which pose)
-        Vt, _ = right_singular_vectors(A_se, self.tol, rank_hint=self._rank_hint or 48)
+        Vt, _ = right_singular_vectors(A_se, self.tol)
         k = len(Vt)
-        if self._rank_hint is None:
-            self._rank_hint = int(np.ceil(1.5 * k))   # the other poses' ranks vary about it (walls nearer or farther)
         W = scipy.linalg.lu_solve((self._lu, self._piv), (A_se @ Vt.T).astype(self._lu.dtype),
                                   check_finite=False).astype(float)
         f = r_e - A_es @ self._y0
