@@ -517,9 +517,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
     frame = MapFrame(sensor, tank, objects, band, warp_m)
     F = frame.features(C)
-    if frame.symmetric:   # one candidate per folded pose
+    if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses, and the tank mesh's
+        # grading, all lie in the fundamental domain (MapFrame.folded), where every pose is evaluated
         _, keep = np.unique(np.round(F / 1e-6).astype(np.int64), axis=0, return_index=True)
-        C, F = C[np.sort(keep)], F[np.sort(keep)]
+        C, F = frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
