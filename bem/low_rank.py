@@ -11,14 +11,18 @@ of ``block`` Gaussian columns gives ``Y = A (A^T A) Omega`` (one power step:
 a sharper subspace for a slow tail), orthogonalised against the basis so far
 (twice: block Gram-Schmidt), so that the basis ``Q`` and ``B = Q^T A`` grow by
 a block's rows each time and nothing is computed twice. The basis stops
-growing when ``oversampling`` of the newest block's singular values (those of
-its rows of ``B``, the residual's largest) are below the tolerance, and one
-SVD of ``B`` gives the result: the sample costs about the rank, not a
-worst-case guess (a pose 1.5-2x faster than with a first sample of
-1.5x the first pose's rank, for a random 5-electrode sensor in a 0.67 x 0.44 m
-box whose ranks vary from 100 to 340 over the tank; K within 8e-7).
+growing when ``oversampling`` of the sample's singular values (those of ``B``,
+from its small Gram matrix ``B B^T``, grown by a block each time; from ``B``'s
+SVD for a tolerance below :data:`GRAM_RESOLUTION`) are below the tolerance,
+and one SVD of ``B`` gives the result: the sample costs about the rank, not a
+worst-case guess (a pose 1.5-2x faster than with a first sample of 1.5x the
+first pose's rank, for a random 5-electrode sensor in a 0.67 x 0.44 m box
+whose ranks vary from 100 to 340 over the tank; K within 8e-7). A test on the
+newest block's singular values alone stops far too late on such a tail: the
+single-precision power step leaves the residual's directions in rounding noise.
 The sample is drawn in single precision (the range it spans is accurate to
-about 1e-7, far below the usual ``tol``); the basis and ``B`` are double. The result depends on ``A`` and the seed only.
+about 1e-7, far below the usual ``tol``); the basis and ``B`` are double. The
+result depends on ``A`` and the seed only.
 
 Example
 -------
