@@ -53,6 +53,26 @@ def _rec(K):
     return -K[:, :3, 3]
 
 
+@pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
+                         ids=["box", "square", "cylinder"])
+def test_the_bem_poses_lie_in_the_fundamental_domain(tank):
+    """Every candidate is its folded pose, so the BEM's poses, and the tank mesh graded to them, lie where the map
+    folds every pose it evaluates (in a square tank the first of each orbit in grid order used to be kept)."""
+    m = build_tank_map(SENSOR, tank, 0.0, max_seconds=0, **{**BUILD, "per_round": 4, "first_ref": 0,
+                                                              "coarse_factor": 1.0})
+    assert len(m.nodes) and np.allclose(m.frame.folded(m.nodes), m.nodes)
+    rng = np.random.default_rng(3)
+    turn = rng.uniform(-np.pi, np.pi, len(m.nodes))
+    if hasattr(tank, "radius_m"):   # any rotation about the axis, and the mirror image
+        c, s = np.cos(turn), np.sin(turn)
+        P = np.c_[m.nodes[:, 0] * c - m.nodes[:, 1] * s, -(m.nodes[:, 0] * s + m.nodes[:, 1] * c),
+                  m.nodes[:, 2], -(m.nodes[:, 3] + turn)]
+    else:                           # the box's mirror images
+        P = m.nodes * np.array([-1.0, -1.0, 1.0, 1.0]) + np.array([0, 0, 0, np.pi])
+    assert np.allclose(m.frame.features(P), m.frame.features(m.nodes))
+    assert np.allclose(m.conductance(P), m.conductance(m.nodes), rtol=1e-9, atol=0)
+
+
 def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     m, path = built
     iu = np.triu_indices(SENSOR.n_electrodes, 1)   # the map keeps the BEM's upper triangle, symmetric
