@@ -41,7 +41,7 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
     from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
     from electrosense.validation.bench.transfer.log import read_transfer_log
     from electrosense.validation.comparison.transfer import compare_transfer_log
-    from electrosense.validation.comparison.transfer_report import write_transfer_report
+    from electrosense.validation.comparison.transfer_report import goals, write_transfer_report
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
     data, scene_path, out = Path(data), Path(scene_path), Path(out)
@@ -85,6 +85,7 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
             metrics["scene_fit"] = fit_tank_scene(log, scene, sigma, bem_options, protocol, fit_setup)
         except Exception as exc:     # an optional step: what was computed before is written all the same
             metrics["scene_fit"] = {"error": f"the scene fit stopped: {type(exc).__name__}: {exc}"}
+    metrics["goals"] = goals(metrics)
     metrics["wall_s"] = time.perf_counter() - t_start
     metrics["cpu_s"] = time.process_time() - cpu_start
     (out / "metrics.json").write_text(json.dumps(metrics, indent=1))
