@@ -38,6 +38,8 @@ from electrosense.validation.report.style import new_figure, save
 
 __all__ = [
     "EMPTY_FLOOR_FACTOR",
+    "OBJECT_GOAL_REL",
+    "SHRINK_GOAL",
     "empty_tank_goal",
     "goals",
     "goals_text",
@@ -54,8 +56,8 @@ __all__ = [
 #: the empty tank's goal on held-out drives, in units of the file's own per-measurement reciprocity floor (issue 24:
 #: what the instrument itself cannot repeat bounds what a model of the tank can be asked for)
 EMPTY_FLOOR_FACTOR = 2.0
-OBJECT_GOAL_REL = 0.15
-SHRINK_GOAL = 0.5
+OBJECT_GOAL_REL = 0.15   # each ball set-up's signal, RMS relative, on set-ups not used in a fit
+SHRINK_GOAL = 0.5        # the share of the held-out gap the diagnosis removes
 
 
 def empty_tank_goal(m: dict) -> float | None:
