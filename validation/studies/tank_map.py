@@ -153,6 +153,12 @@ def sweep_speed(map_path: Path, tank, z, folder: Path):
 
     lo, hi = tank.water_bounds_m
     pad = 0.15
+    if hasattr(tank, "radius_m"):   # a square inside the circle: its corners' sensors too 6 mm off the wall
+        from electrosense.validation.simulation.tank_map import load_tank_map
+
+        sensor = load_tank_map(map_path).sensor
+        w = (float(tank.radius_at(z)) - sensor.radius_m - 0.006 - 0.5 * sensor.length_m) / np.sqrt(2.0)
+        lo, hi, pad = np.array([-w, -w]), np.array([w, w]), 0.0
     grid = f"{lo[0] + pad:.4f}:{hi[0] - pad:.4f}:100,{lo[1] + pad:.4f}:{hi[1] - pad:.4f}:100"
     out = folder / "sweep.zarr"
     t0 = time.perf_counter()
