@@ -145,7 +145,7 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
     return {"x_m": x.tolist(), "map": err_map.tolist(), "psm": err_psm.tolist()}
 
 
-def sweep_speed(map_path: Path, tank, z, folder: Path):
+def sweep_speed(map_path: Path, sensor, tank, z, folder: Path):
     """``esense sweep --model map`` over a 100 x 100 grid of poses: poses/s of the run and of the whole command."""
     from click.testing import CliRunner
 
@@ -154,9 +154,6 @@ def sweep_speed(map_path: Path, tank, z, folder: Path):
     lo, hi = tank.water_bounds_m
     pad = 0.15
     if hasattr(tank, "radius_m"):   # a square inside the circle: its corners' sensors too 6 mm off the wall
-        from electrosense.validation.simulation.tank_map import load_tank_map
-
-        sensor = load_tank_map(map_path).sensor
         w = (float(tank.radius_at(z)) - sensor.radius_m - 0.006 - 0.5 * sensor.length_m) / np.sqrt(2.0)
         lo, hi, pad = np.array([-w, -w]), np.array([w, w]), 0.0
     grid = f"{lo[0] + pad:.4f}:{hi[0] - pad:.4f}:100,{lo[1] + pad:.4f}:{hi[1] - pad:.4f}:100"
@@ -294,7 +291,7 @@ def main(argv=None):
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     results["speed"] = {"poses_per_s_jacobian_cpu": len(Q) / cpu, "poses_per_s_jacobian_wall": len(Q) / wall}
     if band is None:
-        run_rate, cmd_rate = sweep_speed(path, tank, z, folder)
+        run_rate, cmd_rate = sweep_speed(path, sensor, tank, z, folder)
         results["speed"].update({"sweep_poses_per_s": run_rate, "sweep_command_poses_per_s": cmd_rate})
     save()
     # ---------------------------------------------------------------- figure
