@@ -22,6 +22,42 @@ def test_closed_form_leave_one_out_equals_refitting():
         assert loo[i] == pytest.approx(direct, rel=1e-6, abs=1e-9)
 
 
+def test_regressors_enter_the_fit_the_leave_one_out_errors_and_the_gradient():
+    """A field that is a cheaper model's values scaled, plus a smooth remainder: its leave-one-out errors in closed
+    form are those of refitting, and its gradient carries the regressors' own."""
+    rng = np.random.default_rng(7)
+    X = rng.uniform(-1, 1, (24, 2))
+
+    def cheap(Z):
+        return np.c_[np.exp(Z[:, 0]), np.sin(3 * Z[:, 1])]
+
+    def cheap_gradient(Z):
+        g = np.zeros((len(Z), 2, 2))
+        g[:, 0, 0], g[:, 1, 1] = np.exp(Z[:, 0]), 3 * np.cos(3 * Z[:, 1])
+        return g
+
+    y = np.c_[cheap(X) @ [0.3, -0.2] + 0.05 * X[:, 0] * X[:, 1], cheap(X)[:, 1]]
+    f = RBFInterpolant(X, y, regressors=cheap(X))
+    for i in (0, 5, 17):
+        keep = np.delete(np.arange(len(X)), i)
+        direct = y[i] - RBFInterpolant(X[keep], y[keep], regressors=cheap(X[keep]))(X[i:i + 1], cheap(X[i:i + 1]))[0]
+        assert f.leave_one_out[i] == pytest.approx(direct, rel=1e-6, abs=1e-9)
+    assert np.abs(f.leave_one_out[:, 1]).max() < 1e-8            # the regressor itself is predicted exactly
+    assert np.abs(f.leave_one_out[:, 0]).max() < 0.3 * np.abs(RBFInterpolant(X, y).leave_one_out[:, 0]).max()
+    Z = rng.uniform(-0.8, 0.8, (5, 2))
+    v, g = f.value_and_gradient(Z, cheap(Z), cheap_gradient(Z))
+    assert np.allclose(v, f(Z, cheap(Z)))
+    for j in range(2):
+        d = np.zeros(2)
+        d[j] = 1e-6
+        fd = (f(Z + d, cheap(Z + d)) - f(Z - d, cheap(Z - d))) / 2e-6
+        assert np.allclose(fd, g[:, j], atol=1e-6)
+    again = RBFInterpolant.from_coefficients(X, f.coef, n_regressors=2)
+    assert np.allclose(again(Z, cheap(Z)), v, rtol=1e-12)
+    with pytest.raises(ValueError, match="regressors"):
+        f(Z)
+
+
 def test_interpolant_reproduces_nodes_and_linear_fields():
     rng = np.random.default_rng(4)
     X = rng.uniform(0, 1, (20, 6))

@@ -14,9 +14,11 @@ from electrosense.meshes import preset
 from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.meshes.objects import Sphere
 from electrosense.meshes.tank import Tank
+from electrosense.validation.diagnosis.anchored import RBFInterpolant
 from electrosense.validation.simulation.map_coordinates import MapFrame
 from electrosense.validation.simulation.models import pose_evaluator
 from electrosense.validation.simulation.tank_map import (
+    TankMap,
     build_tank_map,
     load_tank_map,
     reachable_poses,
@@ -105,6 +107,35 @@ def test_mirror_poses_have_one_K_and_the_jacobian_is_the_derivative(built):
         d[axis] = 1e-6
         fd = (m.conductance(P + d) - m.conductance(P - d)) / 2e-6
         assert np.allclose(fd, J[:, j], rtol=1e-5, atol=1e-6 * np.abs(J).max())
+
+
+def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses():
+    """Where the reference mesh's K is the coarse one's raised by a linear function of its emitter pairs (as a
+    discretisation's error near a wall scales with the wall's effect), the map's correction regresses on the coarse
+    K and reproduces the reference at every node from a dozen reference poses; a correction of the pose alone
+    could not (its own leave-one-out errors are far larger)."""
+    from electrosense.validation.simulation.tank_map import _assemble
+
+    rng = np.random.default_rng(4)
+    P = reachable_poses(SENSOR, TANK, 0.0, 0.02, 0.02, 8)
+    P = P[rng.choice(len(P), 80, replace=False)]
+    frame = MapFrame(SENSOR, TANK)
+    F = frame.features(P)
+    n = SENSOR.n_electrodes
+    iu = np.triu_indices(n, 1)
+    K_free = _assemble(-np.linspace(1.0, 2.0, len(iu[0]))[None], n, iu)[0]
+    L = 0.3 * np.tanh((F - F.mean(0)) / F.std(0) @ rng.normal(size=(F.shape[1], len(iu[0]))))   # a wall-like change
+    e = SENSOR.emitter - 1
+    emitter_pairs = [q for q in range(len(iu[0])) if e in (iu[0][q], iu[1][q])]
+    d = 1e-3 + L[:, emitter_pairs] @ rng.normal(scale=0.02, size=(3, len(iu[0])))
+    K_nodes = _assemble(K_free[iu] * np.exp(L), n, iu)
+    ref = np.arange(12)
+    m = TankMap(SENSOR, TANK, 0.0, P, K_nodes, K_free, ref_index=ref,
+                K_ref=_assemble(K_free[iu] * np.exp(L + d)[ref], n, iu), coarse_factor=3.0)
+    assert m._regressor_pairs.tolist() == emitter_pairs
+    assert np.allclose(m.conductance(P), _assemble(K_free[iu] * np.exp(L + d), n, iu), rtol=1e-8, atol=0)
+    plain = RBFInterpolant(F[ref], d[ref], degree=2)
+    assert np.abs(m.leave_one_out_ref).max() < 1e-3 * np.abs(plain.leave_one_out[:, emitter_pairs]).max()
 
 
 def test_a_cylinder_map_sees_one_pose_in_every_rotation():

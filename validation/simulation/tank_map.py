@@ -19,7 +19,13 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    warped coordinates (quintic radial basis functions with a quadratic trend,
    :class:`~electrosense.validation.diagnosis.anchored.RBFInterpolant`), its
    leave-one-out error at every node, and the error estimated anywhere from
-   the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`).
+   the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`);
+   the many poses are solved on a coarser sensor mesh, and the correction to
+   the reference mesh, known at fewer poses, is interpolated as a linear
+   function of the coarse K of the emitter's pairs plus a smooth remainder of
+   the pose (the discretisation's error near a wall grows with the wall's
+   effect), or of the pose alone, whichever its leave-one-out errors favour
+   (:meth:`TankMap._fit_correction`).
 
 The map is one ``.npz`` file: the nodes, the BEM's K there, the interpolant's
 coefficients, the scene, the sensor, the BEM options and the code version;
@@ -50,7 +56,7 @@ from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, M
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 4"
+MAP_FORMAT = "electrosense tank map 5"
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
@@ -229,11 +235,34 @@ class TankMap:
                 Xr = X[self.ref_index]
                 K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
                 d = np.log(K_ref[:, iu[0], iu[1]] / K_nodes[self.ref_index][:, iu[0], iu[1]])
-                corr = RBFInterpolant(Xr, d, degree=RBF_DEGREE)
-                self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out})
+                L_coarse = np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu])
+                corr, pairs = self._fit_correction(Xr, d, L_coarse[self.ref_index])
+                self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
+                                    "regressors_ref": pairs})
         self._parts = [RBFInterpolant.from_coefficients(self.fitted["X"], self.fitted["coef"])]
+        self._regressor_pairs = np.asarray(self.fitted.get("regressors_ref", np.zeros(0, int)), int)
         if "X_ref" in self.fitted:
-            self._parts.append(RBFInterpolant.from_coefficients(self.fitted["X_ref"], self.fitted["coef_ref"]))
+            self._parts.append(RBFInterpolant.from_coefficients(self.fitted["X_ref"], self.fitted["coef_ref"],
+                                                                len(self._regressor_pairs)))
+
+    def _fit_correction(self, X_ref, d, L_coarse):
+        """The correction ``d`` = log(K_ref / K_coarse) (F, pairs) interpolated over the features ``X_ref``: as a
+        function of the pose alone (quintic, :data:`RBF_DEGREE`), or as a linear function of the coarse log ratio
+        of the emitter's pairs ``L_coarse`` (F, pairs) plus a cubic remainder (the regressors of
+        :class:`RBFInterpolant`), whichever is closer at left-out reference poses (RMS over the receivers);
+        returns the interpolant and the pairs it regresses on (empty: the pose alone)."""
+        from electrosense.validation.diagnosis.anchored import RBFInterpolant
+
+        plain = RBFInterpolant(X_ref, d, degree=RBF_DEGREE)
+        pairs = np.asarray(self._rec, int)
+        if len(X_ref) <= X_ref.shape[1] + len(pairs) + 2:   # too few poses for the regression and a linear trend
+            return plain, np.zeros(0, int)
+        linked = RBFInterpolant(X_ref, d, degree=1, regressors=L_coarse[:, pairs])
+
+        def rms(f):
+            return float(np.sqrt(np.mean(np.asarray(f.leave_one_out)[:, self._rec] ** 2)))
+
+        return (linked, pairs) if rms(linked) < rms(plain) else (plain, np.zeros(0, int))
 
     def mirrored(self, K: np.ndarray, poses) -> np.ndarray:
         """K (P, ..., n, n) with the electrodes permuted by the sensor's lateral mirror at the poses whose fold
@@ -276,10 +305,16 @@ class TankMap:
         for s in range(0, len(poses), chunk):
             F, dF = self.frame.features(poses[s:s + chunk], jacobian=True) if jacobian else \
                 (self.frame.features(poses[s:s + chunk]), None)
-            L, G = 0.0, 0.0
-            for part in self._parts:
-                v, g = part.value_and_gradient(F) if jacobian else (part(F), 0.0)
-                L, G = L + v, G + g
+            coarse = self._parts[0]
+            L, G = coarse.value_and_gradient(F) if jacobian else (coarse(F), None)
+            if len(self._parts) > 1:   # the reference correction, of the pose (and the coarse K's emitter pairs)
+                reg = self._regressor_pairs
+                corr = self._parts[1]
+                if jacobian:
+                    v, g = corr.value_and_gradient(F, L[:, reg], G[:, :, reg])
+                    L, G = L + v, G + g
+                else:
+                    L = L + corr(F, L[:, reg])
             out.append(L)
             if jacobian:
                 dout.append(np.einsum("pkq,pkj->pjq", G, dF))
@@ -350,7 +385,7 @@ class TankMap:
         """One ``.npz``: arrays, and the scene, sensor, options and code version as JSON (written atomically)."""
         path = Path(path)
         partial = path.with_name(f"{path.name}.{os.getpid()}.writing.npz")
-        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in self.fitted}
+        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in self.fitted}
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, X=self.fitted["X"],
                  coef=self.fitted["coef"], loo=self.fitted["loo"], ref_index=self.ref_index, K_ref=self.K_ref,
                  focus_m=np.zeros((0, 3)) if self.focus_m is None else self.focus_m,
@@ -378,7 +413,7 @@ def load_tank_map(path) -> TankMap:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "ref_index", "K_ref",
                                         "focus_m")}
-            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref") if k in z.files})
+            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in z.files})
     except (OSError, KeyError, ValueError, EOFError) as exc:
         raise ValueError(f"{path}: not a tank map ({exc})") from None
     if meta.get("format") != MAP_FORMAT:
@@ -394,7 +429,8 @@ def load_tank_map(path) -> TankMap:
                    arrays["K_free"], objects, meta.get("bem_options", {}), meta.get("code", ""),
                    float(meta.get("wall_gap_m", 0.005)), meta.get("history", []), meta.get("sigma_S_per_m"),
                    float(meta.get("warp_m", DEFAULT_WARP_M)),
-                   {k: arrays[k] for k in ("X", "coef", "loo", "X_ref", "coef_ref", "loo_ref") if k in arrays},
+                   {k: arrays[k] for k in ("X", "coef", "loo", "X_ref", "coef_ref", "loo_ref", "regressors_ref")
+                    if k in arrays},
                    float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
                    arrays["focus_m"] if len(arrays["focus_m"]) else None)
 
