@@ -12,7 +12,7 @@ Example
 """
 from __future__ import annotations
 
-__all__ = ["dense_system_bytes", "check_memory", "MemoryRefusal"]
+__all__ = ["dense_system_bytes", "check_memory", "check_bytes", "MemoryRefusal"]
 
 
 class MemoryRefusal(MemoryError, ValueError):
@@ -34,11 +34,19 @@ def available_bytes() -> float:
 def check_memory(n_unknowns: int, n_matrices: float = 1.0, what: str = "the BEM system",
                  fraction: float = 0.8, hint: str = "raise edge_length_m (coarser sensor mesh) or coarsen the tank mesh") -> float:
     """Return the estimated bytes, or raise :class:`MemoryRefusal` past ``fraction`` of available memory."""
-    need = dense_system_bytes(n_unknowns, n_matrices)
+    return check_bytes(dense_system_bytes(n_unknowns, n_matrices), f"{what} has {n_unknowns} unknowns and", fraction,
+                       hint)
+
+
+def check_bytes(need: float, what: str = "the BEM system", fraction: float = 0.8,
+                hint: str = "raise edge_length_m (coarser sensor mesh) or coarsen the tank mesh") -> float:
+    """Return ``need`` (bytes), or raise :class:`MemoryRefusal` if it exceeds ``fraction`` of available memory
+    (a share of it where several processes hold such blocks at once: ``fraction`` divided among them)."""
     have = available_bytes()
     if need > fraction * have:
+        share = "" if fraction >= 0.8 else f" (its share, {fraction:.2g} of them, with other processes beside it)"
         raise MemoryRefusal(
-            f"{what} has {n_unknowns} unknowns and needs about {need / 1e9:.1f} GB as dense matrices, "
-            f"but only {have / 1e9:.1f} GB of memory are available: {hint}"
+            f"{what} needs about {need / 1e9:.1f} GB as dense matrices, but only {have / 1e9:.1f} GB of memory are "
+            f"available{share}: {hint}"
         )
     return need

@@ -72,7 +72,7 @@ from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, 
 from electrosense.bem.edge_correction import free_space_correction
 from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_refined
 from electrosense.bem.low_rank import right_singular_vectors
-from electrosense.bem.memory import check_memory
+from electrosense.bem.memory import check_bytes, check_memory
 from electrosense.bem.operators import TriangleSet, mixed_system
 from electrosense.bem.shape_derivative import layer_part, shape_derivatives, surface_gradient_operator
 from electrosense.bem.solution import solve
@@ -143,6 +143,10 @@ class PoseSweep:
         Keep the tank's (and fixed objects') factors on disk too, where ``block_cache`` allows a disk cache
         of a block that size: for a tank mesh that later processes solve again (the diagnosis's anchors),
         not for one-off scenes (about 0.13 GB for 4 000 triangles).
+    memory_share : float
+        The fraction of this machine's available memory the sweep's blocks may take before it refuses the scene
+        (:class:`~electrosense.bem.memory.MemoryRefusal`, naming its size): 1 alone, ``1 / k`` where ``k``
+        sweeps hold their blocks at once (a tank map's workers).
 
     Example
     -------
@@ -152,7 +156,7 @@ class PoseSweep:
     def __init__(self, sensor, tank=None, objects=(), sigma_S_per_m: float = 1.0, contact_impedance_ohm_m2=None,
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
                  edge_correction: bool = True, tank_grading: float | None = None, tank_mesh=None,
-                 cache_environment: bool = False, **sensor_mesh_options):
+                 cache_environment: bool = False, memory_share: float = 1.0, **sensor_mesh_options):
         from electrosense.meshes.sensor_mesh import mesh_sensor
 
         sigma_S_per_m = check_conductivity(sigma_S_per_m)
@@ -170,6 +174,9 @@ class PoseSweep:
         self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         self.tol = float(tol)
+        if not 0.0 < memory_share <= 1.0:
+            raise ValueError(f"memory_share must be in (0, 1], got {memory_share}")
+        self.memory_share = float(memory_share)
         self.block_cache = block_cache
         self.cache_environment = bool(cache_environment)
         self.sensor_mesh = mesh_sensor(sensor, edge_length_m=edge_length_m, **sensor_mesh_options)
@@ -264,7 +271,7 @@ class PoseSweep:
         cs, cd, grp = column_coefficients(wb, self.sigma_S_per_m, self.z_c, self.scale_m)
         self._cs_s, self._cd_s, self._grp_s = cs, cd, grp
         Ns = len(self.sensor_tris)
-        check_memory(Ns, 1.1, what="the sensor block")
+        check_memory(Ns, 1.1, what="the sensor block", fraction=0.8 * self.memory_share)
         cache = self._disk_cache(Ns)
         if cache is not None:
             key = cache.key(self.sensor_tris.triangles, cs, cd, grp, np.array([self.n]))
@@ -339,9 +346,11 @@ class PoseSweep:
         cs, cd, grp = column_coefficients(wb, self.sigma_S_per_m, self.z_c, self.scale_m)
         self._cs_e, self._cd_e, self._grp_e = cs[Ns:], cd[Ns:], grp[Ns:]
         Ne = len(self.env_tris)
-        # A_e kept, A' = A_e + c a b^T factorised in place, and the assembly's scratch (a 36 000-triangle tank
-        # passed at 1.3 matrices and used 12 GB)
-        check_memory(Ne + Ns, 2.5, what="the tank and sensor blocks")
+        # held at once: the sensor block's float32 factors, A_e and A' = A_e + c a b^T factorised in place with the
+        # assembly's scratch (a 36 000-triangle tank passed at 1.3 matrices and used 12 GB), and a pose's coupling
+        # blocks (A_se, A_es, A_se in float32, the range finder's products)
+        check_bytes(4.0 * Ns**2 + 8.0 * (2.5 * Ne**2 + 3.0 * Ns * Ne),
+                    f"the tank ({Ne} triangles) and the sensor ({Ns}) blocks", 0.8 * self.memory_share)
         self.tank_mesh = tank_mesh
         # the environment's block depends on its triangles and column coefficients alone: its Woodbury factors
         # are kept on disk like the sensor's (a later process's sweep in the same tank mesh reads them back)

@@ -96,3 +96,23 @@ def test_object_of_finite_conductivity():
     scene = Scene(preset("angels-2"), objects=(Sphere(centre_m=(0.0, 0.1, 0.0), radius_m=0.02, conductivity_S_per_m=0.5),))
     with pytest.raises(ValueError, match="object_1"):
         conductance_matrix(scene, 1.0)
+
+
+def test_sweeps_side_by_side_each_keep_to_their_share_of_the_memory(monkeypatch):
+    """A tank block that fits alone is refused, with its size, by a sweep that shares the memory with three more
+    (a tank map's two workers, each with a coarse and a reference sweep): several workers no longer each check
+    the whole memory alone."""
+    import electrosense.bem.sweep as sweep_module
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.tank import Tank
+
+    asked = []
+    check = sweep_module.check_bytes
+    monkeypatch.setattr(sweep_module, "check_bytes", lambda need, *a, **k: asked.append(need) or check(need, *a, **k))
+    pose = np.array([[0.0, 0.0, 0.0, 0.0]])
+    scene = (preset("angels-2"), Tank((0.4, 0.3, 0.3)))
+    PoseSweep(*scene, edge_length_m=0.012, tank_edge_length_m=0.04).conductance(pose)
+    monkeypatch.setattr(bem.memory, "available_bytes", lambda: 2.0 * asked[-1])   # room for this one, not four
+    PoseSweep(*scene, edge_length_m=0.012, tank_edge_length_m=0.04).conductance(pose)
+    with pytest.raises(MemoryError, match=r"block.*needs about .* GB.*its share, 0.2"):
+        PoseSweep(*scene, edge_length_m=0.012, tank_edge_length_m=0.04, memory_share=0.25).conductance(pose)

@@ -443,9 +443,9 @@ _WORKER = {}
 COARSE_FACTOR = 3.0
 
 
-def _worker_init(sensor, tank, objects, focus, options):
+def _worker_init(sensor, tank, objects, focus, options, memory_share=1.0):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    _WORKER.update(args=(sensor, tank, objects, focus), options=options, sweeps={})
+    _WORKER.update(args=(sensor, tank, objects, focus), options=options, sweeps={}, memory_share=memory_share)
 
 
 def _worker_solve(poses, fidelity: str = "coarse"):
@@ -456,7 +456,7 @@ def _worker_solve(poses, fidelity: str = "coarse"):
     if fidelity not in _WORKER["sweeps"]:   # set up on first use: a map without a correction never pays for it
         sensor, tank, objects, focus = _WORKER["args"]
         _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus,
-                                                **_WORKER["options"][fidelity])
+                                                memory_share=_WORKER["memory_share"], **_WORKER["options"][fidelity])
     K = _WORKER["sweeps"][fidelity].conductance(poses).K_S
     return K, os.getpid(), time.process_time()
 
@@ -468,8 +468,9 @@ class _BemPool:
     counts it)."""
 
     def __init__(self, sensor, tank, objects, focus, options: dict, workers: int):
-        self.args = (sensor, tank, tuple(objects), focus, options)
         self.workers = max(1, int(workers))
+        # every worker holds a sweep of each mesh at once: each may take its share of the memory
+        self.args = (sensor, tank, tuple(objects), focus, options, 1.0 / (self.workers * len(options)))
         self._cpu = {}
         self.solved = 0
         self._pool = None
