@@ -13,8 +13,9 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    the whole plane, on ``workers`` processes) at a first spread of them
    (farthest-point sampling in the map's warped coordinates, which crowds
    them near the walls), then, round after round, at the candidates of
-   largest estimated error, until that is below the target (a third of the
-   bench noise, RMS and max) or the time is spent;
+   largest estimated error (and a share of each round, :data:`EXPLORE_SHARE`,
+   spread over the tank: that estimate runs low mid-tank), until it is below
+   the target (a third of the bench noise, RMS and max) or the time is spent;
 3. log(K_bem / K_free) of every electrode pair interpolated over the
    warped coordinates (quintic radial basis functions with a quadratic trend,
    :class:`~electrosense.validation.diagnosis.anchored.RBFInterpolant`), its
@@ -65,6 +66,12 @@ RBF_DEGREE = 2
 #: the fewest reference poses a map with a coarse sensor mesh is built with, whatever its budget: its correction
 #: and the correction's estimated error need some
 MIN_REFERENCE_POSES = 4
+
+#: the share of each round's coarse poses spread over the tank (farthest from every node in the tips' positions)
+#: rather than put where the estimated error is largest: that estimate is right on average but too high at the
+#: walls and 2-3x too low mid-tank (a random 5-electrode sensor's map, four fresh poses 6-9 cm from the walls),
+#: so rounds led by it alone leave mid-tank sparse
+EXPLORE_SHARE = 1.0 / 3.0
 
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
@@ -525,7 +532,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     """
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.meshes.sensor_mesh import default_edge_length_m
-    from electrosense.validation.diagnosis.anchored import estimated_error
+    from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
 
     say = progress or (lambda s: None)
@@ -670,9 +677,15 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 worst = np.argsort(e_nodes)[::-1][: 20 * k]
                 worst = worst[e_nodes[worst] >= 0]
                 solve_ref(worst[_farthest_points(X[worst], min(k, len(worst)), X[ref_index])])
-            else:
-                worst = np.argsort(err_c)[::-1][: 20 * k]
-                solve(worst[_farthest_points(F[worst], k, m._parts[0].X)])
+            else:   # most where the estimated error is largest, a share spread over the tank (module doc)
+                k_spread = int(round(EXPLORE_SHARE * k))
+                worst = np.argsort(err_c)[::-1][: 20 * (k - k_spread)]
+                pick = worst[_farthest_points(F[worst], k - k_spread, m._parts[0].X)]
+                if k_spread:
+                    T = pose_features(sensor, C)
+                    T_have = np.vstack([pose_features(sensor, nodes), T[pick]])
+                    pick = np.r_[pick, _farthest_points(T, k_spread, T_have)]
+                solve(np.unique(pick))
     finally:
         pool.close()
     return m
