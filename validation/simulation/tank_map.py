@@ -236,13 +236,13 @@ class TankMap:
             iu = self._iu
             X = self.frame.features(self.nodes)
             K_nodes = self.mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
-            interp = RBFInterpolant(X, np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu]), degree=RBF_DEGREE)
+            L_coarse = np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu])
+            interp = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE)
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
                 K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
                 d = np.log(K_ref[:, iu[0], iu[1]] / K_nodes[self.ref_index][:, iu[0], iu[1]])
-                L_coarse = np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu])
                 corr, pairs = self._fit_correction(Xr, d, L_coarse[self.ref_index])
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
@@ -565,6 +565,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         # grading, all lie in the fundamental domain (MapFrame.folded), where every pose is evaluated
         _, keep = np.unique(np.round(F / 1e-6).astype(np.int64), axis=0, return_index=True)
         C, F = frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
+    T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
@@ -682,7 +683,6 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 worst = np.argsort(err_c)[::-1][: 20 * (k - k_spread)]
                 pick = worst[_farthest_points(F[worst], k - k_spread, m._parts[0].X)]
                 if k_spread:
-                    T = pose_features(sensor, C)
                     T_have = np.vstack([pose_features(sensor, nodes), T[pick]])
                     pick = np.r_[pick, _farthest_points(T, k_spread, T_have)]
                 solve(np.unique(pick))
