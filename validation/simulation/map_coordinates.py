@@ -1,6 +1,6 @@
 """The coordinates a tank map interpolates in: poses folded by the tank's symmetry, cap centres warped near walls.
 
-Two facts make the BEM's K far easier to interpolate than it looks in (x, y, heading):
+Three facts make the BEM's K far easier to interpolate than it looks in (x, y, heading):
 
 1. **symmetry**: the sensor is a body of revolution, so a mirror plane of the
    tank through its axis maps a pose onto one with the same K. A box tank
@@ -22,6 +22,10 @@ Two facts make the BEM's K far easier to interpolate than it looks in (x, y, hea
    logarithmically below a scale ``warp_m``: u -> +-(c log(1 + h/c) -
    c log(1 + s/c)) with s the distance from the nearer wall (caps' radius
    taken off) and h half the span. Odd, smooth, with slope 1 / (1 + s/c).
+
+3. **the walls' images**: K's change near a wall is, to leading order, the
+   electrodes' mirror images in it (:meth:`MapFrame.wall_images`), which the
+   map may take as linear regressors beside its radial basis functions.
 
 Folded and warped, a cubic RBF on 60 BEM poses of a 4-electrode sensor in a
 0.6 x 0.5 x 0.4 m box came 10x closer to the BEM at fresh poses (tips 5 mm to
@@ -232,6 +236,79 @@ class MapFrame:
         if not jacobian:
             return F
         return F, scale * np.stack(dcols, axis=1)
+
+    def wall_images(self, poses, jacobian: bool = False):
+        """The walls' images as regressors: (P, r), with ``jacobian`` also their d/d(x, y, yaw), (P, 3, r).
+
+        For each two of the sensor's distinct axial electrode positions ``a <= b`` (sectors of one ring share
+        theirs), ``L sum_w weight_w / |p_a - M_w p_b|``, symmetrised: the sum over the walls' mirror images
+        ``M_w`` of a point current's inverse distance to the other's image (:mod:`electrosense.psm.images`),
+        times the sensor's length ``L``. A point current's image in an insulating plane is the leading wall
+        effect on K, and it grows like one over the gap: what the interpolant finds hardest near a wall, in
+        a form it need only scale (:class:`TankMap` fits it as linear regressors beside the radial basis
+        functions where their leave-one-out errors favour it). A box: its four walls and four vertical edges
+        (the paper's eight images), and the floor and free surface in a band; a cylinder: each point
+        mirrored across the wall along its radius (the tangent plane's image), and the floor and free surface
+        in a band. Fixed objects have no images. Invariant under the tank's symmetries, like K.
+
+        >>> from electrosense.meshes import preset
+        >>> from electrosense.meshes.tank import Tank
+        >>> frame = MapFrame(preset("angels-4"), Tank((1.0, 1.0, 1.0)))
+        >>> R = frame.wall_images(np.array([[0.0, 0, 0, 0], [0.3, 0, 0, 0], [-0.3, 0, 0, np.pi]]))
+        >>> R.shape, bool(R[1, 0] > R[0, 0]), bool(np.allclose(R[1], R[2]))
+        ((3, 10), True, True)
+        """
+        from electrosense.psm.images import paper8_images
+
+        p = np.asarray(poses, float).reshape(-1, 4)
+        P = len(p)
+        x, y, z, yaw = p.T
+        u = np.unique(np.round(self.sensor.electrode_centres_m[:, 0], 12))
+        k = len(u)
+        cs, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        pts = np.stack([x[:, None] + u * cs, y[:, None] + u * sn, np.repeat(z[:, None], k, axis=1)], axis=-1)
+        dpts = np.zeros((P, k, 2, 3))          # d (x, y) of each point / d (x, y, yaw); z is no parameter
+        dpts[:, :, 0, 0] = dpts[:, :, 1, 1] = 1.0
+        dpts[:, :, 0, 2], dpts[:, :, 1, 2] = -u * sn, u * cs
+        lo, hi = self.tank.water_bounds_m
+        if self.cylinder:   # images (I, P, k, 3) and their (x, y) derivatives (I, P, k, 2, 3)
+            rho = np.maximum(np.hypot(pts[..., 0], pts[..., 1]), 1e-12)
+            R2 = 2.0 * np.asarray(self.tank.radius_at(pts[..., 2]), float)
+            f = R2 / rho - 1.0                 # the radius mirrored across the wall: rho -> 2 R - rho
+            q = [pts * np.stack([f, f, np.ones_like(f)], axis=-1)]
+            drho = np.einsum("pkc,pkcj->pkj", pts[..., :2], dpts) / rho[..., None]
+            dq = [f[..., None, None] * dpts - (R2 / rho**2)[..., None, None] * pts[..., :2, None] * drho[..., None, :]]
+            if self.band:                      # floor and free surface: planes, x and y unchanged
+                q += [pts * [1.0, 1.0, -1.0] + [0.0, 0.0, 2.0 * b] for b in (lo[2], hi[2])]
+                dq += [dpts, dpts]
+            q, dq, weights, isometric = np.stack(q), np.stack(dq), np.ones(len(q)), False
+        else:               # affine images x -> signs x + offsets
+            imgs = paper8_images(self.tank)
+            signs, offsets = imgs.signs, imgs.offsets_m
+            if self.band:                      # and the floor's and the free surface's
+                signs = np.vstack([signs, [[1.0, 1.0, -1.0]] * 2])
+                offsets = np.vstack([offsets, [[0.0, 0.0, 2.0 * lo[2]], [0.0, 0.0, 2.0 * hi[2]]]])
+            s_ = signs[:, None, None, :]
+            q = s_ * pts + offsets[:, None, None, :]
+            dq, weights, isometric = s_[..., :2, None] * dpts, np.ones(len(signs)), True
+        # pairs a <= b; an isometric image gives |p_a - M p_b| = |p_b - M p_a|, else both orders are summed
+        ia, ib = np.triu_indices(k)
+        orders = [(ia, ib)] if isometric else [(ia, ib), (ib, ia)]
+        w = weights[:, None, None] / len(orders)
+        R = 0.0
+        dR = np.zeros((P, 3, len(ia)))
+        for a, b in orders:
+            diff = pts[None][:, :, a] - q[:, :, b]                              # (I, P, pairs, 3)
+            inv = 1.0 / np.sqrt(np.sum(diff**2, axis=-1))
+            R = R + np.sum(w * inv, axis=0)
+            if jacobian:   # -w diff . (d p_a - d q_b) / dist^3
+                w3 = w * inv**3
+                dpa, dqb = dpts[:, a], dq[:, :, b]
+                for j in range(3):
+                    dd = sum(diff[..., c] * (dpa[None, ..., c, j] - dqb[..., c, j]) for c in (0, 1))
+                    dR[:, j] -= np.sum(w3 * dd, axis=0)
+        L = self.sensor.length_m
+        return (L * R, L * dR) if jacobian else L * R
 
     @property
     def feature_scale_m(self) -> float:
