@@ -55,6 +55,29 @@ def _rec(K):
     return -K[:, :3, 3]
 
 
+def _assert_pose_jacobian(m, P):
+    """The map's pose Jacobian at ``P`` is the central difference of its K in x, y and heading."""
+    _, J = m.conductance(P, jacobian=True)
+    for j, axis in enumerate((0, 1, 3)):
+        d = np.zeros(4)
+        d[axis] = 1e-6
+        fd = (m.conductance(P + d) - m.conductance(P - d)) / 2e-6
+        assert np.allclose(fd, J[:, j], rtol=1e-5, atol=1e-6 * np.abs(J).max())
+
+
+def _synthetic_nodes(seed, n_poses, spacing_m, n_headings):
+    """Random reachable poses in ``TANK``, their frame, and a free-space K to build synthetic maps on."""
+    from electrosense.validation.simulation.tank_map import _assemble
+
+    rng = np.random.default_rng(seed)
+    P = reachable_poses(SENSOR, TANK, 0.0, 0.02, spacing_m, n_headings)
+    P = P[rng.choice(len(P), n_poses, replace=False)]
+    n = SENSOR.n_electrodes
+    iu = np.triu_indices(n, 1)
+    K_free = _assemble(-np.linspace(1.0, 2.0, len(iu[0]))[None], n, iu)[0]
+    return rng, P, MapFrame(SENSOR, TANK), iu, K_free
+
+
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):
@@ -100,13 +123,7 @@ def test_mirror_poses_have_one_K_and_the_jacobian_is_the_derivative(built):
     K = m.conductance(mirrors)
     assert np.allclose(K, K[0], rtol=1e-12)
     rng = np.random.default_rng(0)
-    P = np.c_[rng.uniform(-0.05, 0.05, (6, 2)), np.zeros(6), rng.uniform(-3, 3, 6)]
-    _, J = m.conductance(P, jacobian=True)
-    for j, axis in enumerate((0, 1, 3)):
-        d = np.zeros(4)
-        d[axis] = 1e-6
-        fd = (m.conductance(P + d) - m.conductance(P - d)) / 2e-6
-        assert np.allclose(fd, J[:, j], rtol=1e-5, atol=1e-6 * np.abs(J).max())
+    _assert_pose_jacobian(m, np.c_[rng.uniform(-0.05, 0.05, (6, 2)), np.zeros(6), rng.uniform(-3, 3, 6)])
 
 
 def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses():
@@ -116,14 +133,9 @@ def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses()
     could not (its own leave-one-out errors are far larger)."""
     from electrosense.validation.simulation.tank_map import _assemble
 
-    rng = np.random.default_rng(4)
-    P = reachable_poses(SENSOR, TANK, 0.0, 0.02, 0.02, 8)
-    P = P[rng.choice(len(P), 80, replace=False)]
-    frame = MapFrame(SENSOR, TANK)
-    F = frame.features(P)
+    rng, P, frame, iu, K_free = _synthetic_nodes(4, 80, 0.02, 8)
     n = SENSOR.n_electrodes
-    iu = np.triu_indices(n, 1)
-    K_free = _assemble(-np.linspace(1.0, 2.0, len(iu[0]))[None], n, iu)[0]
+    F = frame.features(P)
     L = 0.3 * np.tanh((F - F.mean(0)) / F.std(0) @ rng.normal(size=(F.shape[1], len(iu[0]))))   # a wall-like change
     e = SENSOR.emitter - 1
     emitter_pairs = [q for q in range(len(iu[0])) if e in (iu[0][q], iu[1][q])]
@@ -170,14 +182,9 @@ def test_the_map_regresses_on_the_wall_images_where_they_carry_the_walls_effect(
     basis functions alone, and its pose Jacobian the derivative of what it returns."""
     from electrosense.validation.simulation.tank_map import _assemble
 
-    rng = np.random.default_rng(5)
-    P = reachable_poses(SENSOR, TANK, 0.0, 0.01, 0.01, 16)
-    P = P[rng.choice(len(P), 120, replace=False)]
-    frame = MapFrame(SENSOR, TANK)
+    rng, P, frame, iu, K_free = _synthetic_nodes(5, 120, 0.01, 16)
     R = frame.wall_images(P)
     n = SENSOR.n_electrodes
-    iu = np.triu_indices(n, 1)
-    K_free = _assemble(-np.linspace(1.0, 2.0, len(iu[0]))[None], n, iu)[0]
     F = frame.features(P)
     L = (R - R.mean(0)) @ rng.normal(scale=0.02, size=(R.shape[1], len(iu[0]))) + 0.01 * np.sin(F[:, :1])
     m = TankMap(SENSOR, TANK, 0.0, P, _assemble(K_free[iu] * np.exp(L), n, iu), K_free)
@@ -185,13 +192,7 @@ def test_the_map_regresses_on_the_wall_images_where_they_carry_the_walls_effect(
     assert np.allclose(m.conductance(P), _assemble(K_free[iu] * np.exp(L), n, iu), rtol=1e-8, atol=0)
     plain = RBFInterpolant(F, L, degree=2)
     assert np.abs(m.leave_one_out).max() < 0.1 * np.abs(np.expm1(plain.leave_one_out[:, m._rec])).max()
-    Q = P[:6] + [0.004, -0.003, 0.0, 0.05]
-    _, J = m.conductance(Q, jacobian=True)
-    for j, axis in enumerate((0, 1, 3)):
-        d = np.zeros(4)
-        d[axis] = 1e-6
-        fd = (m.conductance(Q + d) - m.conductance(Q - d)) / 2e-6
-        assert np.allclose(fd, J[:, j], rtol=1e-5, atol=1e-6 * np.abs(J).max())
+    _assert_pose_jacobian(m, P[:6] + [0.004, -0.003, 0.0, 0.05])
 
 
 def test_a_cylinder_map_sees_one_pose_in_every_rotation():
