@@ -210,6 +210,12 @@ class RBFInterpolant:
         return self
 
     @property
+    def regressor_coefficients(self) -> np.ndarray:
+        """(r, k): the regressors' coefficients (each output a linear function of them plus the rest)."""
+        c = self.coef.reshape(len(self.coef), -1)
+        return c[len(c) - self.n_regressors:]
+
+    @property
     def power(self) -> int:
         """The kernel's power: phi = r ** power (3, or 5 with a quadratic trend)."""
         return 2 * self.degree + 1
@@ -252,7 +258,7 @@ class RBFInterpolant:
         B = len(self.X)
         c = self.coef.reshape(len(self.coef), -1)
         r_ = self.n_regressors
-        cb, ct, cr = c[:B], c[B:len(c) - r_], c[len(c) - r_:]
+        cb, ct, cr = c[:B], c[B:len(c) - r_], self.regressor_coefficients
         R = self._regressors(X, regressors)
         r = self._distance(X, self.X)
         values = (r**self.power) @ cb + self._trend(X) @ ct + R @ cr

@@ -237,6 +237,17 @@ class MapFrame:
             return F
         return F, scale * np.stack(dcols, axis=1)
 
+    @property
+    def axial_positions_m(self) -> np.ndarray:
+        """The sensor's distinct axial electrode positions (m, sensor frame), increasing: a ring's sectors share one."""
+        return np.unique(np.round(self.sensor.electrode_centres_m[:, 0], 12))
+
+    @property
+    def n_wall_images(self) -> int:
+        """The number of :meth:`wall_images` regressors: one per two axial positions ``a <= b``."""
+        k = len(self.axial_positions_m)
+        return k * (k + 1) // 2
+
     def wall_images(self, poses, jacobian: bool = False):
         """The walls' images as regressors: (P, r), with ``jacobian`` also their d/d(x, y, yaw), (P, 3, r).
 
@@ -263,7 +274,7 @@ class MapFrame:
         p = np.asarray(poses, float).reshape(-1, 4)
         P = len(p)
         x, y, z, yaw = p.T
-        u = np.unique(np.round(self.sensor.electrode_centres_m[:, 0], 12))
+        u = self.axial_positions_m
         k = len(u)
         cs, sn = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         pts = np.stack([x[:, None] + u * cs, y[:, None] + u * sn, np.repeat(z[:, None], k, axis=1)], axis=-1)

@@ -250,8 +250,8 @@ class TankMap:
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
         self._images = bool(self.fitted.get("images", False))
-        n_images = self.frame.wall_images(self.nodes[:1]).shape[1] if self._images else 0
-        self._parts = [RBFInterpolant.from_coefficients(self.fitted["X"], self.fitted["coef"], n_images)]
+        self._parts = [RBFInterpolant.from_coefficients(self.fitted["X"], self.fitted["coef"],
+                                                        self.frame.n_wall_images if self._images else 0)]
         self._regressor_pairs = np.asarray(self.fitted.get("regressors_ref", np.zeros(0, int)), int)
         if "X_ref" in self.fitted:
             self._parts.append(RBFInterpolant.from_coefficients(self.fitted["X_ref"], self.fitted["coef_ref"],
@@ -334,8 +334,9 @@ class TankMap:
         for s in range(0, len(poses), chunk):
             Q = poses[s:s + chunk]
             F, dF = self.frame.features(Q, jacobian=True) if jacobian else (self.frame.features(Q), None)
-            R, dR = (self.frame.wall_images(Q, jacobian) if jacobian else (self.frame.wall_images(Q), None)) \
-                if self._images else (None, None)
+            R, dR = None, None
+            if self._images:
+                R, dR = self.frame.wall_images(Q, jacobian=True) if jacobian else (self.frame.wall_images(Q), None)
             coarse = self._parts[0]
             L, G = _value_and_pose_gradient(coarse, F, dF, R, dR) if jacobian else (coarse(F, R), None)
             if len(self._parts) > 1:   # the reference correction, of the pose (and the coarse K's emitter pairs)
@@ -434,7 +435,7 @@ def _value_and_pose_gradient(interpolant, F, dF, R=None, dR=None):
     v, G = interpolant.value_and_gradient(F, R, np.zeros(F.shape + (r,)) if r else None)
     G = np.einsum("pkq,pkj->pjq", G, dF)
     if r:
-        G = G + np.einsum("pjr,rq->pjq", dR, interpolant.coef[-r:])
+        G = G + np.einsum("pjr,rq->pjq", dR, interpolant.regressor_coefficients)
     return v, G
 
 
