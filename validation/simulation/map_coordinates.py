@@ -252,7 +252,7 @@ class MapFrame:
         """The walls' images as regressors: (P, r), with ``jacobian`` also their d/d(x, y, yaw), (P, 3, r).
 
         For each two of the sensor's distinct axial electrode positions ``a <= b`` (sectors of one ring share
-        theirs), ``L sum_w weight_w / |p_a - M_w p_b|``, symmetrised: the sum over the walls' mirror images
+        theirs), ``L sum_w 1 / |p_a - M_w p_b|``, symmetrised: the sum over the walls' mirror images
         ``M_w`` of a point current's inverse distance to the other's image (:mod:`electrosense.psm.images`),
         times the sensor's length ``L``. A point current's image in an insulating plane is the leading wall
         effect on K, and it grows like one over the gap: what the interpolant finds hardest near a wall, in
@@ -292,7 +292,7 @@ class MapFrame:
             if self.band:                      # floor and free surface: planes, x and y unchanged
                 q += [pts * [1.0, 1.0, -1.0] + [0.0, 0.0, 2.0 * b] for b in (lo[2], hi[2])]
                 dq += [dpts, dpts]
-            q, dq, weights, isometric = np.stack(q), np.stack(dq), np.ones(len(q)), False
+            q, dq, isometric = np.stack(q), np.stack(dq), False
         else:               # affine images x -> signs x + offsets
             imgs = paper8_images(self.tank)
             signs, offsets = imgs.signs, imgs.offsets_m
@@ -301,11 +301,11 @@ class MapFrame:
                 offsets = np.vstack([offsets, [[0.0, 0.0, 2.0 * lo[2]], [0.0, 0.0, 2.0 * hi[2]]]])
             s_ = signs[:, None, None, :]
             q = s_ * pts + offsets[:, None, None, :]
-            dq, weights, isometric = s_[..., :2, None] * dpts, np.ones(len(signs)), True
+            dq, isometric = s_[..., :2, None] * dpts, True
         # pairs a <= b; an isometric image gives |p_a - M p_b| = |p_b - M p_a|, else both orders are summed
         ia, ib = np.triu_indices(k)
         orders = [(ia, ib)] if isometric else [(ia, ib), (ib, ia)]
-        w = weights[:, None, None] / len(orders)
+        w = 1.0 / len(orders)
         R = 0.0
         dR = np.zeros((P, 3, len(ia)))
         for a, b in orders:
