@@ -79,6 +79,7 @@ from electrosense.bem.solution import solve
 from electrosense.bem.solve import check_object_materials
 from electrosense.bem.system import column_coefficients, contact_impedances
 from electrosense.meshes.pose import Pose, poses_array, rotation_z
+from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, DEFAULT_TANK_NEAR_RATIO
 
 __all__ = ["PoseSweep", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
 
@@ -120,6 +121,12 @@ class PoseSweep:
     focus_m : (P, 3) array, optional
         Tank-frame points the tank mesh is graded towards; default: the
         sensor's axis at every pose of the first call.
+    tank_near_ratio : float or None, optional
+        The tank's edge at most this times its distance from the sensor's
+        surface around ``focus_m`` (a focus on the sensor's axis); default
+        :data:`electrosense.meshes.scene_mesh.DEFAULT_TANK_NEAR_RATIO`; None:
+        no such bound (a focus spread over a whole plane of poses, where that
+        bound would refine every wall).
     tol : float
         Relative truncation of the coupling's SVD (singular values below
         ``tol`` times the largest are dropped; randomised range finding,
@@ -156,7 +163,8 @@ class PoseSweep:
     def __init__(self, sensor, tank=None, objects=(), sigma_S_per_m: float = 1.0, contact_impedance_ohm_m2=None,
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
                  edge_correction: bool = True, tank_grading: float | None = None, tank_mesh=None,
-                 cache_environment: bool = False, memory_share: float = 1.0, **sensor_mesh_options):
+                 cache_environment: bool = False, memory_share: float = 1.0,
+                 tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO, **sensor_mesh_options):
         from electrosense.meshes.sensor_mesh import mesh_sensor
 
         sigma_S_per_m = check_conductivity(sigma_S_per_m)
@@ -169,9 +177,8 @@ class PoseSweep:
         self.contact_impedance_ohm_m2 = contact_impedance_ohm_m2
         self.tank_edge_length_m = tank_edge_length_m
         self._given_tank_mesh = tank_mesh
-        from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
-
         self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
+        self.tank_near_ratio = tank_near_ratio
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         self.tol = float(tol)
         if not 0.0 < memory_share <= 1.0:
@@ -240,6 +247,31 @@ class PoseSweep:
         new._prepare_sensor()
         new.timings["sensor_block_s"] = time.perf_counter() - t0
         new._prepare_edge_correction()
+        return new
+
+    def with_focus(self, focus_m=None, tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO) -> "PoseSweep":
+        """This sweep with the tank meshed anew, graded towards ``focus_m`` (None: the poses of the copy's first
+        call), sharing this sweep's sensor block and edge correction.
+
+        For a few poses each on a tank mesh of its own among many on one mesh (a tank map's reference poses):
+        the result is the sweep that the same arguments with ``focus_m`` and ``tank_near_ratio`` would build.
+
+        >>> from electrosense.meshes import Tank, preset
+        >>> sweep = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), edge_length_m=0.01)
+        >>> pose = [[0.09, 0.0, 0.0, 0.0]]     # a tip 1 cm from the end wall
+        >>> K0 = sweep.with_focus().conductance(pose).K_S
+        >>> K1 = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), edge_length_m=0.01).conductance(pose).K_S
+        >>> bool(abs(K0 - K1).max() < 1e-9 * abs(K1).max())
+        True
+        """
+        if self._given_tank_mesh is not None:
+            raise ValueError("with_focus: this sweep was given its tank mesh; make a sweep with tank_mesh instead")
+        new = copy.copy(self)
+        new.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
+        new.tank_near_ratio = tank_near_ratio
+        new.timings = dict(self.timings)
+        if self.tank is not None or self.objects:
+            new._env_ready, new._woodbury, new._A_e = False, None, None
         return new
 
     def _prepare_free(self):
@@ -327,9 +359,11 @@ class PoseSweep:
 
                 # its edge is the far one, a third of it at the focus: 3 h gives a box's edge h at the focus (a big
                 # cylinder meshed at h everywhere had 34 000 triangles and 8.5 GB for its block alone)
-                tank_mesh = mesh_cylinder_tank(self.tank, (), 3 * h, self.focus_m, grading=self.tank_grading)
+                tank_mesh = mesh_cylinder_tank(self.tank, (), 3 * h, self.focus_m, grading=self.tank_grading,
+                                               near_ratio=self.tank_near_ratio, focus_radius_m=self.sensor.radius_m)
             else:
-                tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading)
+                tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading,
+                                      near_ratio=self.tank_near_ratio, focus_radius_m=self.sensor.radius_m)
         object_meshes = tuple(mesh_object(o, None, region_name=f"object_{i}") for i, o in enumerate(self.objects, 1))
         if tank_mesh is None and not object_meshes:
             self.env_tris = None

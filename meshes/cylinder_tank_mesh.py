@@ -162,7 +162,8 @@ def _seam_angle(wall_discs: list[DiscElectrode]) -> float:
 
 def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float | None = None, focus_m=None, *,
                        grading: float = 0.5, edge_fraction: float = DEFAULT_EDGE_FRACTION,
-                       electrode_grading: float = DEFAULT_ELECTRODE_GRADING, first_label: int = 1) -> LabelledMesh:
+                       electrode_grading: float = DEFAULT_ELECTRODE_GRADING, first_label: int = 1,
+                       near_ratio: float | None = None, focus_radius_m: float = 0.0) -> LabelledMesh:
     """Closed, labelled, outward-oriented mesh of a cylindrical tank's water with its electrodes.
 
     Parameters
@@ -178,6 +179,9 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     grading, edge_fraction, electrode_grading : float
         Growth per metre away from the focus; rim edge length over the disc
         radius; growth per metre away from a rim.
+    near_ratio, focus_radius_m : float, optional
+        The edge at most ``near_ratio`` times the distance from a tube of ``focus_radius_m`` around the focus
+        (:func:`~electrosense.meshes.tank_mesh.graded_size_function`); default: no such bound.
     """
     zf, zt = tank.floor_z_m, tank.free_surface_z_m
     # developed wall: u = R (phi - phi0) with R the radius at mid-water; on a tapered wall the map to the
@@ -187,7 +191,8 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
     h_far = min(R, tank.water_depth_m) / 6 if edge_length_m is None else float(edge_length_m)
     if not h_far > 0:
         raise ValueError(f"mesh_cylinder_tank: edge_length_m must be positive, got {edge_length_m}")
-    base = None if focus_m is None else graded_size_function(h_far / 3, focus_m, grading, h_far)
+    base = None if focus_m is None else graded_size_function(h_far / 3, focus_m, grading, h_far,
+                                                             near_ratio=near_ratio, focus_radius_m=focus_radius_m)
     discs = [e for e in electrodes if isinstance(e, DiscElectrode)]
     size = electrode_size_function(discs, h_far, edge_fraction, electrode_grading, base)
     problems = disc_problems(tank, electrodes, first_label)

@@ -14,6 +14,14 @@ nearest focus point,
 
 so the walls near the sensor are fine and the far walls stay coarse: the
 wall's influence on the sensor varies on the scale of its distance to it.
+With ``near_ratio`` the edge is also at most ``near_ratio`` times the
+distance from the focus's surface (a tube of ``focus_radius_m`` around the
+focus points, the sensor's body around its axis),
+
+    h(p) <= max(min_edge_length_m, near_ratio * (d(p) - focus_radius_m)),
+
+which is what decides K with a tip a few millimetres from a wall: the field
+there varies on the scale of the gap, not of the sensor.
 Without a focus the mesh is uniform at ``edge_length_m``.
 
 Each planar face is meshed by :func:`mesh_convex_polygon`: graded edge nodes
@@ -45,7 +53,8 @@ SizeFunction = Callable[[np.ndarray], np.ndarray]
 
 # --------------------------------------------------------------------------- sizing
 def graded_size_function(edge_length_m: float, focus_m=None, grading: float = 0.5,
-                         max_edge_length_m: float | None = None) -> SizeFunction:
+                         max_edge_length_m: float | None = None, *, near_ratio: float | None = None,
+                         focus_radius_m: float = 0.0, min_edge_length_m: float | None = None) -> SizeFunction:
     """Target edge length h(p) (m) at points (..., 3), graded away from focus points.
 
     Parameters
@@ -59,12 +68,21 @@ def graded_size_function(edge_length_m: float, focus_m=None, grading: float = 0.
         Growth of the edge length per metre of distance from the focus.
     max_edge_length_m : float, optional
         Cap on the edge length (default: unbounded).
+    near_ratio : float, optional
+        The edge at most this times the distance from the focus's surface (module doc); default: no such bound.
+    focus_radius_m : float
+        Radius of the tube around the focus points whose surface ``near_ratio`` measures from (the sensor's).
+    min_edge_length_m : float, optional
+        Floor of the ``near_ratio`` bound (default: a twentieth of ``edge_length_m``).
 
     Example
     -------
     >>> h = graded_size_function(0.01, focus_m=[0, 0, 0], grading=0.5, max_edge_length_m=0.1)
     >>> h(np.array([[0.0, 0, 0], [0.1, 0, 0], [1.0, 0, 0]])).round(3).tolist()
     [0.01, 0.06, 0.1]
+    >>> h = graded_size_function(0.01, [0, 0, 0], 0.5, 0.1, near_ratio=0.35, focus_radius_m=0.01)
+    >>> h(np.array([[0.015, 0, 0], [0.03, 0, 0], [1.0, 0, 0]])).round(5).tolist()
+    [0.00175, 0.007, 0.1]
     """
     if not edge_length_m > 0:
         raise ValueError(f"edge_length_m must be positive, got {edge_length_m}")
@@ -76,12 +94,18 @@ def graded_size_function(edge_length_m: float, focus_m=None, grading: float = 0.
         raise ValueError("focus_m contains non-finite coordinates")
     if grading < 0:
         raise ValueError(f"grading must be >= 0, got {grading}")
+    if near_ratio is not None and not near_ratio > 0:
+        raise ValueError(f"near_ratio must be positive, got {near_ratio}")
+    h_min = edge_length_m / 20 if min_edge_length_m is None else float(min_edge_length_m)
     tree = cKDTree(focus)
 
     def h(p):
         p = np.asarray(p, dtype=float)
         d, _ = tree.query(p.reshape(-1, 3))
-        return np.minimum(h_max, edge_length_m + grading * d).reshape(p.shape[:-1])
+        size = np.minimum(h_max, edge_length_m + grading * d)
+        if near_ratio is not None:
+            size = np.minimum(size, np.maximum(h_min, near_ratio * (d - focus_radius_m)))
+        return size.reshape(p.shape[:-1])
 
     return h
 
@@ -257,7 +281,8 @@ def _weld(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 # ----------------------------------------------------------------------- the tank
 def mesh_tank(tank: Tank, edge_length_m: float | None = None, focus_m=None, *, grading: float = 0.5,
-              max_edge_length_m: float | None = None) -> LabelledMesh:
+              max_edge_length_m: float | None = None, near_ratio: float | None = None,
+              focus_radius_m: float = 0.0) -> LabelledMesh:
     """Closed, labelled, outward-oriented mesh of the tank's water box.
 
     Parameters
@@ -274,6 +299,9 @@ def mesh_tank(tank: Tank, edge_length_m: float | None = None, focus_m=None, *, g
     max_edge_length_m : float, optional
         Largest edge length (default: a quarter of the smaller horizontal
         side, but not below ``edge_length_m``).
+    near_ratio, focus_radius_m : float, optional
+        The edge at most ``near_ratio`` times the distance from a tube of ``focus_radius_m`` around the focus
+        (:func:`graded_size_function`); default: no such bound.
 
     Returns
     -------
@@ -288,7 +316,7 @@ def mesh_tank(tank: Tank, edge_length_m: float | None = None, focus_m=None, *, g
         raise ValueError(f"mesh_tank: edge_length_m must be positive, got {edge_length_m}")
     horizontal = float(min(hi[:2] - lo[:2]))
     h_max = max(h0, horizontal / 4) if max_edge_length_m is None else max(h0, float(max_edge_length_m))
-    size = graded_size_function(h0, focus_m, grading, h_max)
+    size = graded_size_function(h0, focus_m, grading, h_max, near_ratio=near_ratio, focus_radius_m=focus_radius_m)
     return mesh_axis_box(lo, hi, size)
 
 

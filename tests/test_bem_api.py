@@ -159,7 +159,8 @@ def test_pose_sweep_with_a_conducting_object_and_contact_impedance():
     K = sweep.conductance(pose).K_S[0]
     direct = conductance_matrix(Scene(preset("angels-2"), Pose.from_array(pose[0]), tank, ball), 1.0, 1e-3,
                                 edge_length_m=H, tank_edge_length_m=0.04, tank_focus_m=sweep.focus_m)
-    np.testing.assert_allclose(K, direct.K_S, rtol=1e-5)
+    # the same meshes; the direct solver's centroid rule beyond FAR diameters (above) leaves ~1e-5
+    np.testing.assert_allclose(K, direct.K_S, rtol=3e-5)
 
 
 def test_another_contact_impedance_shares_the_tank_and_equals_a_sweep_built_with_it():

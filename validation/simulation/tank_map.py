@@ -24,7 +24,10 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    leave-one-out error at every node, and the error estimated anywhere from
    the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`);
    the many poses are solved on a coarser sensor mesh, and the correction to
-   the reference mesh, known at fewer poses, is interpolated as a linear
+   the reference (the BEM as a user runs it at one pose: the reference
+   sensor mesh, and a tank mesh graded to that pose alone, its edge bounded
+   by the distance from the sensor, which one tank mesh for the whole plane
+   cannot afford along every wall), known at fewer poses, is interpolated as a linear
    function of the coarse K of the emitter's pairs plus a smooth remainder of
    the pose (the discretisation's error near a wall grows with the wall's
    effect), or of the pose alone, whichever its leave-one-out errors favour
@@ -493,16 +496,23 @@ def _worker_init(sensor, tank, objects, focus, options, memory_share=1.0):
     _WORKER.update(args=(sensor, tank, objects, focus), options=options, sweeps={}, memory_share=memory_share)
 
 
-def _worker_solve(poses, fidelity: str = "coarse"):
+def _worker_solve(poses, fidelity: str = "coarse", own_tank_mesh: bool = False):
     """K at ``poses`` on the ``fidelity``'s sensor mesh ("coarse" or "ref"), this process's id and its CPU seconds
-    so far (its set-up included)."""
+    so far (its set-up included). The map's tank mesh is graded towards the whole plane of poses, without the
+    bound on the edge by the distance from the sensor (it would refine every wall); ``own_tank_mesh``: each pose on
+    a tank mesh graded to it alone, as a user's BEM at that pose (the module doc)."""
     from electrosense.bem import PoseSweep
 
     if fidelity not in _WORKER["sweeps"]:   # set up on first use: a map without a correction never pays for it
         sensor, tank, objects, focus = _WORKER["args"]
         _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus,
-                                                memory_share=_WORKER["memory_share"], **_WORKER["options"][fidelity])
-    K = _WORKER["sweeps"][fidelity].conductance(poses).K_S
+                                                memory_share=_WORKER["memory_share"], tank_near_ratio=None,
+                                                **_WORKER["options"][fidelity])
+    sweep = _WORKER["sweeps"][fidelity]
+    if own_tank_mesh and sweep.tank is not None:
+        K = np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
+    else:
+        K = sweep.conductance(poses).K_S
     return K, os.getpid(), time.process_time()
 
 
@@ -532,12 +542,12 @@ class _BemPool:
     def cpu_s(self) -> float:
         return float(sum(self._cpu.values()))
 
-    def solve(self, poses: np.ndarray, fidelity: str = "coarse") -> np.ndarray:
+    def solve(self, poses: np.ndarray, fidelity: str = "coarse", own_tank_mesh: bool = False) -> np.ndarray:
         self.solved += len(poses)
         if self._pool is None:
-            return _worker_solve(poses, fidelity)[0]
+            return _worker_solve(poses, fidelity, own_tank_mesh)[0]
         parts = [p for p in np.array_split(poses, self.workers) if len(p)]
-        out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts)))
+        out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts), [own_tank_mesh] * len(parts)))
         for _, pid, cpu in out:
             self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
         return np.concatenate([K for K, _, _ in out])
@@ -644,7 +654,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     def solve_ref(node_idx):
         nonlocal ref_index, K_ref
         c = cpu_now()
-        K = pool.solve(nodes[node_idx], "ref")
+        K = pool.solve(nodes[node_idx], "ref", own_tank_mesh=True)
         per_pose["ref"] = (cpu_now() - c) / len(node_idx)
         ref_index, K_ref = np.r_[ref_index, node_idx], np.vstack([K_ref, K])
 

@@ -95,7 +95,8 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
     if m.focus_m is not None:   # the map's own tank mesh is graded to the fundamental domain: solved at the folded poses
         Q = m.frame.folded(P)
-        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, **m.bem_options).conductance(Q).K_S
+        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, tank_near_ratio=None,
+                           **m.bem_options).conductance(Q).K_S
         out["same"] = m.conductance(Q)[:, r, e] / K_same[:, r, e] - 1
         K_same = m.mirrored(K_same, P)     # back to the poses' own frame (a sector sensor's permutation)
         out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
