@@ -105,11 +105,15 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     # the reference BEM where it was solved; elsewhere the coarse BEM corrected by the reference (interpolated)
     assert np.allclose(m.conductance(m.nodes[m.ref_index])[:, iu[0], iu[1]], m.K_ref[:, iu[0], iu[1]], rtol=1e-8,
                        atol=0)
-    # and the reference there is the BEM as a user runs it at that pose: its tank mesh graded to that pose alone
+    # every node is the BEM as a user runs it at that pose (its tank mesh graded to that pose alone), on the
+    # reference sensor mesh and on the coarse one
     from electrosense.bem import PoseSweep
 
     user = PoseSweep(SENSOR, TANK, (), 1.0, **OPTIONS).conductance(m.nodes[m.ref_index[:1]]).K_S
     np.testing.assert_allclose(m.K_ref[:1], user, rtol=1e-9, atol=1e-12 * np.abs(user).max())
+    coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
+    user = PoseSweep(SENSOR, TANK, (), 1.0, **coarse).conductance(m.nodes[-1:]).K_S
+    np.testing.assert_allclose(m.K_nodes[-1:], user, rtol=1e-9, atol=1e-12 * np.abs(user).max())
     other = np.setdiff1d(np.arange(len(m.nodes)), m.ref_index)
     ratio = m.conductance(m.nodes[other])[:, iu[0], iu[1]] / m.K_nodes[other][:, iu[0], iu[1]]
     assert np.abs(ratio - 1).max() < 0.02 and np.abs(ratio - 1).max() > 1e-6

@@ -9,8 +9,10 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    ``wall_gap_m`` from every wall, floor, surface and object
    (:func:`reachable_poses`), folded into the tank's fundamental domain
    (:mod:`.map_coordinates`);
-2. the BEM (:class:`electrosense.bem.PoseSweep`, one tank mesh graded towards
-   the whole plane, on ``workers`` processes) at a first spread of them
+2. the BEM as a user runs it at one pose (:class:`electrosense.bem.PoseSweep`,
+   the sensor's block shared, each pose on a tank mesh graded to it alone,
+   its edge bounded by the distance from the sensor; on ``workers``
+   processes) at a first spread of them
    (farthest-point sampling in the map's warped coordinates, which crowds
    them near the walls), then, round after round, at the candidates of
    largest estimated error (and a share of each round, :data:`EXPLORE_SHARE`,
@@ -24,10 +26,7 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    leave-one-out error at every node, and the error estimated anywhere from
    the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`);
    the many poses are solved on a coarser sensor mesh, and the correction to
-   the reference (the BEM as a user runs it at one pose: the reference
-   sensor mesh, and a tank mesh graded to that pose alone, its edge bounded
-   by the distance from the sensor, which one tank mesh for the whole plane
-   cannot afford along every wall), known at fewer poses, is interpolated as a linear
+   the reference sensor mesh, known at fewer poses, is interpolated as a linear
    function of the coarse K of the emitter's pairs plus a smooth remainder of
    the pose (the discretisation's error near a wall grows with the wall's
    effect), or of the pose alone, whichever its leave-one-out errors favour
@@ -220,7 +219,8 @@ class TankMap:
     coarse_factor: float = 1.0  # the coarse sensor mesh's edge over the reference's (1: every node on the reference)
     ref_index: np.ndarray | None = None  # (F,) the nodes also solved on the reference mesh
     K_ref: np.ndarray | None = None  # (F, n, n) the reference BEM there, 1 S/m
-    focus_m: np.ndarray | None = None  # (k, 3) the points the BEM's tank mesh was graded towards
+    focus_m: np.ndarray | None = None  # (k, 3) the points the BEM's one tank mesh was graded towards (maps before
+    # the BEM's edge bound near the sensor); None: each pose on a tank mesh graded to it alone
 
     def __post_init__(self):
         n = self.K_free.shape[0]
@@ -491,41 +491,38 @@ _WORKER = {}
 COARSE_FACTOR = 3.0
 
 
-def _worker_init(sensor, tank, objects, focus, options, memory_share=1.0):
+def _worker_init(sensor, tank, objects, options, memory_share=1.0):
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    _WORKER.update(args=(sensor, tank, objects, focus), options=options, sweeps={}, memory_share=memory_share)
+    _WORKER.update(args=(sensor, tank, objects), options=options, sweeps={}, memory_share=memory_share)
 
 
-def _worker_solve(poses, fidelity: str = "coarse", own_tank_mesh: bool = False):
-    """K at ``poses`` on the ``fidelity``'s sensor mesh ("coarse" or "ref"), this process's id and its CPU seconds
-    so far (its set-up included). The map's tank mesh is graded towards the whole plane of poses, without the
-    bound on the edge by the distance from the sensor (it would refine every wall); ``own_tank_mesh``: each pose on
-    a tank mesh graded to it alone, as a user's BEM at that pose (the module doc)."""
+def _worker_solve(poses, fidelity: str = "coarse"):
+    """K at ``poses`` on the ``fidelity``'s sensor mesh ("coarse" or "ref"), each pose on a tank mesh graded to it
+    alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared), this process's id and its
+    CPU seconds so far (its set-up included)."""
     from electrosense.bem import PoseSweep
 
     if fidelity not in _WORKER["sweeps"]:   # set up on first use: a map without a correction never pays for it
-        sensor, tank, objects, focus = _WORKER["args"]
-        _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0, focus_m=focus,
-                                                memory_share=_WORKER["memory_share"], tank_near_ratio=None,
-                                                **_WORKER["options"][fidelity])
+        sensor, tank, objects = _WORKER["args"]
+        _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0,
+                                                memory_share=_WORKER["memory_share"], **_WORKER["options"][fidelity])
     sweep = _WORKER["sweeps"][fidelity]
-    if own_tank_mesh and sweep.tank is not None:
-        K = np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
-    else:
-        K = sweep.conductance(poses).K_S
+    if sweep.tank is None and not sweep.objects:
+        return sweep.conductance(poses).K_S, os.getpid(), time.process_time()
+    K = np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
     return K, os.getpid(), time.process_time()
 
 
 class _BemPool:
-    """The BEM at many poses on ``workers`` processes (each with its own PoseSweeps on the same tank mesh, so a
-    pose's K does not depend on which worker solved it), on the coarse or the reference sensor mesh. ``cpu_s``:
+    """The BEM at many poses on ``workers`` processes (each pose on its own tank mesh, so a pose's K does not
+    depend on which worker solved it), on the coarse or the reference sensor mesh. ``cpu_s``:
     CPU seconds of the worker processes (with one worker everything runs in this process, whose own CPU time
     counts it)."""
 
-    def __init__(self, sensor, tank, objects, focus, options: dict, workers: int):
+    def __init__(self, sensor, tank, objects, options: dict, workers: int):
         self.workers = max(1, int(workers))
         # every worker holds a sweep of each mesh at once: each may take its share of the memory
-        self.args = (sensor, tank, tuple(objects), focus, options, 1.0 / (self.workers * len(options)))
+        self.args = (sensor, tank, tuple(objects), options, 1.0 / (self.workers * len(options)))
         self._cpu = {}
         self.solved = 0
         self._pool = None
@@ -542,12 +539,12 @@ class _BemPool:
     def cpu_s(self) -> float:
         return float(sum(self._cpu.values()))
 
-    def solve(self, poses: np.ndarray, fidelity: str = "coarse", own_tank_mesh: bool = False) -> np.ndarray:
+    def solve(self, poses: np.ndarray, fidelity: str = "coarse") -> np.ndarray:
         self.solved += len(poses)
         if self._pool is None:
-            return _worker_solve(poses, fidelity, own_tank_mesh)[0]
+            return _worker_solve(poses, fidelity)[0]
         parts = [p for p in np.array_split(poses, self.workers) if len(p)]
-        out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts), [own_tank_mesh] * len(parts)))
+        out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts)))
         for _, pid, cpu in out:
             self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
         return np.concatenate([K for K, _, _ in out])
@@ -578,7 +575,6 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     stands, its estimated error with it (a round is not started that the CPU budget cannot pay for);
     ``workers``: processes solving the BEM.
     """
-    from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.meshes.sensor_mesh import default_edge_length_m
     from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
@@ -609,8 +605,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
     frame = MapFrame(sensor, tank, objects, band, warp_m)
     F = frame.features(C)
-    if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses, and the tank mesh's
-        # grading, all lie in the fundamental domain (MapFrame.folded), where every pose is evaluated
+    if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses all lie in the
+        # fundamental domain (MapFrame.folded), where every pose is evaluated
         _, keep = np.unique(np.round(F / 1e-6).astype(np.int64), axis=0, return_index=True)
         C, F = frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
     T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
@@ -635,8 +631,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         nodes, K_nodes, history = old.nodes, old.K_nodes, list(old.history)
         ref_index, K_ref = old.ref_index, old.K_ref
         say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
-    focus = trajectory_focus_m(sensor, C[_farthest_points(F, 400)])
-    pool = _BemPool(sensor, tank, objects, focus, fidelities if corrected else {"coarse": options}, workers)
+    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": options}, workers)
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
     per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)
@@ -654,13 +649,13 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     def solve_ref(node_idx):
         nonlocal ref_index, K_ref
         c = cpu_now()
-        K = pool.solve(nodes[node_idx], "ref", own_tank_mesh=True)
+        K = pool.solve(nodes[node_idx], "ref")
         per_pose["ref"] = (cpu_now() - c) / len(node_idx)
         ref_index, K_ref = np.r_[ref_index, node_idx], np.vstack([K_ref, K])
 
     def current_map():
         return TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, objects, options, code, wall_gap_m, history,
-                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, focus)
+                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, None)
 
     try:
         def spent(fidelity: str, k: int) -> bool:

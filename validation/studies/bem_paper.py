@@ -18,8 +18,12 @@
    h0/4, h0/8, the edge grading refined with it, axisymmetric reduction),
    against the ring elements' converged value.
 
-Run: ``python -m electrosense.validation.studies.bem_paper [--fit] [--sweep] [--convergence] [--fine-reference]``
-(no flag: all three; ``--fit`` takes several minutes).
+6. The tank mesh near a wall: the default against a tank mesh whose edge is at
+   most 0.125x its distance from the sensor's surface, tips 5, 20 and 100 mm
+   from the end wall (``--wall``).
+
+Run: ``esense study bem_paper [--fit] [--sweep] [--convergence] [--fine-reference] [--wall]``
+(no flag: all of them; ``--fit`` takes several minutes).
 """
 from __future__ import annotations
 
@@ -237,6 +241,47 @@ def convergence(sensor, sigma=SIGMA_PAPER, tank_order=2.0):
               f"{100 * _max_relative(raw, limit):.3f} %; {time.perf_counter() - t0:.0f} s", flush=True)
 
 
+def wall_convergence(sensor, gaps_m=(0.005, 0.02, 0.1), reference_ratio: float = 0.125):
+    """The tank mesh near a wall: K with the sensor heading at the end wall of the 1 m tank, tip ``gaps_m`` from
+    it, on the default tank mesh, on it without the bound of its edge by the distance from the sensor's surface
+    (:data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_NEAR_RATIO`), and with a bound of 0.25, against a tank
+    mesh with that bound at ``reference_ratio`` (the default grading and floor otherwise). Largest relative error
+    over the receivers' currents; triangles and CPU seconds of each solve."""
+    from electrosense.bem import PoseSweep
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.scene_mesh import (
+        DEFAULT_TANK_GRADING,
+        DEFAULT_TANK_NEAR_RATIO,
+        default_tank_edge_length_m,
+        sensor_axis_points_m,
+    )
+    from electrosense.meshes.tank import Tank
+    from electrosense.meshes.tank_mesh import mesh_tank
+
+    tank = Tank((1.0, 1.0, 1.0))
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    cases = {"default": DEFAULT_TANK_NEAR_RATIO, "no bound": None, "bound 0.25": 0.25,
+             f"reference {reference_ratio:g}": reference_ratio}
+    print(f"{sensor.name} heading at the end wall of the 1 m tank: receiver currents against a tank mesh whose edge "
+          f"is at most {reference_ratio:g}x its distance from the sensor's surface")
+    for gap in gaps_m:
+        pose = Pose(tank.size_m[0] / 2 - sensor.length_m / 2 - gap, 0.0, 0.0, 0.0)
+        focus = sensor_axis_points_m(Scene(sensor, pose, tank), 9)
+        out = {}
+        for label, ratio in cases.items():
+            c0 = time.process_time()
+            mesh = mesh_tank(tank, default_tank_edge_length_m(sensor), focus, grading=DEFAULT_TANK_GRADING,
+                             near_ratio=ratio, focus_radius_m=sensor.radius_m)
+            K = PoseSweep(sensor, tank, tank_mesh=mesh).conductance(pose.as_array()[None]).K_S[0]
+            out[label] = (K[r, e], mesh.n_triangles, time.process_time() - c0)
+        reference = out.pop(f"reference {reference_ratio:g}")
+        row = "; ".join(f"{label} {100 * np.abs(I / reference[0] - 1).max():.3f} % ({n} triangles, {cpu:.1f} s CPU)"
+                        for label, (I, n, cpu) in out.items())
+        print(f"  tip {1e3 * gap:g} mm from the wall: {row}; reference {reference[1]} triangles", flush=True)
+
+
 def fine_reference(sensor, sigma=SIGMA_PAPER, divisions=(1, 2, 4, 8), targets_per_class=8):
     """Free-space I1/U on meshes refined far past the default (h0 / d), by the axisymmetric reduction.
 
@@ -285,9 +330,11 @@ def main(argv=None):
     parser.add_argument("--convergence", action="store_true", help="Richardson mesh convergence")
     parser.add_argument("--fine-reference", action="store_true",
                         help="free-space convergence far past the default mesh (h0/8, axisymmetric)")
+    parser.add_argument("--wall", action="store_true",
+                        help="the tank mesh near a wall: default against a mesh refined by the distance from the sensor")
     parser.add_argument("--poses", type=int, default=17, help="poses of the sweep")
     args = parser.parse_args(argv)
-    everything = not (args.fit or args.sweep or args.convergence or args.fine_reference)
+    everything = not (args.fit or args.sweep or args.convergence or args.fine_reference or args.wall)
     from electrosense.meshes.sensor import _ANGELS_DIMENSIONS, preset
 
     if args.fit or everything:
@@ -310,6 +357,8 @@ def main(argv=None):
     if args.fine_reference or everything:
         for name in ("angels-2", "angels-4"):
             fine_reference(preset(name))
+    if args.wall or everything:
+        wall_convergence(preset("angels-4"))
 
 
 if __name__ == "__main__":
