@@ -47,5 +47,6 @@ def track_figure(obs, res: dict, png_path):
     bx.set_ylabel("position error (mm)")
     how = "each sample alone" if res.get("motion") is None else "whole track, motion prior"
     bx.set_title(f"error and Cramer-Rao bound\n({how}; noise {100 * res['noise_rel']:.3f} %)", fontsize=9)
-    bx.legend(loc="best", fontsize=6, framealpha=0.7)
+    # below the panel: inside, it covered the bounds' ends wherever it went
+    bx.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=2, fontsize=6, frameon=False)
     return save(fig, png_path, vector=None)

@@ -543,7 +543,9 @@ class _BemPool:
         self.solved += len(poses)
         if self._pool is None:
             return _worker_solve(poses, fidelity)[0]
-        parts = [p for p in np.array_split(poses, self.workers) if len(p)]
+        # one pose a task: a pose near a wall has a finer tank mesh and costs up to 4x one mid-tank, so equal
+        # shares left a worker idle
+        parts = [poses[i:i + 1] for i in range(len(poses))]
         out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts)))
         for _, pid, cpu in out:
             self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
