@@ -172,7 +172,11 @@ class MeshError(ValueError):
 
     def __init__(self, problems: list[str], name: str = "mesh"):
         self.problems = list(problems)
+        self.name = name
         super().__init__(f"{name} refused: " + "; ".join(self.problems))
+
+    def __reduce__(self):   # rebuilt from its problems in another process (a map's workers), not from its message
+        return type(self), (self.problems, self.name)
 
 
 def _where(mesh: LabelledMesh, faces: np.ndarray, limit: int = 3) -> str:

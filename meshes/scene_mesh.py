@@ -77,6 +77,9 @@ class SceneError(ValueError):
         self.problems = list(problems)
         super().__init__("scene refused: " + "; ".join(self.problems))
 
+    def __reduce__(self):   # rebuilt from its problems in another process (a map's workers), not from its message
+        return type(self), (self.problems,)
+
 
 # ------------------------------------------------------------------ the geometry
 def sensor_axis_points_m(scene: Scene, n: int = 2) -> np.ndarray:

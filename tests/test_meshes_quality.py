@@ -68,3 +68,17 @@ def test_non_manifold_edge_is_refused():
     fin = LabelledMesh(extra, np.vstack([m.faces, [[b, a, len(extra) - 1]]]), None, None, ("sensor",))
     with pytest.raises(MeshError, match="non-manifold"):
         check_mesh(fin)
+
+
+def test_mesh_and_scene_errors_come_back_whole_from_a_worker_process():
+    """A map's workers raise these in another process: pickled, they keep their problems and message (rebuilt
+    from the message alone, a message was split into its characters)."""
+    import pickle
+
+    from electrosense.meshes.quality import MeshError
+    from electrosense.meshes.scene_mesh import SceneError
+
+    for exc in (MeshError(["1 triangle(s) with an angle below 1 deg", "2 needles"], "tank mesh"),
+                SceneError(["the sensor is out of the water"])):
+        back = pickle.loads(pickle.dumps(exc))
+        assert type(back) is type(exc) and back.problems == exc.problems and str(back) == str(exc)

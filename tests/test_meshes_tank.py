@@ -84,3 +84,14 @@ def test_equidistributed_nodes_follow_the_size():
 def test_bad_edge_length_is_refused():
     with pytest.raises(ValueError, match="edge_length_m must be positive"):
         mesh_tank(TANK, edge_length_m=0.0)
+
+
+def test_two_free_nodes_brought_together_by_smoothing_lose_one():
+    """Nodes nearer than 0.3x the target length make slivers (a cylinder's wall 5 mm from a sensor had two 0.15 mm
+    apart among 3 mm edges): the later free node goes, boundary nodes stay."""
+    from electrosense.meshes.tank_mesh import _drop_crowded
+
+    boundary = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    interior = np.array([[0.5, 0.5], [0.5 + 1e-3, 0.5], [0.2, 0.8], [0.999, 0.001]])
+    kept = _drop_crowded(boundary, interior, lambda p: np.full(len(p), 0.2))
+    assert kept.tolist() == [[0.5, 0.5], [0.2, 0.8]]
