@@ -253,8 +253,8 @@ class PoseSweep:
         """This sweep with the tank meshed anew, graded towards ``focus_m`` (None: the poses of the copy's first
         call), sharing this sweep's sensor block and edge correction.
 
-        For a few poses each on a tank mesh of its own among many on one mesh (a tank map's reference poses):
-        the result is the sweep that the same arguments with ``focus_m`` and ``tank_near_ratio`` would build.
+        For poses each on a tank mesh of its own, the sensor factorised once (a tank map's poses): the result is
+        the sweep that the same arguments with ``focus_m`` and ``tank_near_ratio`` would build.
 
         >>> from electrosense.meshes import Tank, preset
         >>> sweep = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), edge_length_m=0.01)
