@@ -125,6 +125,28 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     assert again.sigma_S_per_m == 0.05 and again.code == m.code
 
 
+def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_ahead(built, tmp_path, monkeypatch):
+    """Two spawned workers, one of which sets the reference sweep up while the other solves coarse poses: each
+    pose's K is the in-process BEM's at that pose, whichever worker solved it."""
+    from electrosense.validation.simulation.tank_map import _BemPool
+
+    monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
+    m, _ = built
+    coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
+    pool = _BemPool(SENSOR, TANK, (), {"coarse": coarse, "ref": OPTIONS}, workers=2)
+    try:
+        assert len(pool._warming) == 1
+        K_coarse = pool.solve(m.nodes[:3], "coarse")
+        K_ref = pool.solve(m.nodes[m.ref_index[:2]], "ref")
+    finally:
+        pool.close()
+    # to the sweep's own tolerance (its coupling's rank is cut at 1e-6): another process's BLAS sums in another
+    # order (measured: 2e-7)
+    np.testing.assert_allclose(K_coarse, m.K_nodes[:3], rtol=1e-6, atol=1e-9 * np.abs(K_coarse).max())
+    np.testing.assert_allclose(K_ref, m.K_ref[:2], rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
+    assert pool.cpu_s > 0
+
+
 def test_mirror_poses_have_one_K_and_the_jacobian_is_the_derivative(built):
     m, _ = built
     p = np.array([0.05, 0.03, 0.0, 0.4])

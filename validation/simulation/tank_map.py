@@ -510,6 +510,7 @@ def _refine_pays(rms_coarse: float, n_coarse: int, cpu_coarse_s: float | None, r
         return True
     return rms_ref**2 / (n_ref * cpu_ref_s) > rms_coarse**2 / (max(n_coarse, 1) * cpu_coarse_s)
 
+
 #: the coarse sensor mesh's edge over the reference's, for the many poses of a map (the reference mesh, 3.5x the
 #: CPU per pose, at fewer poses corrects them): 3 is the diagnosis anchors' factor
 COARSE_FACTOR = 3.0
@@ -615,8 +616,9 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     candidates at which the build stops; ``bem_options``: of the reference BEM, the one the map reproduces
     (its sensor mesh ``edge_length_m`` defaults to the mesher's, as everywhere else in the project);
     ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser and corrected by the
-    reference at fewer poses (``first_ref`` first, then more where the correction's estimated error leads;
-    1: every pose on the reference mesh); ``max_cpu_seconds``: CPU budget of the whole build, every process
+    reference at fewer poses (``first_ref`` first, then a round of them where it removes more of the
+    estimated error per CPU second than a round of coarse ones, :func:`_refine_pays`, at the nodes where the
+    correction's estimated error is largest; 1: every pose on the reference mesh); ``max_cpu_seconds``: CPU budget of the whole build, every process
     counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
     same BEM poses and gives the same map); ``max_seconds``: wall-clock budget; at either the map is saved as it
     stands, its estimated error with it (a round is not started that the CPU budget cannot pay for);
@@ -705,10 +707,18 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                        sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, None)
 
     try:
+        def affordable(fidelity: str) -> int:
+            """How many more poses of ``fidelity`` the CPU budget pays for, at their cost as measured so far (none
+            once the wall-clock budget is spent)."""
+            left = max_cpu_seconds - prior_cpu - cpu_now()
+            if time.perf_counter() - t0 > max_seconds or left <= 0:
+                return 0
+            cost = per_pose.get(fidelity)
+            return int(left // cost) if cost else len(C)
+
         def spent(fidelity: str, k: int) -> bool:
-            """The budget cannot pay for ``k`` more poses of ``fidelity`` (their cost as measured so far)."""
-            return (time.perf_counter() - t0 > max_seconds
-                    or prior_cpu + cpu_now() + k * per_pose.get(fidelity, 0.0) > max_cpu_seconds)
+            """The budget cannot pay for ``k`` more poses of ``fidelity``."""
+            return affordable(fidelity) < k
 
         # the first poses in chunks, the budget checked between them (a slow scene gets fewer, never none): at
         # least one chunk of coarse poses and MIN_REFERENCE_POSES on the reference mesh make a map with its error
@@ -757,8 +767,12 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             # the next round: more coarse poses, or more reference ones, whichever buys more (_refine_pays)
             refine = corrected and len(ref_index) < len(nodes) and _refine_pays(
                 rms_c, len(nodes), per_pose.get("coarse"), rms_r, len(ref_index), per_pose.get("ref"))
-            k = max(4, per_round // 3) if refine else per_round
-            if spent("ref" if refine else "coarse", k):
+            # the last round is what the budget still pays for (a cylinder's 24 coarse poses cost 160 s of CPU:
+            # whole rounds left up to that unspent), and its last seconds go to the cheaper coarse poses
+            k = min(max(4, per_round // 3) if refine else per_round, affordable("ref" if refine else "coarse"))
+            if refine and k < pool.workers:
+                refine, k = False, min(per_round, affordable("coarse"))
+            if k < pool.workers:
                 say(f"time budget spent ({wall:.0f} s of {max_seconds:.0f} s wall, {cpu:.0f} s of "
                     f"{max_cpu_seconds:.0f} s CPU): the map is saved with its estimated error")
                 break
