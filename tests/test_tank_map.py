@@ -135,7 +135,7 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
     coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
     pool = _BemPool(SENSOR, TANK, (), {"coarse": coarse, "ref": OPTIONS}, workers=2)
     try:
-        assert len(pool._warming) == 1
+        assert pool._warming is not None
         K_coarse = pool.solve(m.nodes[:3], "coarse")
         K_ref = pool.solve(m.nodes[m.ref_index[:2]], "ref")
     finally:

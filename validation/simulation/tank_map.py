@@ -564,7 +564,7 @@ class _BemPool:
         self._cpu = {}
         self.solved = 0
         self._pool = None
-        self._warming = []
+        self._warming = None   # the future of the reference sweep's set-up ahead of its poses
         if self.workers > 1:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
@@ -575,7 +575,7 @@ class _BemPool:
                 # the reference sensor block (a random 5-electrode sensor: 11 000 triangles, 19 s of CPU) set up
                 # by one worker while the others solve the first coarse poses, and read from the disk cache by
                 # the others, rather than made by every worker at the first reference round
-                self._warming = [self._pool.submit(_worker_prepare, "ref")]
+                self._warming = self._pool.submit(_worker_prepare, "ref")
         else:
             _worker_init(*self.args)
 
@@ -591,8 +591,10 @@ class _BemPool:
         # shares left a worker idle
         parts = [poses[i:i + 1] for i in range(len(poses))]
         out = list(self._pool.map(_worker_solve, parts, [fidelity] * len(parts)))
-        done = [f.result() for f in self._warming if f.done() and f.exception() is None]   # its failure: the
-        self._warming = [f for f in self._warming if not f.done()]   # same error comes with the poses themselves
+        done = []
+        if self._warming is not None and self._warming.done():   # its failure: the same error comes with the
+            done = [self._warming.result()] if self._warming.exception() is None else []   # poses themselves
+            self._warming = None
         for pid, cpu in [(pid, cpu) for _, pid, cpu in out] + done:
             self._cpu[pid] = max(cpu, self._cpu.get(pid, 0.0))
         return np.concatenate([K for K, _, _ in out])
@@ -618,10 +620,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser and corrected by the
     reference at fewer poses (``first_ref`` first, then a round of them where it removes more of the
     estimated error per CPU second than a round of coarse ones, :func:`_refine_pays`, at the nodes where the
-    correction's estimated error is largest; 1: every pose on the reference mesh); ``max_cpu_seconds``: CPU budget of the whole build, every process
-    counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
+    correction's estimated error is largest; 1: every pose on the reference mesh); ``max_cpu_seconds``: CPU
+    budget of the whole build, every process counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
     same BEM poses and gives the same map); ``max_seconds``: wall-clock budget; at either the map is saved as it
-    stands, its estimated error with it (a round is not started that the CPU budget cannot pay for);
+    stands, its estimated error with it (the last round is as many poses as the CPU budget still pays for);
     ``workers``: processes solving the BEM.
     """
     from electrosense.meshes.sensor_mesh import default_edge_length_m
