@@ -292,6 +292,13 @@ def test_sweep_with_the_map_and_map_info(built, tmp_path):
     assert out.exists()
     res = CliRunner().invoke(main, ["map", "info", str(path)])
     assert res.exit_code == 0 and "BEM poses" in res.output, res.output
+    # poses off the map are refused before any worker starts: one line naming the first, nothing written
+    off = tmp_path / "off.csv"
+    res = CliRunner().invoke(main, ["sweep", "--model", "map", "--map", str(path), "--from", "-0.5,0", "--to",
+                                    "0.5,0", "--steps", "5", "-o", str(off), "--quiet"])
+    assert res.exit_code != 0 and "Traceback" not in res.output, res.output
+    assert "pose 0 (x -0.5 m" in res.output and "beyond a wall" in res.output and "4 of 5 poses" in res.output
+    assert not list(tmp_path.glob("off.csv*"))
     bad = tmp_path / "bad.npz"
     bad.write_text("not a map")
     res = CliRunner().invoke(main, ["map", "info", str(bad)])

@@ -468,6 +468,10 @@ def pose_evaluator(
             raise ModelError(f"the map is of {tank_map.sensor.name} in {scene_record(tank_map.tank)['tank']} with "
                              f"{len(tank_map.objects)} fixed object(s); the run asks for {sensor.name} in "
                              f"{None if tank is None else scene_record(tank)['tank']} with {len(tuple(objects))}")
+        if poses is not None:   # refused here, before any store or worker exists, with the pose's index
+            inside, why = tank_map.covers(poses_array(poses))
+            if not inside.all():
+                raise ModelError(why)
         return MapEvaluator(tank_map, float(sigma_S_per_m))
     raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
 

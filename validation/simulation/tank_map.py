@@ -404,8 +404,11 @@ class TankMap:
             why = f"pose {i} is at z = {poses[i, 2]:g} m; the map is at {where}"
         elif close.any():
             i = int(np.argmax(close))
-            why = (f"pose {i} puts the sensor {1e3 * gap[i]:.1f} mm from a wall or object; the map reaches "
-                   f"{1e3 * self.wall_gap_m:g} mm")
+            where = (f"{-1e3 * gap[i]:.1f} mm beyond a wall or into an object" if gap[i] < 0
+                     else f"{1e3 * gap[i]:.1f} mm from a wall or object")
+            why = (f"pose {i} (x {poses[i, 0]:g} m, y {poses[i, 1]:g} m, heading {poses[i, 3]:g} rad) puts the "
+                   f"sensor {where}; the map reaches {1e3 * self.wall_gap_m:g} mm"
+                   + (f" ({int(close.sum())} of {len(poses)} poses)" if close.sum() > 1 else ""))
         return ~(off_z | close), why
 
     # ------------------------------------------------------------------ file
