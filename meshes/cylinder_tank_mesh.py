@@ -39,7 +39,7 @@ from electrosense.meshes.surface_electrodes import (
 )
 from electrosense.meshes.tank_mesh import _weld, equidistributed_nodes, graded_size_function, mesh_convex_polygon
 
-__all__ = ["mesh_cylinder_tank", "electrode_surface", "disc_problems", "mesh_plane_with_discs"]
+__all__ = ["mesh_cylinder_tank", "default_far_edge_length_m", "electrode_surface", "disc_problems", "mesh_plane_with_discs"]
 
 #: a disc centre this close (relative to the tank's size) to a boundary is on it
 _ON_TOL = 1e-6
@@ -160,10 +160,22 @@ def _seam_angle(wall_discs: list[DiscElectrode]) -> float:
     return float(phi[k] + 0.5 * gaps[k])
 
 
+def default_far_edge_length_m(tank: CylinderTank) -> float:
+    """The tank mesh's edge far from electrodes and focus (m): a sixth of the smaller of the mean radius and the
+    water depth (the wall's facets then lie within R / 290 of the curved wall).
+
+    >>> round(default_far_edge_length_m(CylinderTank(0.3, 0.4, 0.36)), 6)
+    0.05
+    """
+    R = 0.5 * float(tank.radius_at(tank.floor_z_m) + tank.radius_at(tank.free_surface_z_m))
+    return min(R, float(tank.water_depth_m)) / 6
+
+
 def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float | None = None, focus_m=None, *,
                        grading: float = 0.5, edge_fraction: float = DEFAULT_EDGE_FRACTION,
                        electrode_grading: float = DEFAULT_ELECTRODE_GRADING, first_label: int = 1,
-                       near_ratio: float | None = None, focus_radius_m: float = 0.0) -> LabelledMesh:
+                       near_ratio: float | None = None, focus_radius_m: float = 0.0,
+                       focus_edge_length_m: float | None = None) -> LabelledMesh:
     """Closed, labelled, outward-oriented mesh of a cylindrical tank's water with its electrodes.
 
     Parameters
@@ -175,23 +187,28 @@ def mesh_cylinder_tank(tank: CylinderTank, electrodes=(), edge_length_m: float |
         Edge length far from electrodes and focus (default: a sixth of the
         smaller of the radius and the water depth).
     focus_m : (P, 3) array, optional
-        Points (a sensor, objects) to grade towards, from ``edge_length_m / 3`` at the point.
+        Points (a sensor, objects) to grade towards, from ``focus_edge_length_m`` at the point.
     grading, edge_fraction, electrode_grading : float
         Growth per metre away from the focus; rim edge length over the disc
         radius; growth per metre away from a rim.
     near_ratio, focus_radius_m : float, optional
         The edge at most ``near_ratio`` times the distance from a tube of ``focus_radius_m`` around the focus
         (:func:`~electrosense.meshes.tank_mesh.graded_size_function`); default: no such bound.
+    focus_edge_length_m : float, optional
+        Edge length at the focus (default ``edge_length_m / 3``).
     """
     zf, zt = tank.floor_z_m, tank.free_surface_z_m
     # developed wall: u = R (phi - phi0) with R the radius at mid-water; on a tapered wall the map to the
     # surface stretches u by r(z) / R and z by the slant factor (discs are meshed as ellipses there)
     R = 0.5 * float(tank.radius_at(zf) + tank.radius_at(zt))
     slant = float(np.hypot(1.0, tank.wall_slope))
-    h_far = min(R, tank.water_depth_m) / 6 if edge_length_m is None else float(edge_length_m)
+    h_far = default_far_edge_length_m(tank) if edge_length_m is None else float(edge_length_m)
     if not h_far > 0:
         raise ValueError(f"mesh_cylinder_tank: edge_length_m must be positive, got {edge_length_m}")
-    base = None if focus_m is None else graded_size_function(h_far / 3, focus_m, grading, h_far,
+    h_focus = h_far / 3 if focus_edge_length_m is None else min(float(focus_edge_length_m), h_far)
+    if not h_focus > 0:
+        raise ValueError(f"mesh_cylinder_tank: focus_edge_length_m must be positive, got {focus_edge_length_m}")
+    base = None if focus_m is None else graded_size_function(h_focus, focus_m, grading, h_far,
                                                              near_ratio=near_ratio, focus_radius_m=focus_radius_m)
     discs = [e for e in electrodes if isinstance(e, DiscElectrode)]
     size = electrode_size_function(discs, h_far, edge_fraction, electrode_grading, base)
