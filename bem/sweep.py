@@ -81,7 +81,7 @@ from electrosense.bem.system import column_coefficients, contact_impedances
 from electrosense.meshes.pose import Pose, poses_array, rotation_z
 from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, DEFAULT_TANK_NEAR_RATIO
 
-__all__ = ["PoseSweep", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
+__all__ = ["PoseSweep", "pose_bytes", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
 
 #: wall derivatives: the tank's faces within this many sensor lengths of the sensor's axis take the sensor's part
 #: of their potential exactly (:mod:`electrosense.bem.shape_derivative`)
@@ -90,6 +90,19 @@ WALL_SPLIT_RADIUS_FACTOR = 0.6
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
 WOODBURY_MIN_RCOND = 1e-8
+
+
+def pose_bytes(n_sensor: int, n_environment: int) -> float:
+    """Bytes a sweep holds while it solves a pose, ``n_sensor`` and ``n_environment`` (tank and objects)
+    triangles: the sensor block's float32 factors, the environment's block ``A_e`` and ``A' = A_e + c a b^T``
+    factorised in place with the assembly's scratch (2.5 matrices: a 36 000-triangle tank passed at 1.3 and used
+    12 GB), and the pose's coupling blocks (``A_se``, ``A_es``, ``A_se`` in float32, the range finder's products).
+
+    >>> round(pose_bytes(2000, 1000) / 1e9, 3)
+    0.084
+    """
+    Ns, Ne = float(n_sensor), float(n_environment)
+    return 4.0 * Ns**2 + 8.0 * (2.5 * Ne**2 + 3.0 * Ns * Ne)
 
 
 def _pose_velocities(op, normals: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -345,29 +358,15 @@ class PoseSweep:
     def _prepare_environment(self, poses: np.ndarray):
         from electrosense.meshes.object_mesh import mesh_object
         from electrosense.meshes.scene import Scene
-        from electrosense.meshes.scene_mesh import default_tank_edge_length_m, sensor_axis_points_m
-        from electrosense.meshes.tank_mesh import mesh_tank
+        from electrosense.meshes.scene_mesh import mesh_tank_around, sensor_axis_points_m
 
         tank_mesh = self._given_tank_mesh
         if self.tank is not None and tank_mesh is None:
             if self.focus_m is None:
                 self.focus_m = np.concatenate([sensor_axis_points_m(Scene(self.sensor, Pose.from_array(p), self.tank), 9)
                                                for p in poses])
-            h = default_tank_edge_length_m(self.sensor) if self.tank_edge_length_m is None else self.tank_edge_length_m
-            if hasattr(self.tank, "radius_m"):   # a cylindrical tank (meshes.cylinder_tank)
-                from electrosense.meshes.cylinder_tank_mesh import default_far_edge_length_m, mesh_cylinder_tank
-
-                # h at the focus as in a box, and far from it at least 3 h, or the wall's own default where that is
-                # coarser: a 0.25 m radius tank at 3 h = 24 mm had 10 000 triangles (30 s a pose), at its default
-                # 42 mm 2 300-3 500 (2-4 s), K within 0.002-0.023 % of the finer one (0.023 % at a 5 mm gap: a
-                # box's tank-mesh error); a big cylinder meshed at h everywhere had 34 000 triangles and 8.5 GB
-                tank_mesh = mesh_cylinder_tank(self.tank, (), max(3 * h, default_far_edge_length_m(self.tank)),
-                                               self.focus_m, grading=self.tank_grading,
-                                               near_ratio=self.tank_near_ratio, focus_radius_m=self.sensor.radius_m,
-                                               focus_edge_length_m=h)
-            else:
-                tank_mesh = mesh_tank(self.tank, h, self.focus_m, grading=self.tank_grading,
-                                      near_ratio=self.tank_near_ratio, focus_radius_m=self.sensor.radius_m)
+            tank_mesh = mesh_tank_around(self.sensor, self.tank, self.focus_m, self.tank_edge_length_m,
+                                         self.tank_grading, self.tank_near_ratio)
         object_meshes = tuple(mesh_object(o, None, region_name=f"object_{i}") for i, o in enumerate(self.objects, 1))
         if tank_mesh is None and not object_meshes:
             self.env_tris = None
@@ -384,10 +383,7 @@ class PoseSweep:
         cs, cd, grp = column_coefficients(wb, self.sigma_S_per_m, self.z_c, self.scale_m)
         self._cs_e, self._cd_e, self._grp_e = cs[Ns:], cd[Ns:], grp[Ns:]
         Ne = len(self.env_tris)
-        # held at once: the sensor block's float32 factors, A_e and A' = A_e + c a b^T factorised in place with the
-        # assembly's scratch (a 36 000-triangle tank passed at 1.3 matrices and used 12 GB), and a pose's coupling
-        # blocks (A_se, A_es, A_se in float32, the range finder's products)
-        check_bytes(4.0 * Ns**2 + 8.0 * (2.5 * Ne**2 + 3.0 * Ns * Ne),
+        check_bytes(pose_bytes(Ns, Ne),
                     f"the tank ({Ne} triangles) and the sensor ({Ns}) blocks", 0.8 * self.memory_share)
         self.tank_mesh = tank_mesh
         # the environment's block depends on its triangles and column coefficients alone: its Woodbury factors

@@ -43,7 +43,7 @@ from electrosense.meshes.surface_electrodes import BodyElectrode
 from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
-           "trajectory_focus_m", "default_tank_edge_length_m", "DEFAULT_TANK_GRADING", "DEFAULT_TANK_NEAR_RATIO",
+           "trajectory_focus_m", "default_tank_edge_length_m", "mesh_tank_around", "DEFAULT_TANK_GRADING", "DEFAULT_TANK_NEAR_RATIO",
            "distance_to_object_m"]
 
 #: growth of the tank's edge length per metre from the sensor. With the edge
@@ -68,6 +68,36 @@ DEFAULT_TANK_NEAR_RATIO = 0.35
 def default_tank_edge_length_m(sensor) -> float:
     """Default tank edge length nearest the sensor (m): a twentieth of the sensor's length."""
     return float(sensor.length_m) / 20.0
+
+
+def mesh_tank_around(sensor, tank, focus_m, edge_length_m: float | None = None,
+                     grading: float = DEFAULT_TANK_GRADING, near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO
+                     ) -> LabelledMesh:
+    """A box or cylindrical tank's mesh graded towards a sensor at ``focus_m`` (its axis points, (P, 3) m).
+
+    The edge is ``edge_length_m`` (default :func:`default_tank_edge_length_m`) at the focus, at most
+    ``near_ratio`` times the distance from the sensor's surface, and grows by ``grading`` per metre away from
+    it, to a quarter of a box's smaller side, or, in a cylinder, to at least 3 times the focus edge and the
+    wall's own default (:func:`~electrosense.meshes.cylinder_tank_mesh.default_far_edge_length_m`): a 0.25 m
+    radius tank at 3 h = 24 mm had 10 000 triangles (30 s a BEM pose), at its default 42 mm 2 300-3 500 (2-4 s),
+    K within 0.002-0.023 % of the finer one (0.023 % at a 5 mm gap, a box's tank-mesh error); a big cylinder
+    meshed at the focus edge everywhere had 34 000 triangles and 8.5 GB for its block alone.
+
+    >>> from electrosense.meshes import Tank, preset
+    >>> s = preset("angels-2")
+    >>> axis = sensor_axis_points_m(Scene(s, Pose(0.0, 0.0, 0.0, 0.0), Tank((0.4, 0.3, 0.3))), 9)
+    >>> mesh_tank_around(s, Tank((0.4, 0.3, 0.3)), axis).n_triangles > 0
+    True
+    """
+    from electrosense.meshes.tank_mesh import mesh_tank
+
+    h = default_tank_edge_length_m(sensor) if edge_length_m is None else float(edge_length_m)
+    if isinstance(tank, CylinderTank):
+        from electrosense.meshes.cylinder_tank_mesh import default_far_edge_length_m, mesh_cylinder_tank
+
+        return mesh_cylinder_tank(tank, (), max(3 * h, default_far_edge_length_m(tank)), focus_m, grading=grading,
+                                  near_ratio=near_ratio, focus_radius_m=sensor.radius_m, focus_edge_length_m=h)
+    return mesh_tank(tank, h, focus_m, grading=grading, near_ratio=near_ratio, focus_radius_m=sensor.radius_m)
 
 
 class SceneError(ValueError):

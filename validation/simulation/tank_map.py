@@ -554,16 +554,44 @@ def _worker_solve(poses, fidelity: str = "coarse"):
     return K, os.getpid(), time.process_time()
 
 
+def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
+    """Refuse (:class:`~electrosense.bem.memory.MemoryRefusal`), before any BEM, what a worker's sweeps could not
+    hold: ``poses`` (those nearest a wall: the finest tank mesh) on each of ``options``' sensor meshes, each
+    sweep within ``memory_share`` of the memory, as the sweep checks it itself."""
+    from electrosense.bem.memory import check_bytes, dense_system_bytes
+    from electrosense.bem.sweep import pose_bytes
+    from electrosense.meshes.object_mesh import mesh_object
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, mesh_tank_around, sensor_axis_points_m
+    from electrosense.meshes.sensor_mesh import mesh_sensor
+
+    n_objects = sum(mesh_object(o, None).n_triangles for o in objects)
+    for name, opts in options.items():
+        n_tank = 0 if tank is None else max(
+            mesh_tank_around(sensor, tank, sensor_axis_points_m(Scene(sensor, Pose.from_array(p), tank), 9),
+                             opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING
+                             ).n_triangles for p in poses)
+        Ns, Ne = mesh_sensor(sensor, edge_length_m=opts.get("edge_length_m")).n_triangles, n_tank + n_objects
+        check_bytes(max(pose_bytes(Ns, Ne), dense_system_bytes(Ns, 1.1)),
+                    f"a {'reference' if name == 'ref' else name} BEM pose nearest a wall (tank and objects {Ne} "
+                    f"triangles, sensor {Ns})", 0.8 * memory_share,
+                    hint="use fewer workers (--workers), a coarser reference sensor mesh (--edge-length) or a wider "
+                         "wall gap (--wall-gap)")
+
+
 class _BemPool:
     """The BEM at many poses on ``workers`` processes (each pose on its own tank mesh, so a pose's K does not
     depend on which worker solved it), on the coarse or the reference sensor mesh. ``cpu_s``:
     CPU seconds of the worker processes (with one worker everything runs in this process, whose own CPU time
-    counts it)."""
+    counts it). ``hardest``: poses at which the workers' memory is checked first (:func:`check_pose_memory`)."""
 
-    def __init__(self, sensor, tank, objects, options: dict, workers: int):
+    def __init__(self, sensor, tank, objects, options: dict, workers: int, hardest=None):
         self.workers = max(1, int(workers))
         # every worker holds a sweep of each mesh at once: each may take its share of the memory
         self.args = (sensor, tank, tuple(objects), options, 1.0 / (self.workers * len(options)))
+        if hardest is not None and (tank is not None or objects):
+            check_pose_memory(sensor, tank, objects, options, hardest, self.args[-1])
         self._cpu = {}
         self.solved = 0
         self._pool = None
@@ -685,7 +713,9 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         nodes, K_nodes, history = old.nodes, old.K_nodes, list(old.history)
         ref_index, K_ref = old.ref_index, old.K_ref
         say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
-    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": options}, workers)
+    # the memory checked at the poses nearest a wall (the finest tank meshes) before any BEM
+    nearest = C[np.argsort(sensor_wall_gap_m(sensor, tank, C, objects))[:4]]
+    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": options}, workers, nearest)
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
     per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)
