@@ -51,6 +51,26 @@ def test_a_spent_budget_stops_the_first_poses_but_leaves_a_map(tmp_path):
     assert np.all(np.isfinite(m.estimated_error(m.nodes[:2]))) and load_tank_map(path).history
 
 
+def test_a_build_its_workers_could_not_hold_is_refused_before_any_bem(tmp_path, monkeypatch):
+    """The memory is checked at the poses nearest a wall (the finest tank mesh) on the reference sensor mesh
+    before the first BEM pose: a refusal mid-build had spent minutes of coarse poses and kept none."""
+    import electrosense.bem.sweep as sweep
+    from electrosense.bem.memory import MemoryRefusal
+    from electrosense.validation.cli import main
+
+    real = sweep.pose_bytes
+    monkeypatch.setattr(sweep, "pose_bytes", lambda Ns, Ne: real(Ns, Ne) * (1e6 if Ns > 3000 else 1.0))
+    solved = []
+    monkeypatch.setattr("electrosense.validation.simulation.tank_map._worker_solve",
+                        lambda *a: solved.append(a) or pytest.fail("a BEM pose was solved"))
+    with pytest.raises(MemoryRefusal, match=r"reference BEM pose nearest a wall .*fewer workers"):
+        build_tank_map(SENSOR, TANK, 0.0, path=tmp_path / "m.npz", max_seconds=3, **BUILD)
+    assert not solved and not (tmp_path / "m.npz").exists()
+    res = CliRunner().invoke(main, ["map", "build", "--sensor", "angels-4", "--tank", "0.5,0.4,0.2", "--wall-gap",
+                                    "0.02", "--spacing", "0.04", "--headings", "8", "-o", str(tmp_path / "c.npz")])
+    assert res.exit_code != 0 and "Traceback" not in res.output and "nearest a wall" in res.output, res.output
+
+
 def _rec(K):
     return -K[:, :3, 3]
 
@@ -348,6 +368,34 @@ def test_localise_reaches_the_bound_when_the_model_is_the_physics(built, log_by_
     assert m["estimated"] == len(poses)
     assert 0.3 < m["position_rms_m"] / m["crb_position_rms_m"] < 2.0   # efficient: the error is the bound's size
     assert (tmp_path / "localise.png").exists()
+    assert d["object"]["map"]["detected"] is False     # no object in this log: none reported (1 % false alarm)
+
+
+def test_localise_finds_an_object_the_log_passes_within_its_bound(built, log_by_the_map, tmp_path):
+    """A conducting ball of 2 cm radius 5 cm beside the pass, its change of K from the BEM's field on the map's
+    currents (noise 0.05 %): detected, its horizontal position within a few bounds of the truth, its size."""
+    from electrosense.validation.bench.log.writer import bench_log_table, write_bench_log
+    from electrosense.validation.cli import main
+    from electrosense.validation.diagnosis.object_field import sensor_object_field
+    from electrosense.validation.localisation.object_position import field_model
+
+    m, map_path = built
+    _, poses = log_by_the_map
+    truth = np.array([0.08, 0.10, 0.0, 0.02**3])    # 5 cm from the pass's axis (1 cm: 0.04 %, below the noise)
+    model = field_model(_rec(m.conductance(poses, 0.05)), sensor_object_field(SENSOR, 0.05), poses, TANK, SENSOR)
+    I = model(truth) * (1 + 5e-4 * np.random.default_rng(4).standard_normal((len(poses), 3)))
+    meta = {"sensor": SENSOR.name, "emitter": SENSOR.emitter, "tank_m": list(TANK.size_m),
+            "water_depth_m": TANK.water_depth_m, "sigma_S_per_m": 0.05}
+    log = tmp_path / "ball.csv"
+    write_bench_log(log, meta, bench_log_table(poses, 1.0, I, SENSOR.receivers))
+    res = CliRunner().invoke(main, ["localise", str(log), "--map", str(map_path), "-o", str(tmp_path / "o"),
+                                    "--no-figure", "--object-at", "0.08,0.10"])
+    assert res.exit_code == 0, res.output
+    f = json.loads((tmp_path / "o" / "localise.json").read_text())["object"]["map"]
+    assert f["detected"] and f["statistic"] > f["threshold"] and f["conducting"]
+    assert f["position_error_either_m"] < 4 * f["crb_position_rms_m"] + 1e-4, f
+    assert abs(f["radius_m"] - 0.02) < 0.002
+    assert "MAP object: detected" in res.output
 
 
 def test_diagnose_and_validate_use_the_map_without_a_new_bem(built, log_by_the_map, tmp_path):

@@ -1,6 +1,8 @@
 """``esense localise``: the robot's track from its currents alone, by a tank map and by the PSM, with their bounds."""
 from __future__ import annotations
 
+import math
+
 import click
 
 from electrosense.validation.cli._parsing import finite_float
@@ -26,7 +28,13 @@ from electrosense.validation.localisation.smoother import MotionModel
               help="No motion prior: each sample by maximum likelihood on its own currents (the per-sample bound).")
 @click.option("--noise", type=finite_float(positive=True), default=None, metavar="REL",
               help="Relative noise of a current (1 sigma) instead of the one measured on the log.")
-def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn_psd, per_sample, noise):
+@click.option("--no-object", is_flag=True, help="Do not look for an object the log passes.")
+@click.option("--object-z", type=finite_float(), default=None, metavar="Z",
+              help="Height of the object's centre (m, tank frame); default: the log's depth.")
+@click.option("--object-at", default=None, metavar="X,Y[,Z]",
+              help="The object's true centre (m, tank frame), to score the estimate against.")
+def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn_psd, per_sample, noise, no_object,
+             object_z, object_at):
     """Estimate the track (x, y, heading) of a bench LOG from its currents alone.
 
     By default the most probable track over each pass under a motion prior
@@ -38,12 +46,26 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
     errors against the logged poses beside the posterior Cramer-Rao bound
     (and the per-sample one), for the map and for the paper's PSM.
 
+    Then an object the log passes: one sphere fitted to the currents at the
+    logged poses (its change of K from the BEM's field on the map's
+    currents, and the PSM's), reported where it is detected at a 1 %
+    false-alarm rate, with its Cramer-Rao bound (--object-at scores it).
+
     Example: esense localise run.csv --map tank.map.npz -o loc/
     """
     from electrosense.validation.diagnosis.observations import DiagnosisInputError
     from electrosense.validation.localisation.from_log import localise_log
 
     motion = None if per_sample else MotionModel(acceleration_psd, turn_psd)
+    true_object = None
+    if object_at is not None:
+        try:
+            true_object = [float(v) for v in object_at.split(",")]
+        except ValueError:
+            true_object = []
+        if len(true_object) not in (2, 3) or not all(map(math.isfinite, true_object)):
+            raise click.BadParameter(f"{object_at!r}: give the centre as X,Y or X,Y,Z in metres",
+                                     param_hint="--object-at")
     psm = None
     if psm_model:
         from electrosense.validation.simulation.models import ModelError, _load_psm
@@ -54,7 +76,8 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
             raise click.BadParameter(str(exc), param_hint="--psm-model") from None
     try:
         s = localise_log(log, map_file, outdir, psm, figure=not no_figure, motion=motion, noise_rel=noise,
-                         progress=lambda t: click.echo(f"  {t}"))
+                         progress=lambda t: click.echo(f"  {t}"), find_object=not no_object, object_z_m=object_z,
+                         true_object_m=true_object)
     except (ValueError, DiagnosisInputError) as exc:
         raise click.ClickException(str(exc)) from None
     for name in ("map", "psm"):
@@ -65,4 +88,25 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
         click.echo(f"{name.upper()}: position {1e3 * m['position_rms_m']:.3f} mm RMS ({crb}), heading "
                    f"{1e3 * m['heading_rms_rad']:.2f} mrad RMS, {m['estimated']} of {m['samples']} samples"
                    + (f"; {m['note']}" if m.get("note") else ""))
+    for name in ("map", "psm"):
+        if "object" in s:
+            click.echo(f"{name.upper()} object: {_object_line(s['object'][name])}")
     click.echo(f"wrote {outdir}/localise.json")
+
+
+def _object_line(f: dict) -> str:
+    """One line on an object fit (:func:`~electrosense.validation.localisation.object_position.locate_object`)."""
+    seen = (f"detected (statistic {f['statistic']:.3g} > {f['threshold']:.3g}, false alarm {f['false_alarm']:g})"
+            if f["detected"] else f"none detected (statistic {f['statistic']:.3g} <= {f['threshold']:.3g})")
+    x, y = (1e3 * v for v in f["centre_m"][:2])
+    kind = "conducting" if f["conducting"] else "insulating"
+    text = (f"{seen}; best sphere at ({x:.1f}, {y:.1f}) mm, {kind}, radius {1e3 * f['radius_m']:.1f} mm, bound "
+            f"{1e3 * f['crb_position_rms_m']:.2f} mm")
+    if "position_error_m" in f:
+        text += f"; error {1e3 * f['position_error_m']:.2f} mm"
+    if f.get("alternative_chi2_excess") is not None and f["alternative_chi2_excess"] < 3.84:
+        ax, ay = (1e3 * v for v in f["alternative_centre_m"][:2])
+        text += (f"; ({ax:.1f}, {ay:.1f}) mm fits as well (chi2 +{f['alternative_chi2_excess']:.2g}: the data do "
+                 "not separate them" + (f", error there {1e3 * f['position_error_either_m']:.2f} mm)"
+                                        if "position_error_m" in f else ")"))
+    return text

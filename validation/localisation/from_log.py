@@ -43,6 +43,12 @@ METHOD_SMOOTHER = ("maximum a posteriori track over each pass under the motion m
                    "currents whitened by the noise; Cramer-Rao bound: the posterior bound (Fisher information of "
                    "the currents at the logged poses plus the motion prior's); the per-sample bound (J^T S^-1 J)^-1 "
                    "beside it")
+OBJECT_METHOD = ("one sphere at a given height (default the log's) fitted to the currents whitened by the noise, "
+                 "the sensor at the logged poses: the map's currents plus the sphere's change of K from the BEM's "
+                 "field (dipole and quadrupole, walls' first reflections), or the PSM with the sphere; started from "
+                 "a scan of the dipole term over a 2 cm grid around the path; detected where the scan's statistic "
+                 "exceeds its Monte Carlo null quantile at the false-alarm rate; Cramer-Rao bound from the fit's "
+                 "Jacobian (horizontal position, strength as nuisance)")
 METHOD_PER_SAMPLE = ("per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the noise), each "
                      "sample started from the previous estimate, the first from the logged first pose; Cramer-Rao "
                      "bound (J^T S^-1 J)^-1 of each model at the logged poses")
@@ -115,10 +121,12 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
 
 
 def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = None,
-                          motion: MotionModel | None = DEFAULT_MOTION, progress=None, with_psm: bool = True) -> dict:
+                          motion: MotionModel | None = DEFAULT_MOTION, progress=None, with_psm: bool = True,
+                          find_object: bool = False, object_z_m: float | None = None, true_object_m=None) -> dict:
     """Track one run (:class:`~electrosense.validation.diagnosis.observations.Observations`) with the map and
     (``with_psm``) the PSM, under ``motion`` (``None``: each sample alone); a dict of summaries, estimated tracks
-    and the noise used."""
+    and the noise used; with ``find_object``, an object the run passes (:func:`object_summary`) under
+    ``"object"``."""
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.simulation.models import calibrated_psm
     from electrosense.validation.simulation.tank_map import same_scene, scene_record
@@ -155,20 +163,58 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
                                      obs.pass_indices())
         result[name] = summary
         result["tracks"][name] = est
+    if find_object:
+        result["object"] = object_summary(obs, tank_map, psm if with_psm else None, currents, noise_rel,
+                                          object_z_m, true_object_m, say)
     return result
 
 
+def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | None = None, true_centre_m=None,
+                   progress=None) -> dict:
+    """An object the log passes, by the map (and the PSM where given): :func:`~electrosense.validation.
+    localisation.object_position.locate_object` at the logged poses, scored against ``true_centre_m`` where
+    known."""
+    from electrosense.validation.diagnosis.object_field import sensor_object_field
+    from electrosense.validation.localisation.object_position import (
+        FALSE_ALARM,
+        field_model,
+        locate_object,
+        psm_model,
+        score_against,
+    )
+
+    say = progress or (lambda s: None)
+    e = obs.sensor.emitter - 1
+    rec = [k for k in range(obs.sensor.n_electrodes) if k != e]
+    field = sensor_object_field(obs.sensor, obs.sigma_S_per_m)
+    base = -tank_map.conductance(obs.poses, obs.sigma_S_per_m)[:, rec, e]
+    models = {"map": field_model(base, field, obs.poses, obs.tank, obs.sensor)}
+    if psm is not None:
+        models["psm"] = psm_model(psm, obs.sensor, obs.tank, obs.poses, obs.sigma_S_per_m)
+    out = {"method": OBJECT_METHOD, "false_alarm": FALSE_ALARM,
+           "z_m": float(np.median(obs.poses[:, 2])) if z_m is None else float(z_m),
+           "true_centre_m": None if true_centre_m is None else [float(v) for v in true_centre_m]}
+    for name, model in models.items():
+        say(f"looking for an object with the {name}")
+        fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m)
+        out[name] = fit if true_centre_m is None else score_against(fit, true_centre_m)
+    return out
+
+
 def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, motion: MotionModel | None = DEFAULT_MOTION,
-                 noise_rel: float | None = None, progress=None) -> dict:
-    """Read a bench log and a map, track (under ``motion``; ``None``: each sample alone), write ``localise.json``
-    (and ``localise.png``); the summary."""
+                 noise_rel: float | None = None, progress=None, find_object: bool = True,
+                 object_z_m: float | None = None, true_object_m=None) -> dict:
+    """Read a bench log and a map, track (under ``motion``; ``None``: each sample alone), look for an object the
+    log passes (``find_object``; at height ``object_z_m``, scored against ``true_object_m`` where given), write
+    ``localise.json`` (and ``localise.png``); the summary."""
     from electrosense.validation.bench.log import read_bench_log
     from electrosense.validation.diagnosis.observations import from_bench_logs
     from electrosense.validation.simulation.tank_map import load_tank_map
 
     obs = from_bench_logs([read_bench_log(log_path)])
     tank_map = load_tank_map(map_path)
-    res = localise_observations(obs, tank_map, psm, noise_rel, motion, progress)
+    res = localise_observations(obs, tank_map, psm, noise_rel, motion, progress, find_object=find_object,
+                                object_z_m=object_z_m, true_object_m=true_object_m)
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     summary = {"log": Path(log_path).name, "map_file": Path(map_path).name, "noise_rel": res["noise_rel"],
@@ -178,6 +224,8 @@ def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, moti
                "method": METHOD_PER_SAMPLE if motion is None else METHOD_SMOOTHER,
                "motion_model": None if motion is None else motion.record(),
                "map_estimated_error_rms": float(np.sqrt(np.mean(tank_map.estimated_error(obs.poses) ** 2)))}
+    if "object" in res:
+        summary["object"] = res["object"]
     (outdir / "localise.json").write_text(json.dumps(summary, indent=2))
     np.savez(outdir / "localise_tracks.npz", logged=obs.poses, map=res["tracks"]["map"], psm=res["tracks"]["psm"])
     if figure:
