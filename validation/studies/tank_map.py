@@ -8,7 +8,8 @@ Goals (issue 23), printed beside every figure:
 * built in under 5 minutes on 2 cores from an empty cache (wall and CPU time);
 * 10 000 poses/s or more with the pose Jacobian on one core, and through ``esense sweep --model map``;
 * on a virtual-bench log (BEM physics, 0.05 % noise) passing 2 cm from a wall: the map's position error within
-  1.5x its Cramer-Rao bound and under 1 mm RMS, the PSM's beside it.
+  1.5x its Cramer-Rao bound and under 1 mm RMS, the PSM's beside it; the same for a conducting ball a second
+  log passes (meshed in that log's BEM; its position from the currents, ``esense localise --object-at``).
 
 Also written: ``map_vs_psm.png``, the map's and the PSM's error against the BEM on a line from wall to wall
 (the README's figure), and ``localise.png``.
@@ -31,6 +32,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
 import numpy as np  # noqa: E402
 
 GOALS = {"rms": 1.7e-4, "max": 5e-4, "build_s": 300.0, "poses_per_s": 1e4, "loc_over_crb": 1.5, "loc_rms_m": 1e-3}
+#: radius (m) of the conducting ball the object pass goes by (meshed in the virtual bench's BEM)
+BALL_M = 0.015
 
 
 def _cpu_s() -> float:
@@ -171,8 +174,10 @@ def sweep_speed(map_path: Path, sensor, tank, z, folder: Path):
     return 1e4 / run_s, 1e4 / wall
 
 
-def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int):
-    """A virtual-bench log (BEM physics, bench noise) along a wall at a 2 cm gap, heading along it."""
+def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: float | None = None):
+    """A virtual-bench log (BEM physics, bench noise) along a wall at a 2 cm gap, heading along it; with
+    ``ball_m`` (a radius), a conducting ball meshed in the BEM's scene at the log's depth, mid-pass, 3 cm of water
+    between it and the sensor on the tank's side: (log, the ball's centre) then."""
     from click.testing import CliRunner
 
     from electrosense.meshes.sensor import save_sensor
@@ -188,9 +193,16 @@ def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int):
     tank_text = (f"{tank.size_m[0]},{tank.size_m[1]},{tank.size_m[2]}" if not hasattr(tank, "radius_m") else None)
     if tank_text is None:
         raise NotImplementedError("the virtual bench has box tanks only")
-    args = ["bench-sim", "-o", "wall.csv", "--overwrite", "--sensor", "sensor.json",
+    name = "wall.csv" if ball_m is None else "ball.csv"
+    if ball_m is not None:   # the part of the pass that sees the ball (a BEM pose with the ball meshed: 15 s)
+        xe, n = min(xe, sensor.length_m + 0.05), max(11, n // 2)
+    args = ["bench-sim", "-o", name, "--overwrite", "--sensor", "sensor.json",
             "--tank", tank_text, "--depth", str(tank.water_depth_m), "--sigma", "0.0354",
             "--path", f"line:{-xe},{y},{z},0:{xe},{y},{z},0:{n}", "--seed", str(seed)]
+    centre = None
+    if ball_m is not None:
+        centre = [0.0, round(float(y - sensor.radius_m - 0.03 - ball_m), 4), float(z)]
+        args += ["--effect", f"unmodelled_object=sphere,{centre[0]},{centre[1]},{centre[2]},{ball_m},conducting"]
     here = Path.cwd()
     try:
         os.chdir(folder)
@@ -199,7 +211,7 @@ def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int):
         os.chdir(here)
     if res.exit_code != 0:
         raise RuntimeError(res.output[-2000:])
-    return folder / "wall.csv"
+    return folder / name if ball_m is None else (folder / name, centre)
 
 
 def motion_prior_table(log, m, noise_rel) -> list[dict]:
@@ -315,6 +327,13 @@ def main(argv=None):
         results["localise_motion_priors"] = motion_prior_table(log, m, BENCH_CURRENT_NOISE_REL)
         measured = localise_log(log, path, folder / "localise_measured_noise", figure=False)
         results["localise_measured_noise"] = {k: measured[k] for k in ("noise_rel", "map", "psm")}
+        save()
+        print(f"virtual-bench log past a conducting ball of {1e3 * BALL_M:g} mm radius (BEM physics, the ball "
+              "meshed), then esense localise --object-at")
+        log, centre = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed + 1, BALL_M)
+        results["localise_object"] = localise_log(log, path, folder / "localise_object", figure=False,
+                                                  noise_rel=BENCH_CURRENT_NOISE_REL, true_object_m=centre,
+                                                  progress=lambda s: print(" ", s))["object"]
     save()
     # ---------------------------------------------------------------- summary
     print("\nfigure                                                            measured   goal")
@@ -362,6 +381,19 @@ def main(argv=None):
         print(f"  with the noise measured on the log ({lmm['noise_rel']:.3%}): map {mm(lmm['map']['position_rms_m'])}"
               f" (bound {mm(lmm['map']['crb_position_rms_m'])}), PSM {mm(lmm['psm']['position_rms_m'])} (bound "
               f"{mm(lmm['psm']['crb_position_rms_m'])})")
+    if "localise_object" in results:
+        from electrosense.validation.cli.localise_cmd import _object_line
+
+        o = results["localise_object"]
+        _line("object, map: position error / its Cramer-Rao bound", o["map"]["position_error_m"] /
+              o["map"]["crb_position_rms_m"], GOALS["loc_over_crb"], "{:.2f}")
+        _line("object, map: position error (m)", o["map"]["position_error_m"], GOALS["loc_rms_m"], "{:.2e}")
+        print(f"  the ball at ({1e3 * o['true_centre_m'][0]:.1f}, {1e3 * o['true_centre_m'][1]:.1f}) mm, radius "
+              f"{1e3 * BALL_M:g} mm")
+        for name in ("map", "psm"):
+            print(f"  {name}: {_object_line(o[name])}")
+        lo = results["localise"]["object"]["map"]
+        print(f"  the pass without a ball, map: {_object_line(lo)}")
     print(f"wrote {folder / 'study.json'}")
     return results
 
