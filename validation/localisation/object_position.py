@@ -9,10 +9,12 @@ energy of the sensor's unit fields at ``c``, from the BEM's own field with the w
 PSM's estimate beside it uses the PSM's own model of the sphere in the tank.
 
 **Estimator.** The sensor's poses are the logged ones (a bench's robot knows them to 0.1 mm; fitting them as well
-would let the track absorb part of the object's signal). The receiver currents, whitened by the relative noise
-measured on the log, are fitted by least squares in ``(x, y, z, m)``: the linear best strength at every place of a
-grid around the path (the dipole term alone), then the best few places refined with the full model (trust-region
-least squares, the centre kept in the water; a trial sphere touching the sensor at a logged pose is refused).
+would let the track absorb part of the object's signal), and the object's height is given (default: the log's
+depth, where a bench places its objects). The receiver currents, whitened by the relative noise measured on the
+log, are fitted by least squares in ``(x, y, m)``: the linear best strength at every place of a 2 cm grid around
+the path (the dipole term alone), then the best places at least three grid steps apart refined with the whole
+model (trust-region least squares, the centre kept in the water; a trial sphere touching the sensor at a logged
+pose is refused).
 
 **Detection and its false-alarm rate.** Without an object the whitened residual ``r0`` of the baseline is white
 noise, and the scan's statistic ``T = max_g (u_g . r0)^2`` (``u_g`` the unit response of a dipole at grid place
@@ -21,11 +23,12 @@ same grid, and an object is reported where ``T`` exceeds its ``1 - false_alarm``
 is not in that noise model: the PSM's (about 1 % in a tank, 20x the bench noise) makes it "detect" its own error,
 and the map's (0.01-0.03 %) adds about ``(error / noise)^2`` per current along the direction the scan picks.
 
-**What the data cannot separate.** A sensor of revolution sees a place and its mirror image in its own horizontal
-plane alike: the side of the object's height is fixed only by the floor's and the surface's reflections, and at
-the sensor's height the currents do not change to first order with the height (the bound on ``z`` is then
-infinite). The horizontal position is reported with its bound (``crb_position_rms_m``: the root of the trace of
-the (x, y) block of the inverse Fisher information, ``z`` and ``m`` as nuisance parameters), the height apart.
+**Bound, and what the data cannot separate.** The Cramer-Rao bound is ``(J^T J)^-1`` of the whitened residuals at
+the fit: ``crb_position_rms_m`` the root of the trace of its (x, y) block, the strength a nuisance parameter. A
+sensor of revolution on a straight pass along its axis sees a place and its mirror image across the pass alike
+(only the walls' reflections and changes of heading tell them apart): the best fit at least 2 cm from the best
+is reported beside it with its excess chi-square, and one within 3.84 (chi-square(1), 95 %) is a place the data
+do not separate from it.
 
 Example
 -------

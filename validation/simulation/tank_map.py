@@ -557,22 +557,25 @@ def _worker_solve(poses, fidelity: str = "coarse"):
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
     """Refuse (:class:`~electrosense.bem.memory.MemoryRefusal`), before any BEM, what a worker's sweeps could not
     hold: ``poses`` (those nearest a wall: the finest tank mesh) on each of ``options``' sensor meshes, each
-    sweep within ``memory_share`` of the memory, as the sweep checks it itself."""
+    sweep within ``memory_share`` of the memory, as the sweep checks it itself. Cheap: the sensor meshes are
+    counted, not made, and a tank mesh is made once per pose for every mesh that shares its options."""
     from electrosense.bem.memory import check_bytes, dense_system_bytes
     from electrosense.bem.sweep import pose_bytes
     from electrosense.meshes.object_mesh import mesh_object
     from electrosense.meshes.pose import Pose
     from electrosense.meshes.scene import Scene
     from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, mesh_tank_around, sensor_axis_points_m
-    from electrosense.meshes.sensor_mesh import mesh_sensor
+    from electrosense.meshes.sensor_mesh import estimate_triangles
 
     n_objects = sum(mesh_object(o, None).n_triangles for o in objects)
+    n_tank = {}
     for name, opts in options.items():
-        n_tank = 0 if tank is None else max(
-            mesh_tank_around(sensor, tank, sensor_axis_points_m(Scene(sensor, Pose.from_array(p), tank), 9),
-                             opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING
-                             ).n_triangles for p in poses)
-        Ns, Ne = mesh_sensor(sensor, edge_length_m=opts.get("edge_length_m")).n_triangles, n_tank + n_objects
+        how = (opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING)
+        if how not in n_tank:
+            n_tank[how] = 0 if tank is None else max(
+                mesh_tank_around(sensor, tank, sensor_axis_points_m(Scene(sensor, Pose.from_array(p), tank), 9),
+                                 *how).n_triangles for p in poses)
+        Ns, Ne = estimate_triangles(sensor, opts.get("edge_length_m")), n_tank[how] + n_objects
         check_bytes(max(pose_bytes(Ns, Ne), dense_system_bytes(Ns, 1.1)),
                     f"a {'reference' if name == 'ref' else name} BEM pose nearest a wall (tank and objects {Ne} "
                     f"triangles, sensor {Ns})", 0.8 * memory_share,
@@ -714,7 +717,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         ref_index, K_ref = old.ref_index, old.K_ref
         say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
     # the memory checked at the poses nearest a wall (the finest tank meshes) before any BEM
-    nearest = C[np.argsort(sensor_wall_gap_m(sensor, tank, C, objects))[:4]]
+    nearest = C[np.argsort(sensor_wall_gap_m(sensor, tank, C, objects))[:2]]
     pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": options}, workers, nearest)
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
