@@ -373,17 +373,27 @@ def test_localise_reaches_the_bound_when_the_model_is_the_physics(built, log_by_
 
 def test_localise_finds_an_object_the_log_passes_within_its_bound(built, log_by_the_map, tmp_path):
     """A conducting ball of 2 cm radius 5 cm beside the pass, its change of K from the BEM's field on the map's
-    currents (noise 0.05 %): detected, its horizontal position within a few bounds of the truth, its size."""
+    currents (noise 0.05 %): detected, its horizontal position within a few bounds of the truth, its size; through
+    `esense localise --object-at` the same fit lands in localise.json (this quick map's own estimated error, a few
+    per cent, is part of its noise model there, so that the ball may hide in it)."""
     from electrosense.validation.bench.log.writer import bench_log_table, write_bench_log
     from electrosense.validation.cli import main
     from electrosense.validation.diagnosis.object_field import sensor_object_field
-    from electrosense.validation.localisation.object_position import field_model
+    from electrosense.validation.localisation.object_position import field_model, locate_object
 
     m, map_path = built
     _, poses = log_by_the_map
     truth = np.array([0.08, 0.10, 0.0, 0.02**3])    # 5 cm from the pass's axis (1 cm: 0.04 %, below the noise)
-    model = field_model(_rec(m.conductance(poses, 0.05)), sensor_object_field(SENSOR, 0.05), poses, TANK, SENSOR)
+    field = sensor_object_field(SENSOR, 0.05)
+    model = field_model(_rec(m.conductance(poses, 0.05)), field, poses, TANK, SENSOR)
     I = model(truth) * (1 + 5e-4 * np.random.default_rng(4).standard_normal((len(poses), 3)))
+    f = locate_object(model, I, 5e-4, poses, TANK, SENSOR, field)
+    assert f["detected"] and f["statistic"] > f["threshold"] and f["conducting"]
+    error = np.linalg.norm(np.subtract(f["centre_m"][:2], truth[:2]))
+    assert error < 4 * f["crb_position_rms_m"] + 1e-4 and abs(f["radius_m"] - 0.02) < 0.002, f
+    none = locate_object(model, _rec(m.conductance(poses, 0.05)) * (1 + 5e-4 * np.random.default_rng(5).standard_normal(
+        (len(poses), 3))), 5e-4, poses, TANK, SENSOR, field)
+    assert not none["detected"]
     meta = {"sensor": SENSOR.name, "emitter": SENSOR.emitter, "tank_m": list(TANK.size_m),
             "water_depth_m": TANK.water_depth_m, "sigma_S_per_m": 0.05}
     log = tmp_path / "ball.csv"
@@ -391,11 +401,13 @@ def test_localise_finds_an_object_the_log_passes_within_its_bound(built, log_by_
     res = CliRunner().invoke(main, ["localise", str(log), "--map", str(map_path), "-o", str(tmp_path / "o"),
                                     "--no-figure", "--object-at", "0.08,0.10"])
     assert res.exit_code == 0, res.output
-    f = json.loads((tmp_path / "o" / "localise.json").read_text())["object"]["map"]
-    assert f["detected"] and f["statistic"] > f["threshold"] and f["conducting"]
-    assert f["position_error_either_m"] < 4 * f["crb_position_rms_m"] + 1e-4, f
-    assert abs(f["radius_m"] - 0.02) < 0.002
-    assert "MAP object: detected" in res.output
+    o = json.loads((tmp_path / "o" / "localise.json").read_text())["object"]
+    assert o["true_centre_m"] == [0.08, 0.10] and {"map", "psm"} <= set(o)
+    assert {"detected", "centre_m", "crb_position_rms_m", "position_error_m", "false_alarm"} <= set(o["map"])
+    assert "MAP object: " in res.output and "PSM object: " in res.output
+    res = CliRunner().invoke(main, ["localise", str(log), "--map", str(map_path), "-o", str(tmp_path / "p"),
+                                    "--no-figure", "--object-at", "0.08"])
+    assert res.exit_code != 0 and "X,Y or X,Y,Z" in res.output and "Traceback" not in res.output
 
 
 def test_diagnose_and_validate_use_the_map_without_a_new_bem(built, log_by_the_map, tmp_path):

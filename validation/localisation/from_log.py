@@ -196,7 +196,8 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
            "true_centre_m": None if true_centre_m is None else [float(v) for v in true_centre_m]}
     for name, model in models.items():
         say(f"looking for an object with the {name}")
-        fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m)
+        fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m,
+                            model_error_rel=tank_map.estimated_error(obs.poses) if name == "map" else None)
         out[name] = fit if true_centre_m is None else score_against(fit, true_centre_m)
     return out
 
