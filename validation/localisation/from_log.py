@@ -33,7 +33,14 @@ from electrosense.validation.localisation.smoother import (
     posterior_crb,
     smooth_track,
 )
-from electrosense.validation.localisation.track import cramer_rao, heading_error, map_currents, psm_currents, track
+from electrosense.validation.localisation.track import (
+    cramer_rao,
+    emitter_and_receivers,
+    heading_error,
+    map_currents,
+    psm_currents,
+    track,
+)
 
 __all__ = ["localise_log", "localise_observations", "model_summary"]
 
@@ -47,8 +54,9 @@ OBJECT_METHOD = ("one sphere at a given height (default the log's) fitted to the
                  "the sensor at the logged poses: the map's currents plus the sphere's change of K from the BEM's "
                  "field (dipole and quadrupole, walls' first reflections), or the PSM with the sphere; started from "
                  "a scan of the dipole term over a 2 cm grid around the path; detected where the scan's statistic "
-                 "exceeds its Monte Carlo null quantile at the false-alarm rate; Cramer-Rao bound from the fit's "
-                 "Jacobian (horizontal position, strength as nuisance)")
+                 "exceeds its Monte Carlo null quantile at the false-alarm rate; the map's own estimated error in "
+                 "the noise, the statistic and the bound scaled by the residuals' variance factor where they exceed "
+                 "it; Cramer-Rao bound from the fit's Jacobian (horizontal position, strength as nuisance)")
 METHOD_PER_SAMPLE = ("per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the noise), each "
                      "sample started from the previous estimate, the first from the logged first pose; Cramer-Rao "
                      "bound (J^T S^-1 J)^-1 of each model at the logged poses")
@@ -184,8 +192,7 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
     )
 
     say = progress or (lambda s: None)
-    e = obs.sensor.emitter - 1
-    rec = [k for k in range(obs.sensor.n_electrodes) if k != e]
+    e, rec = emitter_and_receivers(obs.sensor)
     field = sensor_object_field(obs.sensor, obs.sigma_S_per_m)
     base = -tank_map.conductance(obs.poses, obs.sigma_S_per_m)[:, rec, e]
     models = {"map": field_model(base, field, obs.poses, obs.tank, obs.sensor)}

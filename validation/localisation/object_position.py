@@ -60,6 +60,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from electrosense.validation.diagnosis.effects import object_sphere
+from electrosense.validation.localisation.track import emitter_and_receivers
 
 __all__ = ["locate_object", "field_model", "psm_model", "score_against", "FALSE_ALARM"]
 
@@ -69,15 +70,10 @@ FALSE_ALARM = 0.01
 M_REF = 1e-6
 
 
-def _receivers(sensor):
-    e = sensor.emitter - 1
-    return e, [k for k in range(sensor.n_electrodes) if k != e]
-
-
 def field_model(base_currents, field, poses, tank, sensor):
     """Receiver currents per volt (P, m) with a sphere ``theta = (x, y, z, m)`` (None: none) added to
     ``base_currents`` (a tank map's at ``poses``) by ``field`` (an ``ObjectField``)."""
-    e, rec = _receivers(sensor)
+    e, rec = emitter_and_receivers(sensor)
     base = np.asarray(base_currents, float)
 
     def currents(theta):
@@ -93,7 +89,7 @@ def psm_model(psm, sensor, tank, poses, sigma_S_per_m: float):
     """The same from the PSM, the sphere in its scene."""
     from electrosense.psm import conductance
 
-    e, rec = _receivers(sensor)
+    e, rec = emitter_and_receivers(sensor)
 
     def currents(theta):
         sphere = None if theta is None else object_sphere(np.asarray(theta, float), sigma_S_per_m)
@@ -149,7 +145,7 @@ def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, 
     if not len(places):
         raise ValueError(f"no place at z = {z_m:g} m around the logged path is clear of the sensor: no object to "
                          "look for")
-    e, rec = _receivers(sensor)
+    e, rec = emitter_and_receivers(sensor)
     D = np.concatenate([-field.unit_dipoles(poses, tank, places[i:i + 256])[:, :, rec, e]
                         for i in range(0, len(places), 256)], axis=1)                      # (P, G, m)
     D = np.moveaxis(D, 1, 0).reshape(len(places), -1) / scale.ravel()                        # whitened (G, N)

@@ -39,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Track", "track", "cramer_rao", "map_currents", "psm_currents", "heading_error"]
+__all__ = ["Track", "track", "cramer_rao", "map_currents", "psm_currents", "heading_error",
+           "emitter_and_receivers"]
 
 
 @dataclass
@@ -149,7 +150,8 @@ def cramer_rao(jacobian: np.ndarray, currents: np.ndarray, noise_rel: float) -> 
     return np.linalg.pinv(fisher, hermitian=True)
 
 
-def _receivers(sensor):
+def emitter_and_receivers(sensor) -> tuple[int, list[int]]:
+    """0-based index of the emitter and of the receivers (every other electrode), in electrode order."""
     e = sensor.emitter - 1
     return e, [k for k in range(sensor.n_electrodes) if k != e]
 
@@ -157,7 +159,7 @@ def _receivers(sensor):
 def map_currents(tank_map, z_m: float, sigma_S_per_m: float):
     """A :func:`track` model from a :class:`~electrosense.validation.simulation.tank_map.TankMap` at depth ``z_m``:
     receiver currents per volt (A) and their Jacobian; None outside the map."""
-    e, rec = _receivers(tank_map.sensor)
+    e, rec = emitter_and_receivers(tank_map.sensor)
 
     def model(q):
         q = np.atleast_2d(q)
@@ -175,7 +177,7 @@ def psm_currents(psm, sensor, tank, z_m: float, sigma_S_per_m: float, objects=()
     Jacobian; None where the PSM refuses the pose (a sphere through a wall)."""
     from electrosense.psm import conductance, receiver_current_jacobian
 
-    e, rec = _receivers(sensor)
+    e, rec = emitter_and_receivers(sensor)
 
     def model(q):
         q = np.atleast_2d(q)
