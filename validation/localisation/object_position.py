@@ -38,9 +38,8 @@ do not separate from it.
 Example
 -------
 >>> import numpy as np
->>> from electrosense.meshes import preset
->>> from electrosense.meshes.tank import Tank
 >>> from electrosense.bem.free_field import meridian_field
+>>> from electrosense.meshes import Tank, preset
 >>> from electrosense.validation.diagnosis.object_field import ObjectField
 >>> sensor, tank = preset("angels-4"), Tank((0.6, 0.6, 0.4))
 >>> field = ObjectField(meridian_field(sensor, edge_length_m=0.012, reach_m=0.15, spacing_m=0.005), 0.05)

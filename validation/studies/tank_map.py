@@ -177,7 +177,7 @@ def sweep_speed(map_path: Path, sensor, tank, z, folder: Path):
 def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: float | None = None):
     """A virtual-bench log (BEM physics, bench noise) along a wall at a 2 cm gap, heading along it; with
     ``ball_m`` (a radius), a conducting ball meshed in the BEM's scene at the log's depth, mid-pass, 3 cm of water
-    between it and the sensor on the tank's side: (log, the ball's centre) then."""
+    between it and the sensor on the tank's side. (log, the ball's centre or None)."""
     from click.testing import CliRunner
 
     from electrosense.meshes.sensor import save_sensor
@@ -211,7 +211,7 @@ def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: f
         os.chdir(here)
     if res.exit_code != 0:
         raise RuntimeError(res.output[-2000:])
-    return folder / name if ball_m is None else (folder / name, centre)
+    return folder / name, centre
 
 
 def motion_prior_table(log, m, noise_rel) -> list[dict]:
@@ -319,7 +319,7 @@ def main(argv=None):
         from electrosense.validation.localisation.from_log import localise_log
 
         print(f"virtual-bench log of {args.log_poses} poses 2 cm from a wall (BEM physics), then esense localise")
-        log = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed)
+        log, _ = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed)
         # the bound at the bench's specified noise (the virtual bench's): the noise measured on a short log is
         # inflated by the path's curvature, which would loosen the bound
         results["localise"] = localise_log(log, path, folder / "localise", noise_rel=BENCH_CURRENT_NOISE_REL,
