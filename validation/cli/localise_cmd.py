@@ -88,25 +88,10 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
         click.echo(f"{name.upper()}: position {1e3 * m['position_rms_m']:.3f} mm RMS ({crb}), heading "
                    f"{1e3 * m['heading_rms_rad']:.2f} mrad RMS, {m['estimated']} of {m['samples']} samples"
                    + (f"; {m['note']}" if m.get("note") else ""))
+    from electrosense.validation.localisation.object_position import describe
+
     for name in ("map", "psm"):
         if "object" in s:
-            click.echo(f"{name.upper()} object: {_object_line(s['object'][name])}")
+            click.echo(f"{name.upper()} object: {describe(s['object'][name])}")
     click.echo(f"wrote {outdir}/localise.json")
 
-
-def _object_line(f: dict) -> str:
-    """One line on an object fit (:func:`~electrosense.validation.localisation.object_position.locate_object`)."""
-    seen = (f"detected (statistic {f['statistic']:.3g} > {f['threshold']:.3g}, false alarm {f['false_alarm']:g})"
-            if f["detected"] else f"none detected (statistic {f['statistic']:.3g} <= {f['threshold']:.3g})")
-    x, y = (1e3 * v for v in f["centre_m"][:2])
-    kind = "conducting" if f["conducting"] else "insulating"
-    text = (f"{seen}; best sphere at ({x:.1f}, {y:.1f}) mm, {kind}, radius {1e3 * f['radius_m']:.1f} mm, bound "
-            f"{1e3 * f['crb_position_rms_m']:.2f} mm")
-    if "position_error_m" in f:
-        text += f"; error {1e3 * f['position_error_m']:.2f} mm"
-    if f.get("alternative_chi2_excess") is not None and f["alternative_chi2_excess"] < 3.84:
-        ax, ay = (1e3 * v for v in f["alternative_centre_m"][:2])
-        text += (f"; ({ax:.1f}, {ay:.1f}) mm fits as well (chi2 +{f['alternative_chi2_excess']:.2g}: the data do "
-                 "not separate them" + (f", error there {1e3 * f['position_error_either_m']:.2f} mm)"
-                                        if "position_error_m" in f else ")"))
-    return text

@@ -61,7 +61,7 @@ from scipy.optimize import least_squares
 from electrosense.validation.diagnosis.effects import object_sphere
 from electrosense.validation.localisation.track import emitter_and_receivers
 
-__all__ = ["locate_object", "field_model", "psm_model", "score_against", "FALSE_ALARM"]
+__all__ = ["locate_object", "field_model", "psm_model", "score_against", "describe", "FALSE_ALARM"]
 
 #: probability of reporting an object where there is none (white noise of the measured level, a perfect model)
 FALSE_ALARM = 0.01
@@ -107,6 +107,7 @@ def _scan_places(poses, tank, sensor, z_m: float, spacing_m: float):
     x1, y1 = np.minimum(poses[:, :2].max(axis=0) + L, hi[:2] - margin)
     g = np.stack(np.meshgrid(np.arange(x0, x1 + 1e-9, spacing_m), np.arange(y0, y1 + 1e-9, spacing_m),
                              [z_m], indexing="ij"), axis=-1).reshape(-1, 3)
+    g = g[tank.distance_to_boundary_m(g).min(axis=-1) > margin]     # in the water (not the box around a cylinder)
     half = 0.5 * L - sensor.radius_m
     c, s = np.cos(poses[:, 3]), np.sin(poses[:, 3])
     clear = np.ones(len(g), bool)
@@ -163,8 +164,12 @@ def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, 
     s_max = 0.1**3 / M_REF     # a sphere of 10 cm radius at most
 
     def residual(v):
+        theta = np.r_[v[:2], z_m, v[2] * M_REF]
+        sphere = object_sphere(theta, field.sigma_S_per_m)
         try:
-            return ((measured - currents_of(np.r_[v[:2], z_m, v[2] * M_REF])) / scale).ravel()
+            if sphere is not None and tank.distance_to_boundary_m(theta[None, :3]).min() < sphere.radius_m:
+                raise ValueError("the sphere would reach out of the water")
+            return ((measured - currents_of(theta)) / scale).ravel()
         except ValueError:      # a sphere through the sensor or a wall: refused, as a step that does not pay
             return np.full(measured.size, 1e3)
 
@@ -216,3 +221,21 @@ def score_against(fit: dict, true_centre_m) -> dict:
         either.append(float(np.linalg.norm(np.asarray(fit["alternative_centre_m"][:2]) - true)))
     out["position_error_either_m"] = min(either)
     return out
+
+
+def describe(f: dict) -> str:
+    """One line on a fit of :func:`locate_object` (or :func:`score_against`)."""
+    seen = (f"detected (statistic {f['statistic']:.3g} > {f['threshold']:.3g}, false alarm {f['false_alarm']:g})"
+            if f["detected"] else f"none detected (statistic {f['statistic']:.3g} <= {f['threshold']:.3g})")
+    x, y = (1e3 * v for v in f["centre_m"][:2])
+    kind = "conducting" if f["conducting"] else "insulating"
+    text = (f"{seen}; best sphere at ({x:.1f}, {y:.1f}) mm, {kind}, radius {1e3 * f['radius_m']:.1f} mm, bound "
+            f"{1e3 * f['crb_position_rms_m']:.2f} mm")
+    if "position_error_m" in f:
+        text += f"; error {1e3 * f['position_error_m']:.2f} mm"
+    if f.get("alternative_chi2_excess") is not None and f["alternative_chi2_excess"] < 3.84:
+        ax, ay = (1e3 * v for v in f["alternative_centre_m"][:2])
+        text += (f"; ({ax:.1f}, {ay:.1f}) mm fits as well (chi2 +{f['alternative_chi2_excess']:.2g}: the data do "
+                 "not separate them" + (f", error there {1e3 * f['position_error_either_m']:.2f} mm)"
+                                        if "position_error_m" in f else ")"))
+    return text

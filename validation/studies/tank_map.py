@@ -382,7 +382,7 @@ def main(argv=None):
               f" (bound {mm(lmm['map']['crb_position_rms_m'])}), PSM {mm(lmm['psm']['position_rms_m'])} (bound "
               f"{mm(lmm['psm']['crb_position_rms_m'])})")
     if "localise_object" in results:
-        from electrosense.validation.cli.localise_cmd import _object_line
+        from electrosense.validation.localisation.object_position import describe
 
         o = results["localise_object"]
         _line("object, map: position error / its Cramer-Rao bound", o["map"]["position_error_m"] /
@@ -391,9 +391,9 @@ def main(argv=None):
         print(f"  the ball at ({1e3 * o['true_centre_m'][0]:.1f}, {1e3 * o['true_centre_m'][1]:.1f}) mm, radius "
               f"{1e3 * BALL_M:g} mm")
         for name in ("map", "psm"):
-            print(f"  {name}: {_object_line(o[name])}")
+            print(f"  {name}: {describe(o[name])}")
         lo = results["localise"]["object"]["map"]
-        print(f"  the pass without a ball, map: {_object_line(lo)}")
+        print(f"  the pass without a ball, map: {describe(lo)}")
     print(f"wrote {folder / 'study.json'}")
     return results
 
