@@ -399,15 +399,40 @@ def test_localise_finds_an_object_the_log_passes_within_its_bound(built, log_by_
     log = tmp_path / "ball.csv"
     write_bench_log(log, meta, bench_log_table(poses, 1.0, I, SENSOR.receivers))
     res = CliRunner().invoke(main, ["localise", str(log), "--map", str(map_path), "-o", str(tmp_path / "o"),
-                                    "--no-figure", "--object-at", "0.08,0.10"])
+                                    "--object-at", "0.08,0.10"])
     assert res.exit_code == 0, res.output
     o = json.loads((tmp_path / "o" / "localise.json").read_text())["object"]
     assert o["true_centre_m"] == [0.08, 0.10] and {"map", "psm"} <= set(o)
+    assert np.allclose(np.asarray(o["map"]["crb_cov_xy_m2"]), np.asarray(o["map"]["crb_cov_xy_m2"]).T)
+    assert (tmp_path / "o" / "localise.png").stat().st_size > 0   # with the object's panel
     assert {"detected", "centre_m", "crb_position_rms_m", "position_error_m", "false_alarm"} <= set(o["map"])
     assert "MAP object: " in res.output and "PSM object: " in res.output
     res = CliRunner().invoke(main, ["localise", str(log), "--map", str(map_path), "-o", str(tmp_path / "p"),
                                     "--no-figure", "--object-at", "0.08"])
     assert res.exit_code != 0 and "X,Y or X,Y,Z" in res.output and "Traceback" not in res.output
+
+
+def test_the_object_panel_draws_found_missed_and_undetermined_objects():
+    """The figure's close-up of an object: a detected sphere with its 95 % ellipse, one detected far off (said
+    in the legend), one not detected, and a bound that is not determined, each in the legend, nothing raised."""
+    from electrosense.validation.localisation.figure import object_panel
+    from electrosense.validation.report.style import new_figure
+
+    class Run:   # what the panel reads of a run's observations
+        poses = np.c_[np.linspace(-0.1, 0.1, 9), np.full(9, 0.05), np.zeros(9), np.zeros(9)]
+
+    fit = {"detected": True, "statistic": 50.0, "threshold": 12.0, "centre_m": [0.001, 0.0, 0.0], "radius_m": 0.015,
+           "crb_position_rms_m": 0.002, "crb_cov_xy_m2": [[4e-6, 1e-6], [1e-6, 2e-6]],
+           "alternative_centre_m": [0.0, 0.1, 0.0], "alternative_chi2_excess": 1.0}
+    fig, axes = new_figure(1, 3)
+    for ax, psm in zip(axes[0], ({**fit, "detected": False}, {**fit, "centre_m": [0.3, 0.2, 0.0],
+                                                              "crb_position_rms_m": np.inf, "crb_cov_xy_m2":
+                                                              [[np.inf, 0.0], [0.0, np.inf]]}, fit)):
+        object_panel(ax, Run, {"z_m": 0.0, "true_centre_m": [0.0, 0.0], "map": fit, "psm": psm})
+    labels = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in axes[0]]
+    assert any("none detected" in t for t in labels[0]) and any("off this view" in t for t in labels[1])
+    assert any("bound not determined" in t for t in labels[1]) and any("not separated" in t for t in labels[2])
+    assert axes[0][0].get_ylim()[1] >= 60.0 - 1e-9     # wide enough to show the path 5 cm from the object
 
 
 def test_diagnose_and_validate_use_the_map_without_a_new_bem(built, log_by_the_map, tmp_path):

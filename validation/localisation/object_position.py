@@ -129,7 +129,7 @@ def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, 
     of a current (1 sigma); ``model_error_rel``: the model's own estimated relative error (P, m), added to the
     noise in quadrature (a tank map's, written with it). Returns a dict: ``detected``, the scan's ``statistic`` and ``threshold`` (at
     ``false_alarm``), ``centre_m``, ``strength_m3``, ``radius_m`` (of a conductor, or of an insulator where
-    ``m < 0``), ``crb_position_rms_m`` (horizontal) and ``crb_sd`` of (x, y, m), ``chi2_without``, ``chi2_with``,
+    ``m < 0``), ``crb_position_rms_m`` (horizontal) and ``crb_sd`` of (x, y, m), ``crb_cov_xy_m2`` (the (x, y) block of the covariance), ``chi2_without``, ``chi2_with``,
     ``n_currents``, and ``alternative_centre_m`` with its ``alternative_chi2_excess``: the best fit at least 2 cm
     away (a place the currents tell apart from the best by less than 3.84, chi-square(1) at 95 %, is one the
     data cannot separate from it: the mirror image across a straight pass, seen alike by a sensor of revolution).
@@ -203,6 +203,7 @@ def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, 
             "conducting": bool(theta[3] > 0), "radius_m": None if sphere is None else float(sphere.radius_m),
             "crb_position_rms_m": float(np.sqrt(max(cov[0, 0] + cov[1, 1], 0.0))),
             "crb_sd": {"x_m": float(sd[0]), "y_m": float(sd[1]), "strength_m3": float(sd[2])},
+            "crb_cov_xy_m2": cov[:2, :2].tolist(),
             "chi2_without": float(r0 @ r0), "chi2_with": float(2 * best.cost), "n_currents": int(measured.size),
             "places_scanned": int(len(places)),
             "alternative_centre_m": [*rivals[0].x[:2].tolist(), z_m] if rivals else None,
