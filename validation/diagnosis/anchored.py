@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 
 from electrosense.bem.block_cache import cache_root
+from electrosense.bem.conductance import pair_values
 from electrosense.meshes.tank import TANK_REGIONS, Tank
 from electrosense.validation.diagnosis.forward import receiver_currents
 
@@ -408,20 +409,22 @@ class AnchoredBaseline:
         return float(np.sqrt(np.mean(self.total_error**2)))
 
 
-def _offdiag_log_ratio(K_bem, K_psm):
-    n = K_bem.shape[-1]
-    iu = np.triu_indices(n, 1)
-    a, b = K_bem[:, iu[0], iu[1]], K_psm[:, iu[0], iu[1]]
+def _offdiag_log_ratio(K_bem, K_psm, emitter: int):
+    """log(K_bem / K_psm) of every pair (:func:`~electrosense.bem.conductance.pair_values`: the emitter's column,
+    the receiver currents the bench reads)."""
+    a, b = pair_values(K_bem, emitter), pair_values(K_psm, emitter)
     if np.any(a / b <= 0):
         raise ValueError("the BEM and the PSM disagree in the sign of a transfer conductance")
     return np.log(a / b)
 
 
-def _apply_log_ratio(K_psm, L):
+def _apply_log_ratio(K_psm, L, emitter: int):
+    """The symmetric K whose pairs are ``K_psm``'s (:func:`~electrosense.bem.conductance.pair_values`) times
+    exp(L), zero row sums."""
     n = K_psm.shape[-1]
     iu = np.triu_indices(n, 1)
-    K = np.array(K_psm, float)
-    K[:, iu[0], iu[1]] *= np.exp(L)
+    K = np.zeros(np.shape(K_psm))
+    K[:, iu[0], iu[1]] = pair_values(K_psm, emitter) * np.exp(L)
     K[:, iu[1], iu[0]] = K[:, iu[0], iu[1]]
     off = K * (1 - np.eye(n))
     return off - np.eye(n) * off.sum(axis=-1, keepdims=True)
@@ -706,7 +709,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     K = np.where(have[:, None, None], K_bem, 0.0)
     fill = ~have
     if fill.any():
-        K[fill] = _apply_log_ratio(bases[base][0][fill], L[fill])
+        K[fill] = _apply_log_ratio(bases[base][0][fill], L[fill], sensor.emitter)
     # the BEM's own discretisation: a finer mesh at a few anchor poses, extrapolated (cached with the anchors)
     check = {k[6:]: entry[k] for k in (entry or {}) if k.startswith("check_")} if covered else {}
     if check_discretisation and not check and len(np.flatnonzero(have)):
@@ -855,11 +858,11 @@ def _fit_base(K_bem, F, group, have, K_ref, usable, cached_off, K_ref_cached, ca
     nodes every base has, on which the bases are compared)."""
     nodes = _distinct(np.flatnonzero(have & usable), group)
     X = [F[nodes]]
-    Lv = [_offdiag_log_ratio(K_bem[nodes], K_ref[nodes])]
+    Lv = [_offdiag_log_ratio(K_bem[nodes], K_ref[nodes], sensor.emitter)]
     on_usable = [psm_ok[nodes]]
     if cached_off.any():
         X.append(pose_features(sensor, cached_poses[cached_off]))
-        Lv.append(_offdiag_log_ratio(cached_K[cached_off], K_ref_cached[cached_off]))
+        Lv.append(_offdiag_log_ratio(cached_K[cached_off], K_ref_cached[cached_off], sensor.emitter))
         on_usable.append(cached_usable[cached_off])
     X, Lv, on_usable = np.vstack(X), np.vstack(Lv), np.concatenate(on_usable)
     from_log = np.arange(len(X)) < len(nodes)

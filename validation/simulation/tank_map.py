@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
@@ -229,6 +230,8 @@ class TankMap:
         e = self.sensor.emitter - 1
         pairs = list(zip(*self._iu))
         self._rec = [pairs.index((min(k, e), max(k, e))) for k in range(n) if k != e]
+        # one value per pair: the emitter's column of the BEM's K (what the bench reads), not its row
+        self._free_pairs = pair_values(self.K_free, self.sensor.emitter)
         self.frame = MapFrame(self.sensor, self.tank, self.objects, self.band, self.warp_m)
         perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
         # the sensor's lateral mirror where the fold reflects poses (None: nothing to permute)
@@ -238,17 +241,17 @@ class TankMap:
         from electrosense.validation.diagnosis.anchored import RBFInterpolant
 
         if self.fitted is None:
-            iu = self._iu
             X = self.frame.features(self.nodes)
             K_nodes = self.mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
-            L_coarse = np.log(K_nodes[:, iu[0], iu[1]] / self.K_free[iu])
+            L_coarse = np.log(pair_values(K_nodes, self.sensor.emitter) / self._free_pairs)
             interp = self._fit_coarse(X, L_coarse)
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out,
                            "images": np.array(interp.n_regressors > 0)}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
                 K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
-                d = np.log(K_ref[:, iu[0], iu[1]] / K_nodes[self.ref_index][:, iu[0], iu[1]])
+                d = np.log(pair_values(K_ref, self.sensor.emitter)
+                           / pair_values(K_nodes[self.ref_index], self.sensor.emitter))
                 corr, pairs = self._fit_correction(Xr, d, L_coarse[self.ref_index])
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
@@ -363,7 +366,7 @@ class TankMap:
         iu = self._iu
         res = self.log_ratio(poses, jacobian)
         L, dL = res if jacobian else (res, None)
-        off = self.K_free[iu] * np.exp(L) * sigma_S_per_m
+        off = self._free_pairs * np.exp(L) * sigma_S_per_m
         K = self.mirrored(_assemble(off, n, iu), poses)
         if not jacobian:
             return K
