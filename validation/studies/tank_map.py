@@ -331,7 +331,7 @@ def main(argv=None):
         print(f"virtual-bench log past a conducting ball of {1e3 * BALL_M:g} mm radius (BEM physics, the ball "
               "meshed), then esense localise --object-at")
         log, centre = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed + 1, BALL_M)
-        results["localise_object"] = localise_log(log, path, folder / "localise_object", figure=False,
+        results["localise_object"] = localise_log(log, path, folder / "localise_object",
                                                   noise_rel=BENCH_CURRENT_NOISE_REL, true_object_m=centre,
                                                   progress=lambda s: print(" ", s))["object"]
     save()
