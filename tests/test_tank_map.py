@@ -504,3 +504,37 @@ def test_a_cylinder_folds_a_sector_sensor_by_its_diameters_with_the_sectors_perm
     odd = MapFrame(preset("angels-4").with_sectors({2: 3}, gap_m=0.002), CylinderTank(0.3, 0.3))
     assert not odd.reflected(pair).any()
     assert not np.allclose(odd.features(pair)[0], odd.features(pair)[1])
+
+
+def test_a_worker_ends_itself_when_its_build_is_killed(tmp_path):
+    """A build killed by a signal its workers do not get (`kill PID`) left them holding their memory, waiting for
+    work: a worker now ends itself within a second or two of its parent."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import multiprocessing as mp, os, time\n"
+        "from electrosense.validation.simulation.tank_map import exit_with_parent\n"
+        "def child():\n"
+        "    exit_with_parent(0.2)\n"
+        "    time.sleep(60)\n"
+        "if __name__ == '__main__':\n"
+        "    c = mp.get_context('spawn').Process(target=child)\n"
+        "    c.start()\n"
+        "    print(c.pid, flush=True)\n"
+        "    time.sleep(4)\n"
+        "    os._exit(0)\n")
+    pid = int(subprocess.run([sys.executable, str(script)], capture_output=True, text=True, check=True,
+                             timeout=120).stdout.split()[0])
+    for _ in range(50):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        os.kill(pid, 9)
+        raise AssertionError(f"worker {pid} outlived its parent by 5 s")
