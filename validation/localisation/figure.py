@@ -73,7 +73,8 @@ def object_panel(ax, obs, found: dict, half_width_m: float = 0.04):
     # wide enough to show where the path passes it
     half_width_m = max(half_width_m, 0.01 + float(np.min(np.abs(obs.poses[:, :2] - centre).max(axis=1))))
     inside = lambda xy: bool(np.all(np.abs(np.asarray(xy) - centre) < half_width_m))   # noqa: E731
-    ax.plot(1e3 * obs.poses[:, 0], 1e3 * obs.poses[:, 1], color="k", lw=1, label="logged path (sensor centre)", zorder=1)
+    ax.plot(1e3 * obs.poses[:, 0], 1e3 * obs.poses[:, 1], color="k", lw=1, label="logged path (sensor centre)",
+            zorder=1)
     for k, (name, f) in enumerate(fits.items()):
         c = colour_of(name, k)
         if not f["detected"]:
@@ -90,11 +91,13 @@ def object_panel(ax, obs, found: dict, half_width_m: float = 0.04):
             ax.add_patch(mpatches.Ellipse((1e3 * x, 1e3 * y), a, b, angle=angle, fill=True, alpha=0.25, color=c))
         bound = f["crb_position_rms_m"]
         ax.plot(1e3 * x, 1e3 * y, "+", color=c, ms=7, label=f"{LABEL[name]}: sphere of {1e3 * r:.3g} mm"
-                + (f", 95 % region ({1e3 * bound:.2g} mm RMS bound)" if np.isfinite(bound) else ", bound not determined")
+                + (f", 95 % region ({1e3 * bound:.2g} mm RMS bound)" if np.isfinite(bound)
+                   else ", bound not determined")
                 + ("" if inside((x, y)) else f", at ({1e3 * x:.0f}, {1e3 * y:.0f}) mm: off this view"))
         alt = f.get("alternative_centre_m")
         if alt is not None and f.get("alternative_chi2_excess", np.inf) < 3.84:
-            ax.plot(1e3 * alt[0], 1e3 * alt[1], "o", mfc="none", color=c, ms=5, label=f"{LABEL[name]}: not separated from it")
+            ax.plot(1e3 * alt[0], 1e3 * alt[1], "o", mfc="none", color=c, ms=5,
+                    label=f"{LABEL[name]}: not separated from it")
     if true is not None:
         ax.plot(1e3 * true[0], 1e3 * true[1], "x", color="k", ms=7, label="true centre")
     ax.set_xlim(1e3 * (centre[0] - half_width_m), 1e3 * (centre[0] + half_width_m))

@@ -127,11 +127,12 @@ def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, 
 
     ``field``: the sensor's ``ObjectField`` (its dipole term scans the places); ``noise_rel``: relative noise
     of a current (1 sigma); ``model_error_rel``: the model's own estimated relative error (P, m), added to the
-    noise in quadrature (a tank map's, written with it). Returns a dict: ``detected``, the scan's ``statistic`` and ``threshold`` (at
-    ``false_alarm``), ``centre_m``, ``strength_m3``, ``radius_m`` (of a conductor, or of an insulator where
-    ``m < 0``), ``crb_position_rms_m`` (horizontal) and ``crb_sd`` of (x, y, m), ``crb_cov_xy_m2`` (the (x, y) block of the covariance), ``chi2_without``, ``chi2_with``,
-    ``n_currents``, and ``alternative_centre_m`` with its ``alternative_chi2_excess``: the best fit at least 2 cm
-    away (a place the currents tell apart from the best by less than 3.84, chi-square(1) at 95 %, is one the
+    noise in quadrature (a tank map's, written with it). Returns a dict: ``detected``, the scan's ``statistic``
+    and ``threshold`` (at ``false_alarm``), ``centre_m``, ``strength_m3``, ``radius_m`` (of a conductor, or of
+    an insulator where ``m < 0``), ``crb_position_rms_m`` (horizontal) and ``crb_sd`` of (x, y, m),
+    ``crb_cov_xy_m2`` (the covariance's (x, y) block), ``chi2_without``, ``chi2_with``, ``n_currents``, and
+    ``alternative_centre_m`` with its ``alternative_chi2_excess``: the best fit at least 2 cm away (a place the
+    currents tell apart from the best by less than 3.84, chi-square(1) at 95 %, is one the
     data cannot separate from it: the mirror image across a straight pass, seen alike by a sensor of revolution).
     """
     measured = np.asarray(measured, float)
