@@ -91,11 +91,11 @@ def K_from_S(S: np.ndarray, emitter: int) -> np.ndarray:
     return K
 
 
-def pair_values(K: np.ndarray, emitter: int) -> np.ndarray:
+def pair_values(K: np.ndarray, emitter: int | None) -> np.ndarray:
     """One value per electrode pair (..., n (n - 1) / 2), in ``np.triu_indices(n, 1)`` order, of the symmetric K
     that a numerical ``K`` (..., n, n) stands for: a pair with the emitter from the emitter's column,
     ``K[receiver, emitter]`` (what the bench reads: :meth:`ConductanceMatrix.receiver_currents_A`), every other
-    pair the mean of ``K[i, j]`` and ``K[j, i]``.
+    pair the mean of ``K[i, j]`` and ``K[j, i]`` (every pair, with ``emitter`` None).
 
     A collocation BEM's two estimates of a pair differ by its discretisation error (1e-5 relative for a sensor
     alone, 1e-4 in the middle of a tank, up to 1e-3 with a wall 8 mm from the sensor): a model that keeps one
@@ -105,14 +105,18 @@ def pair_values(K: np.ndarray, emitter: int) -> np.ndarray:
     >>> K = np.array([[-2.0, 1.0, 1.0], [1.001, -2.0, 0.999], [1.0, 1.002, -2.0]])
     >>> pair_values(K, emitter=2).tolist()     # pairs (1, 2), (1, 3), (2, 3): column 2, the mean, column 2
     [1.0, 1.0, 1.002]
+    >>> pair_values(K, None).tolist()          # the mean of every pair
+    [1.0005, 1.0, 1.0005]
     """
     K = np.asarray(K, float)
     n = K.shape[-1]
+    i, j = np.triu_indices(n, 1)
+    mean = 0.5 * (K[..., i, j] + K[..., j, i])
+    if emitter is None:
+        return mean
     if not 1 <= int(emitter) <= n:
         raise ValueError(f"emitter {emitter} is not an electrode of a {n}-electrode K")
     e = int(emitter) - 1
-    i, j = np.triu_indices(n, 1)
-    mean = 0.5 * (K[..., i, j] + K[..., j, i])
     column = np.where(j == e, K[..., i, j], K[..., j, i])   # the receiver's row of the emitter's column
     return np.where((i == e) | (j == e), column, mean)
 

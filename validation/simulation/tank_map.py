@@ -230,12 +230,16 @@ class TankMap:
         e = self.sensor.emitter - 1
         pairs = list(zip(*self._iu))
         self._rec = [pairs.index((min(k, e), max(k, e))) for k in range(n) if k != e]
-        # one value per pair: the emitter's column of the BEM's K (what the bench reads), not its row
-        self._free_pairs = pair_values(self.K_free, self.sensor.emitter)
         self.frame = MapFrame(self.sensor, self.tank, self.objects, self.band, self.warp_m)
         perm = self.sensor.lateral_mirror() if self.frame.mirrors else None
         # the sensor's lateral mirror where the fold reflects poses (None: nothing to permute)
         self._perm = None if perm is None or np.array_equal(perm, np.arange(len(perm))) else perm
+        # one value per pair: the emitter's column of the BEM's K (what the bench reads), not its row; where the
+        # fold's mirror moves the emitter (a sector emitter), a reflected node's column is another electrode's,
+        # and every pair is the mean of the BEM's two estimates
+        moved = self._perm is not None and self._perm[e] != e
+        self._pair_emitter = None if moved else self.sensor.emitter
+        self._free_pairs = pair_values(self.K_free, self._pair_emitter)
         self.ref_index = np.zeros(0, int) if self.ref_index is None else np.asarray(self.ref_index, int)
         self.K_ref = np.zeros((0, n, n)) if self.K_ref is None else np.asarray(self.K_ref, float)
         from electrosense.validation.diagnosis.anchored import RBFInterpolant
@@ -243,15 +247,15 @@ class TankMap:
         if self.fitted is None:
             X = self.frame.features(self.nodes)
             K_nodes = self.mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
-            L_coarse = np.log(pair_values(K_nodes, self.sensor.emitter) / self._free_pairs)
+            L_coarse = np.log(pair_values(K_nodes, self._pair_emitter) / self._free_pairs)
             interp = self._fit_coarse(X, L_coarse)
             self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out,
                            "images": np.array(interp.n_regressors > 0)}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
                 K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
-                d = np.log(pair_values(K_ref, self.sensor.emitter)
-                           / pair_values(K_nodes[self.ref_index], self.sensor.emitter))
+                d = np.log(pair_values(K_ref, self._pair_emitter)
+                           / pair_values(K_nodes[self.ref_index], self._pair_emitter))
                 corr, pairs = self._fit_correction(Xr, d, L_coarse[self.ref_index])
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
