@@ -297,6 +297,22 @@ def test_the_estimated_error_is_the_size_of_the_true_one(built):
     assert np.sqrt(np.mean(true**2)) < 3 * np.sqrt(np.mean(est**2)) + 1e-3   # another tank mesh adds ~5e-4
 
 
+def test_the_map_error_covariance_holds_its_estimate_and_is_smooth_along_a_pass(built):
+    """The covariance's diagonal is the estimated error's square, it is a covariance (positive semi-definite), and
+    the error of two poses a millimetre apart is nearly one error while that of poses across the tank is not."""
+    m, _ = built
+    P = np.c_[np.linspace(-0.08, 0.08, 17), np.full(17, 0.05), np.zeros(17), np.full(17, 0.3)]
+    P = np.r_[P, [[-0.079, 0.05, 0.0, 0.3]]]
+    C = m.error_covariance(P)
+    sd = m.estimated_error(P).ravel()
+    n = m.estimated_error(P).shape[1]
+    assert np.allclose(np.diag(C), sd**2)
+    assert np.linalg.eigvalsh(C).min() > -1e-9 * np.abs(C).max()
+    corr = C / np.outer(sd, sd)
+    near, far = corr[0, 17 * n], corr[0, 16 * n]       # receiver 1 at pose 0 against the pose 1 mm away, the far end
+    assert near > 0.95 and abs(far) < 0.5
+
+
 def test_the_map_refuses_what_it_does_not_cover(built):
     m, _ = built
     ev = pose_evaluator("map", SENSOR, TANK, 0.05, tank_map=m)

@@ -55,7 +55,7 @@ OBJECT_METHOD = ("one sphere at a given height (default the log's) fitted to the
                  "field (dipole and quadrupole, walls' first reflections), or the PSM with the sphere; started from "
                  "a scan of the dipole term over a 2 cm grid around the path; detected where the scan's statistic "
                  "exceeds its Monte Carlo null quantile at the false-alarm rate; the map's own estimated error in "
-                 "the noise, the statistic and the bound scaled by the residuals' variance factor where they exceed "
+                 "the currents' covariance, correlated along the pass as between the map's nodes; the statistic and the bound scaled by the residuals' variance factor where they exceed "
                  "it; Cramer-Rao bound from the fit's Jacobian (horizontal position, strength as nuisance)")
 METHOD_PER_SAMPLE = ("per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the noise), each "
                      "sample started from the previous estimate, the first from the logged first pose; Cramer-Rao "
@@ -207,7 +207,7 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
     for name, model in models.items():
         say(f"looking for an object with the {name}")
         fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m,
-                            model_error_rel=tank_map.estimated_error(obs.poses) if name == "map" else None)
+                            model_error_cov=tank_map.error_covariance(obs.poses) if name == "map" else None)
         out[name] = fit if true_centre_m is None else score_against(fit, true_centre_m)
     return out
 

@@ -389,13 +389,48 @@ class TankMap:
         err = estimated_error(self._parts[0].X, self.leave_one_out, F)
         if len(self._parts) > 1:
             err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
+        return np.take_along_axis(err, self._folded_receivers(poses), axis=1)
+
+    def _folded_receivers(self, poses) -> np.ndarray:
+        """(P, m) each pose's receivers as columns of its folded pose's (a reflected pose's are permuted)."""
+        m = len(self._rec)
+        folded = np.tile(np.arange(m), (len(np.reshape(poses, (-1, 4))), 1))
         perm, e = self._perm, self.sensor.emitter - 1
-        if perm is not None and perm[e] == e:   # a reflected pose's receivers are the folded pose's, permuted
+        if perm is not None and perm[e] == e:
             receivers = [k for k in range(len(perm)) if k != e]
-            order = [receivers.index(perm[k]) for k in receivers]
-            r = self.frame.reflected(poses)
-            err[r] = err[r][:, order]
-        return err
+            folded[self.frame.reflected(poses)] = [receivers.index(perm[k]) for k in receivers]
+        return folded
+
+    def error_covariance(self, poses) -> np.ndarray:
+        """(P m, P m) covariance of the relative errors of the receiver currents at ``poses``, in the order of a
+        (P, m) array's ``ravel()``. Its standard deviations are :meth:`estimated_error`'s; an interpolation error is
+        smooth, so two poses between the same nodes share it: the correlation along the poses is a Matern 3/2
+        function of their distance in the map's coordinates, whose length is the spacing of the nodes nearest to them (the median distance
+        from each to its nearest other node), and across receivers that of the nodes' leave-one-out errors. An
+        object's signal is smooth along a pass too: a detector that took the map's error as independent from
+        pose to pose would call the map's error an object (:func:`~electrosense.validation.localisation.
+        object_position.locate_object`).
+        """
+        from scipy.spatial import cKDTree
+        from scipy.spatial.distance import cdist
+
+        poses = np.asarray(poses, float).reshape(-1, 4)
+        sd = self.estimated_error(poses)
+        F = self.frame.features(poses)
+        X = self._parts[0].X
+        tree = cKDTree(X)
+        spacing = tree.query(X, k=2)[0][:, 1] if len(X) > 1 else np.ones(1)
+        length = float(np.median(spacing[tree.query(F)[1]]))
+        r = np.sqrt(3.0) * cdist(F, F) / max(length, 1e-12)
+        R = (1.0 + r) * np.exp(-r)      # Matern 3/2: smooth, yet not so smooth that whitening trusts its curvature
+        loo = np.expm1(np.asarray(self.fitted["loo"])[:, self._rec])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            Q = np.atleast_2d(np.corrcoef(loo.T)) if len(loo) > 2 else np.eye(loo.shape[1])
+        Q = np.where(np.isfinite(Q), Q, np.eye(len(Q)))
+        m = sd.shape[1]
+        i = self._folded_receivers(poses).ravel()
+        s = sd.ravel()
+        return np.repeat(np.repeat(R, m, axis=0), m, axis=1) * Q[np.ix_(i, i)] * np.outer(s, s)
 
     def covers(self, poses) -> tuple[np.ndarray, str]:
         """(P,) bool: poses inside the map (its depth or band, its wall gap), and why the first other is not."""
