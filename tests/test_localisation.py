@@ -122,3 +122,31 @@ def test_a_smooth_model_error_is_not_called_an_object_and_an_object_still_is():
     found = [fit["centre_m"][:2], fit["alternative_centre_m"][:2]] if fit["alternative_centre_m"] else [fit["centre_m"][:2]]
     d = min(np.linalg.norm(np.subtract(c, truth[:2])) for c in found)
     assert fit["detected"] and d < 3 * fit["crb_position_rms_m"] + 1e-3
+
+
+def test_a_model_error_the_model_knows_weighs_its_receiver_down():
+    """Two receivers tell the distance from the wall; one's model is 1 % off along the whole pass, and the model
+    says so: the track weighted by the noise and that error in quadrature errs less than the track with the noise
+    alone, and its bound (the noise alone) is unchanged."""
+    from electrosense.validation.localisation.from_log import model_summary
+    from electrosense.validation.localisation.smoother import MotionModel
+
+    def model(q):
+        I, J = wall_model(q)
+        y = np.atleast_2d(q)[:, 1]
+        J4 = np.zeros((len(y), 1, 3))
+        J4[:, 0, 1] = 0.5 / (0.7 - y) ** 2
+        return np.c_[I, 0.5 / (0.7 - y)], np.concatenate([J, J4], axis=1)
+
+    t, truth = pass_along_the_wall()
+    I = model(truth)[0]
+    bias = np.array([0.0, 0.01, 0.0, 0.0])
+    measured = I * (1 + bias) * (1 + NOISE * np.random.default_rng(3).standard_normal(I.shape))
+    poses = np.c_[truth[:, :2], np.zeros(len(t)), truth[:, 2]]
+    motion = MotionModel(1e-6, 1e-5)
+    plain, _ = model_summary("toy", model, measured, poses, NOISE, t, motion)
+    weighted, _ = model_summary("toy", model, measured, poses, NOISE, t, motion,
+                                model_error=lambda q: np.tile(bias, (len(q), 1)))
+    assert weighted["position_rms_m"] < 0.5 * plain["position_rms_m"]
+    assert weighted["crb_position_rms_m"] == plain["crb_position_rms_m"]
+    assert weighted["crb_position_rms_m_model_error"] > weighted["crb_position_rms_m"]

@@ -49,7 +49,8 @@ METHOD_SMOOTHER = ("maximum a posteriori track over each pass under the motion m
                    "an iterated extended Kalman filter from the first logged pose, stiffer priors solved first), "
                    "currents whitened by the noise; Cramer-Rao bound: the posterior bound (Fisher information of "
                    "the currents at the logged poses plus the motion prior's); the per-sample bound (J^T S^-1 J)^-1 "
-                   "beside it")
+                   "beside it; with a map, tracked again with each current weighted by the noise and the map's "
+                   "estimated error at the first track's poses in quadrature (the bounds of the noise alone)")
 OBJECT_METHOD = ("one sphere at a given height (default the log's) fitted to the currents whitened by the noise, "
                  "the sensor at the logged poses: the map's currents plus the sphere's change of K from the BEM's "
                  "field (dipole and quadrupole, walls' first reflections), or the PSM with the sphere; started from "
@@ -71,20 +72,33 @@ def _position_rms(C) -> float:
 
 
 def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: MotionModel | None = None,
-                  passes=None) -> tuple[dict, np.ndarray]:
+                  passes=None, model_error=None) -> tuple[dict, np.ndarray]:
     """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose: under ``motion`` over the
     whole log (:func:`smooth_track`, ``t_s`` (P,) s and ``passes`` index arrays), or each sample alone
     (``motion=None``, :func:`track`); errors against ``poses`` (P, 4) and the Cramer-Rao bounds at them;
-    (summary, estimated (P, 3))."""
+    (summary, estimated (P, 3)).
+
+    ``model_error``: ``q (P, 3) -> (P, m)`` the model's own estimated relative error (a tank map's). The track is
+    then solved twice: with the noise alone, then with each current weighted by the noise and the model's error at
+    the first track's poses in quadrature (weighted least squares: a receiver the model knows less well counts
+    less). The bounds stay those of the noise alone (``crb_position_rms_m``, what the currents can tell with a
+    perfect model); ``crb_position_rms_m_model_error`` is the bound under the weighted noise model."""
     t0 = time.perf_counter()
     q_true = poses[:, [0, 1, 3]]
     t_s = np.arange(len(poses), dtype=float) if t_s is None else np.asarray(t_s, float)
-    if motion is None:
-        t = track(model, currents, q_true[0], noise_rel)
-        est, n_conv, fit = t.poses, int(t.converged.sum()), {"chi2": t.chi2}
-    else:
-        t = smooth_track(model, currents, t_s, q_true[0], motion, noise_rel, passes)
-        est, n_conv, fit = t.poses, int(len(poses) if t.converged else 0), {"chi2": t.chi2}
+
+    def solve(spread):
+        if motion is None:
+            t = track(model, currents, q_true[0], spread)
+            return t.poses, int(t.converged.sum()), {"chi2": t.chi2}
+        t = smooth_track(model, currents, t_s, q_true[0], motion, spread, passes)
+        return t.poses, int(len(poses) if t.converged else 0), {"chi2": t.chi2}
+
+    est, n_conv, fit = solve(noise_rel)
+    spread = noise_rel
+    if model_error is not None and np.isfinite(est).all():
+        spread = np.hypot(noise_rel, model_error(est))
+        est, n_conv, fit = solve(spread)
     seconds = time.perf_counter() - t0
     ok = np.isfinite(est[:, 0])
     d_pos = np.linalg.norm(est[ok, :2] - q_true[ok, :2], axis=1)
@@ -95,12 +109,16 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
         C1 = cramer_rao(at[1], currents, noise_rel)
         C = C1 if motion is None else posterior_crb(at[1], currents, t_s, motion, noise_rel, passes)
         if motion is not None:
-            bias, spread = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes)
-            expected = float(np.sqrt(np.nanmean(np.sum(bias[:, :2] ** 2 + spread[:, :2] ** 2, axis=1))))
+            bias, scatter = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes)
+            expected = float(np.sqrt(np.nanmean(np.sum(bias[:, :2] ** 2 + scatter[:, :2] ** 2, axis=1))))
         crb = {"crb_position_rms_m": _position_rms(C), "crb_position_median_m": float(np.median(
                np.sqrt(C[:, 0, 0] + C[:, 1, 1]))), "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
                "crb_per_sample_position_rms_m": _position_rms(C1), "crb_position_m": np.sqrt(C[:, 0, 0] + C[:, 1, 1]),
                "crb_per_sample_position_m": np.sqrt(C1[:, 0, 0] + C1[:, 1, 1])}
+        if np.ndim(spread):
+            Cw = (cramer_rao(at[1], currents, spread) if motion is None
+                  else posterior_crb(at[1], currents, t_s, motion, spread, passes))
+            crb["crb_position_rms_m_model_error"] = _position_rms(Cw)
     chi2 = fit["chi2"][np.isfinite(fit["chi2"])]
     out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()), "converged": n_conv,
            "position_rms_m": _rms(d_pos),
@@ -111,6 +129,9 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
     for k in ("crb_position_rms_m", "crb_heading_rms_rad", "crb_position_median_m", "crb_per_sample_position_rms_m"):
         out[k] = None if crb is None else crb[k]
     out["position_error_over_crb"] = None if crb is None else out["position_rms_m"] / crb["crb_position_rms_m"]
+    if np.ndim(spread):
+        out["noise_model"] = "the noise and the map's estimated error at the first track's poses, in quadrature"
+        out["crb_position_rms_m_model_error"] = None if crb is None else crb["crb_position_rms_m_model_error"]
     if motion is not None:
         out["expected_position_rms_m"] = None if crb is None else expected
         out["position_error_over_expected"] = None if crb is None else out["position_rms_m"] / expected
@@ -120,7 +141,7 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
         out["note"] = (f"the {name} lost the track at sample {int(np.argmin(ok))} of {len(ok)} (a pose it does not "
                        "cover)")
     elif out["chi2_per_current"] is not None and out["chi2_per_current"] > 4.0:
-        out["note"] = (f"the residuals are {np.sqrt(out['chi2_per_current']):.1f} times the noise: the {name}'s "
+        out["note"] = (f"the residuals are {np.sqrt(out['chi2_per_current']):.1f} times the noise model: the {name}'s "
                        "error" + ("" if motion is None else " or a motion prior too stiff for this robot's path")
                        + " dominates")
     out["_crb_position_m"] = None if crb is None else crb["crb_position_m"]
@@ -167,8 +188,12 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
     for name, model in models.items():
         say(f"tracking with the {name}")
+        error = None
+        if name == "map":
+            def error(q):
+                return tank_map.estimated_error(np.c_[q[:, :2], np.full(len(q), z_m), q[:, 2]])
         summary, est = model_summary(name, model, currents, obs.poses, noise_rel, obs.t_s, motion,
-                                     obs.pass_indices())
+                                     obs.pass_indices(), model_error=error)
         result[name] = summary
         result["tracks"][name] = est
     if find_object:

@@ -269,7 +269,7 @@ def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2)
     sample's currents and the predicted state, up to ``inner`` times), from the per-sample maximum likelihood
     of the first sample started at ``start``, then the linear smoother of its last linearisations; (P, 6)."""
     w = _whiten(currents, noise_rel)
-    first = track(model, currents[:1], start, noise_rel).poses[0]
+    first = track(model, currents[:1], start, noise_rel if np.ndim(noise_rel) == 0 else noise_rel[:1]).poses[0]
     q0 = np.asarray(start, float) if not np.isfinite(first).all() else first
     m, C = np.r_[q0, np.zeros(3)], np.diag(DIFFUSE_SIGMA**2)
     H, y = [], []
@@ -400,8 +400,8 @@ def smooth_track(model, currents: np.ndarray, t_s: np.ndarray, start, motion: Mo
     q_start = np.asarray(start, float)
     for idx in passes or [np.arange(P_n)]:
         idx = np.asarray(idx)
-        s, C, c2, it, ok, c = _smooth_pass(model, currents[idx], t_s[idx], q_start, motion, noise_rel, max_iter,
-                                           tol)
+        spread = noise_rel if np.ndim(noise_rel) == 0 else np.asarray(noise_rel, float)[idx]
+        s, C, c2, it, ok, c = _smooth_pass(model, currents[idx], t_s[idx], q_start, motion, spread, max_iter, tol)
         poses[idx], vel[idx], cov[idx], chi2[idx] = s[:, :3], s[:, 3:], C, c2
         its, conv, cost = max(its, it), conv and ok, cost + c
         q_start = s[-1, :3]

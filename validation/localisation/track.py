@@ -127,8 +127,9 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
     chi2 = np.full(P, np.nan)
     q = np.asarray(start, float).copy()
     max_step = np.asarray(max_step, float)
+    spread = np.broadcast_to(np.asarray(noise_rel, float), currents.shape)
     for t in range(P):
-        w = 1.0 / (noise_rel * np.abs(currents[t]))
+        w = 1.0 / (spread[t] * np.abs(currents[t]))
         found = _refine(model, q.copy(), currents[t], w, max_iter, max_step, tol)
         if found is None:   # the last estimate is outside what the model covers: no estimate for this sample
             continue
