@@ -167,6 +167,19 @@ def _segment_distance_to_object_m(a: np.ndarray, b: np.ndarray, obj) -> float:
     return float(min(d[i], res.fun))
 
 
+def objects_focus_m(objects) -> np.ndarray | None:
+    """The points a tank mesh is graded towards for ``objects`` (their surfaces' furthest reach along +-x, +-y,
+    +-z), (6 per object, 3); None for none. Given as ``tank_focus_m`` to every scene of a series (an empty tank and
+    the same tank with objects), it meshes the tank alike in all: an object's difference signal is then not the
+    difference of two tank meshes.
+
+    >>> from electrosense.meshes.objects import Sphere
+    >>> objects_focus_m([Sphere((0.0, 0.0, 0.0), radius_m=0.02)]).shape
+    (6, 3)
+    """
+    return np.concatenate([_object_extreme_points_m(o) for o in objects]) if len(objects) else None
+
+
 def _object_extreme_points_m(obj) -> np.ndarray:
     """Points of the object's surface that reach furthest along +-x, +-y, +-z (tank frame)."""
     c = np.asarray(obj.centre_m)

@@ -456,3 +456,38 @@ def test_a_multiplexer_group_gain_is_found_on_held_out_set_ups(tmp_path):
     assert abs(gains["gain_odd-odd"] + 0.09) < 0.01 and abs(gains["gain_even-odd"]) < 0.01
     found = cand["heldout_setups"]["fitted_on_the_empty_tank"]["pair_parity_gains_rel"]
     assert abs(found["odd-odd"] - 0.91) < 0.01 and abs(found["even-odd"] - 1) < 0.01
+
+
+def test_a_centred_ball_in_a_symmetric_tank_is_one_pattern_of_the_offset_and_drive_differences_are_its_floor():
+    """The BEM's signal of a ball on the axis of a round tank with an even ring is the same at each ring offset for
+    every drive pattern (its symmetric floor is the mesh's own asymmetry, both scenes on one tank mesh); a drive pattern whose signal is 40 %
+    off raises the floor to what no symmetric scene can fit, and a random pattern of the offset added changes
+    nothing (that part any symmetric scene can take)."""
+    from dataclasses import replace
+
+    from electrosense.meshes.objects import Sphere
+    from electrosense.meshes.scene_mesh import objects_focus_m
+    from electrosense.validation.comparison.transfer import ring_offsets, solved_transfer_ohm, symmetric_floor
+
+    rng = np.random.default_rng(5)
+    n, R, H = 8, rng.uniform(0.08, 0.12), rng.uniform(0.1, 0.14)
+    z = -0.1 * H
+    scene = Scene(None, tank=CylinderTank(R, H), electrodes=[
+        DiscElectrode((R * np.cos(2 * np.pi * k / n), R * np.sin(2 * np.pi * k / n), z), 0.006) for k in range(n)])
+    ball_at_axis = Sphere((0.0, 0.0, z), radius_m=0.3 * R)
+    options = {"tank_edge_length_m": R / 2, "edge_fraction": 0.5, "electrode_grading": 1.0,
+               "tank_focus_m": objects_focus_m([ball_at_axis])}   # one tank mesh for both scenes
+    d, m = adjacent_protocol(range(1, n + 1))
+    keep = ~involves_drive(d, m)
+    drive, measure = np.repeat(d, n, axis=0)[keep.ravel()], np.tile(m, (n, 1))[keep.ravel()]
+    empty = solved_transfer_ohm(scene, 1.0, options, drive, measure)
+    ball = solved_transfer_ohm(replace(scene, objects=(ball_at_axis,)), 1.0, options, drive, measure)
+    signal = ball / empty - 1
+    off = ring_offsets(drive, measure, list(range(1, n + 1)))
+    assert symmetric_floor(off, signal) < 0.02
+    odd = signal * np.where(drive[:, 0] == 3, 1.4, 1.0)
+    floor = symmetric_floor(off, odd)
+    assert 0.05 < floor < 0.2
+    pattern = rng.normal(0, np.std(signal), n)[off]
+    assert symmetric_floor(off, odd + pattern) * np.sqrt(np.mean((odd + pattern) ** 2)) == pytest.approx(
+        floor * np.sqrt(np.mean(odd**2)))

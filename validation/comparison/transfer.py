@@ -18,7 +18,9 @@ matrix K of all its electrodes gives every transfer impedance
 * Objects (:func:`compare_objects`): each set-up's difference signal (with
   the balls / without - 1), measured against the BEM's with the balls where
   the scene's ``[protocol]`` table says, their unstated height fitted (one
-  height shared by every set-up): ``object_rms_rel``.
+  height shared by every set-up): ``object_rms_rel``; for a set-up whose one ball is on the ring's axis, the
+  least misfit any scene symmetric under the ring's rotations can reach (:func:`symmetric_floor`):
+  ``object_symmetric_floor``.
 
 Nothing is tuned to one file: the ring, the set-ups and the balls come from
 the scene's ``[protocol]`` table, the electrodes from its geometry. The
@@ -45,6 +47,7 @@ import numpy as np
 from electrosense.bem.protocol import transfer_impedances_ohm
 from electrosense.bem.solve import solve_scene
 from electrosense.meshes.objects import Sphere
+from electrosense.meshes.scene_mesh import objects_focus_m
 from electrosense.validation.comparison.metrics import error_summary
 
 __all__ = [
@@ -69,7 +72,9 @@ __all__ = [
     "ring_pair_places",
     "score_fit",
     "setup_table",
+    "signal_floor",
     "solved_transfer_ohm",
+    "symmetric_floor",
 ]
 
 
@@ -297,6 +302,37 @@ def ring_offsets(drive, measure, ring) -> np.ndarray | None:
     return None if d is None or m is None else (m - d) % len(ring)
 
 
+def signal_floor(drive, measure, Z_ref, Z_setup) -> float:
+    """Per-measurement noise of a set-up's difference signal ``Z_setup / Z_ref - 1``, from its reciprocity (the
+    change ``Z_setup - Z_ref`` of reciprocal pairs, over the reference's mean, divided by sqrt 2).
+
+    >>> d = np.array([[1, 2], [3, 4]]); m = np.array([[3, 4], [1, 2]])
+    >>> round(signal_floor(d, m, np.array([1.0, 1.0]), np.array([1.03, 1.01])), 4)
+    0.0141
+    """
+    i, j = reciprocal_pairs(drive, measure)
+    dZ = np.asarray(Z_setup, float) - np.asarray(Z_ref, float)
+    rel = (dZ[i] - dZ[j]) / (0.5 * (np.abs(Z_ref[i]) + np.abs(Z_ref[j])))
+    return float(np.sqrt(np.mean(rel ** 2)) / np.sqrt(2)) if len(rel) else float("nan")
+
+
+def symmetric_floor(offsets, signal) -> float:
+    """The least relative RMS misfit of a ball set-up's ``signal`` (R,) by any pattern of the ring offset alone:
+    ``RMS(signal - its mean by offset) / RMS(signal)``. A scene symmetric under the ring's rotations (a round tank,
+    evenly spaced electrodes, one ball on the axis) gives every drive pattern the same signal at each offset, so
+    no such scene, whatever its radius, depth or ball, fits closer: what is left is the drives' own differences
+    (the ball off the axis, the electrodes' places, the instrument) and the noise.
+
+    >>> round(symmetric_floor(np.array([1, 1, 2, 2]), np.array([1.0, 3.0, -1.0, -1.0])), 3)
+    0.408
+    """
+    offsets, signal = np.asarray(offsets), np.asarray(signal, float)
+    mean = np.zeros_like(signal)
+    for o in np.unique(offsets):
+        mean[offsets == o] = signal[offsets == o].mean()
+    return _rms(signal - mean) / _rms(signal)
+
+
 def mean_by_offset(offsets, values) -> dict:
     """Mean of ``values`` over the rows of each ring offset.
 
@@ -446,6 +482,12 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
     zb = float(protocol.get("ball_z_m", 0.0))
     setups = [k for k in log.setups if k != ref and k in protocol]
     heights = ball_heights_m(zb, radius, scene.tank)
+    # every ball scene and the empty one on one tank mesh, graded towards every ball: a tank mesh graded to each
+    # scene's own balls put the difference of two tank meshes into the signal (a centred ball in a round tank
+    # with an even ring: 8.8 % of its signal broke the ring's symmetry, 0.3 % on one mesh)
+    focus = objects_focus_m([b for su in setups for z in heights for b in balls_at(protocol[su], z, radius)])
+    options = bem_options if focus is None else {**bem_options, "tank_focus_m": focus}
+    Z_empty = solved_transfer_ohm(scene, sigma_S_per_m, options, t.drive, t.measure) if setups else None
     dm_all, ds_all = {}, {}
     for setup in setups:
         other = setup_table(log, setup)
@@ -453,12 +495,19 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
             raise TransferMismatchError(f"set-up {setup} does not have the reference's measurements")
         dm_all[setup] = other.Z_ohm / t.Z_ohm - 1
         ds_all[setup] = [solved_transfer_ohm(replace(scene, objects=balls_at(protocol[setup], z, radius)),
-                                             sigma_S_per_m, bem_options, t.drive, t.measure) / comparison.Z_model_ohm - 1
+                                             sigma_S_per_m, options, t.drive, t.measure) / Z_empty - 1
                          for z in heights]
     z_fit, ball = fit_ball_height(heights, dm_all, ds_all)
     comparison.heights_m, comparison.measured_signals, comparison.simulated_signals = heights, dm_all, ds_all
     comparison.signals = {k: (dm_all[k], v["signal"]) for k, v in ball.items()}
+    on_axis = [k for k in setups if len(np.reshape(protocol[k], (-1, 2))) == 1
+               and np.hypot(*np.reshape(protocol[k], 2)) < 1e-3]
+    symmetric = {} if comparison.offsets is None else {
+        k: {"object_rms_rel_floor": symmetric_floor(comparison.offsets, dm_all[k]),
+            "signal_noise_rel": signal_floor(t.drive, t.measure, t.Z_ohm, t.Z_ohm * (1 + dm_all[k])) / _rms(dm_all[k])}
+        for k in on_axis}
     return {"object_rms_rel": {k: v["at_fitted_height"] for k, v in ball.items()},
+            "object_symmetric_floor": symmetric,
             "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},
             "ball_height": {"assumed_z_m": zb, "fitted_z_m": z_fit, "scanned_z_m": heights.tolist(),
                             "note": "one height shared by every set-up, scanned above the assumed plane "

@@ -60,13 +60,14 @@ import numpy as np
 
 from electrosense.bem.solve import solve_scene
 from electrosense.meshes.cylinder_tank_mesh import disc_problems
+from electrosense.meshes.scene_mesh import objects_focus_m
 from electrosense.meshes.surface_electrodes import DEFAULT_EDGE_FRACTION, DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
     model_transfer_ohm,
-    reciprocal_pairs,
     ring_pair_places,
     setup_table,
+    signal_floor,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, instrument_reference
 from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns
@@ -82,7 +83,6 @@ __all__ = [
     "placeable_step",
     "ring_state",
     "scene_at",
-    "signal_floor",
 ]
 
 #: the geometry unknowns by what they describe (the names of :func:`geometry_unknowns`)
@@ -266,20 +266,6 @@ def alternate_pair_folds(drive, ring) -> np.ndarray:
     if places is None:
         raise ValueError("held-out drives need every drive pair on the ring")
     return (places // 2) % 2
-
-
-def signal_floor(drive, measure, Z_ref, Z_setup) -> float:
-    """Per-measurement noise of a set-up's difference signal ``Z_setup / Z_ref - 1``, from its reciprocity (the
-    change ``Z_setup - Z_ref`` of reciprocal pairs, over the reference's mean, divided by sqrt 2).
-
-    >>> d = np.array([[1, 2], [3, 4]]); m = np.array([[3, 4], [1, 2]])
-    >>> round(signal_floor(d, m, np.array([1.0, 1.0]), np.array([1.03, 1.01])), 4)
-    0.0141
-    """
-    i, j = reciprocal_pairs(drive, measure)
-    dZ = np.asarray(Z_setup, float) - np.asarray(Z_ref, float)
-    rel = (dZ[i] - dZ[j]) / (0.5 * (np.abs(Z_ref[i]) + np.abs(Z_ref[j])))
-    return float(np.sqrt(np.mean(rel ** 2)) / np.sqrt(2)) if len(rel) else float("nan")
 
 
 def gauge_rows(log_gains, tolerance: float) -> np.ndarray:
@@ -605,10 +591,9 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     if ball_setups and "ball_radius_m" not in protocol:
         raise ValueError("the [protocol] table gives no ball_radius_m: the ball set-ups cannot be modelled")
     stated = ring_state(scene, protocol)
-    focus = [np.asarray(o.centre_m) + o.radius_m * np.vstack([np.eye(3), -np.eye(3)]) for su in ball_setups
-             for o in balls_at(protocol[su], stated["ball_z_m"], stated["ball_radius_m"])]
-    problem = _Problem(scene, protocol, sigma_S_per_m, bem_options, table, reference, ground, [],
-                       np.concatenate(focus) if focus else None)
+    focus = objects_focus_m([o for su in ball_setups
+                             for o in balls_at(protocol[su], stated["ball_z_m"], stated["ball_radius_m"])])
+    problem = _Problem(scene, protocol, sigma_S_per_m, bem_options, table, reference, ground, [], focus)
     geo = geometry_unknowns(scene, protocol, geometry)
     if fit_setup is None:
         geo = [u for u in geo if u.name not in BALL_ONLY]
