@@ -458,36 +458,49 @@ def test_a_multiplexer_group_gain_is_found_on_held_out_set_ups(tmp_path):
     assert abs(found["odd-odd"] - 0.91) < 0.01 and abs(found["even-odd"] - 1) < 0.01
 
 
-def test_a_centred_ball_in_a_symmetric_tank_is_one_pattern_of_the_offset_and_drive_differences_are_its_floor():
-    """The BEM's signal of a ball on the axis of a round tank with an even ring is the same at each ring offset for
-    every drive pattern (its symmetric floor is the mesh's own asymmetry, both scenes on one tank mesh); a drive pattern whose signal is 40 %
-    off raises the floor to what no symmetric scene can fit, and a random pattern of the offset added changes
-    nothing (that part any symmetric scene can take)."""
+def test_a_ball_on_a_symmetry_of_the_tank_gives_each_row_and_its_images_one_signal_and_what_breaks_it_is_the_floor():
+    """The BEM's signal of a ball on the axis of a round tank with an even ring, or on a mirror plane of it, is the
+    same on every row's images under the scene's symmetries (its symmetric floor is the mesh's own asymmetry,
+    every scene on one tank mesh); a drive pattern whose signal is 40 % off raises the floor to what no scene
+    with that symmetry can fit, and anything the symmetry allows added changes nothing."""
     from dataclasses import replace
 
     from electrosense.meshes.objects import Sphere
     from electrosense.meshes.scene_mesh import objects_focus_m
-    from electrosense.validation.comparison.transfer import ring_offsets, solved_transfer_ohm, symmetric_floor
+    from electrosense.validation.comparison.symmetry import scene_symmetries, symmetric_floor
+    from electrosense.validation.comparison.transfer import solved_transfer_ohm
 
     rng = np.random.default_rng(5)
     n, R, H = 8, rng.uniform(0.08, 0.12), rng.uniform(0.1, 0.14)
-    z = -0.1 * H
+    z, phi0 = -0.1 * H, rng.uniform(0, 2 * np.pi)
     scene = Scene(None, tank=CylinderTank(R, H), electrodes=[
-        DiscElectrode((R * np.cos(2 * np.pi * k / n), R * np.sin(2 * np.pi * k / n), z), 0.006) for k in range(n)])
-    ball_at_axis = Sphere((0.0, 0.0, z), radius_m=0.3 * R)
-    options = {"tank_edge_length_m": R / 2, "edge_fraction": 0.5, "electrode_grading": 1.0,
-               "tank_focus_m": objects_focus_m([ball_at_axis])}   # one tank mesh for both scenes
+        DiscElectrode((R * np.cos(phi0 + 2 * np.pi * k / n), R * np.sin(phi0 + 2 * np.pi * k / n), z), 0.006)
+        for k in range(n)] + [DiscElectrode((0.0, 0.0, -0.5 * H), 0.005)] + [    # a second ring, not measured
+        DiscElectrode((R * np.cos(phi0 + 2 * np.pi * k / n), R * np.sin(phi0 + 2 * np.pi * k / n), 0.3 * H), 0.006)
+        for k in range(n)])
     d, m = adjacent_protocol(range(1, n + 1))
     keep = ~involves_drive(d, m)
     drive, measure = np.repeat(d, n, axis=0)[keep.ravel()], np.tile(m, (n, 1))[keep.ravel()]
-    empty = solved_transfer_ohm(scene, 1.0, options, drive, measure)
-    ball = solved_transfer_ohm(replace(scene, objects=(ball_at_axis,)), 1.0, options, drive, measure)
-    signal = ball / empty - 1
-    off = ring_offsets(drive, measure, list(range(1, n + 1)))
-    assert symmetric_floor(off, signal) < 0.02
-    odd = signal * np.where(drive[:, 0] == 3, 1.4, 1.0)
-    floor = symmetric_floor(off, odd)
-    assert 0.05 < floor < 0.2
-    pattern = rng.normal(0, np.std(signal), n)[off]
-    assert symmetric_floor(off, odd + pattern) * np.sqrt(np.mean((odd + pattern) ** 2)) == pytest.approx(
-        floor * np.sqrt(np.mean(odd**2)))
+    on_mirror = 0.3 * R * np.array([np.cos(phi0 + np.pi / n), np.sin(phi0 + np.pi / n)])  # between 1 and 2
+    assert len(scene_symmetries(scene, [[0.0, 0.0]])) == 2 * n
+    assert len(scene_symmetries(scene, [on_mirror])) == 2
+    assert len(scene_symmetries(scene, [on_mirror + 0.01])) == 1
+    for xy in ([0.0, 0.0], on_mirror):
+        ball = Sphere((*xy, z), radius_m=0.3 * R)
+        options = {"tank_edge_length_m": R / 2, "edge_fraction": 0.5, "electrode_grading": 1.0,
+                   "tank_focus_m": objects_focus_m([ball])}       # one tank mesh for both scenes
+        empty = solved_transfer_ohm(scene, 1.0, options, drive, measure)
+        signal = solved_transfer_ohm(replace(scene, objects=(ball,)), 1.0, options, drive, measure) / empty - 1
+        maps = scene_symmetries(scene, [xy])
+        assert symmetric_floor(drive, measure, signal, maps) < 0.02
+        odd = signal * np.where(drive[:, 0] == 3, 1.4, 1.0)
+        floor = symmetric_floor(drive, measure, odd, maps)
+        assert floor > 0.05
+        rows = [(frozenset(a), frozenset(b)) for a, b in zip(drive.tolist(), measure.tolist())]
+        where = {r: i for i, r in enumerate(rows)}
+        v = rng.normal(0, np.std(signal), len(rows))          # a pattern the symmetry allows: v averaged over it
+        allowed = np.array([np.mean([v[where[(frozenset(g[e] for e in a), frozenset(g[e] for e in b))]]
+                                     for g in maps]) for a, b in rows])
+        rms = lambda x: np.sqrt(np.mean(x**2))                 # noqa: E731
+        assert symmetric_floor(drive, measure, odd + allowed, maps) * rms(odd + allowed) == pytest.approx(
+            floor * rms(odd))

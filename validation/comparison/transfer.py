@@ -18,9 +18,9 @@ matrix K of all its electrodes gives every transfer impedance
 * Objects (:func:`compare_objects`): each set-up's difference signal (with
   the balls / without - 1), measured against the BEM's with the balls where
   the scene's ``[protocol]`` table says, their unstated height fitted (one
-  height shared by every set-up): ``object_rms_rel``; for a set-up whose one ball is on the ring's axis, the
-  least misfit any scene symmetric under the ring's rotations can reach (:func:`symmetric_floor`):
-  ``object_symmetric_floor``.
+  height shared by every set-up): ``object_rms_rel``; for a set-up whose scene and balls share a symmetry
+  (a rotation or a mirror), the least misfit any scene with that symmetry can reach
+  (:mod:`~electrosense.validation.comparison.symmetry`): ``object_symmetric_floor``.
 
 Nothing is tuned to one file: the ring, the set-ups and the balls come from
 the scene's ``[protocol]`` table, the electrodes from its geometry. The
@@ -49,6 +49,7 @@ from electrosense.bem.solve import solve_scene
 from electrosense.meshes.objects import Sphere
 from electrosense.meshes.scene_mesh import objects_focus_m
 from electrosense.validation.comparison.metrics import error_summary
+from electrosense.validation.comparison.symmetry import scene_symmetries, symmetric_floor
 
 __all__ = [
     "SetupTable",
@@ -74,7 +75,6 @@ __all__ = [
     "setup_table",
     "signal_floor",
     "solved_transfer_ohm",
-    "symmetric_floor",
 ]
 
 
@@ -316,23 +316,6 @@ def signal_floor(drive, measure, Z_ref, Z_setup) -> float:
     return float(np.sqrt(np.mean(rel ** 2)) / np.sqrt(2)) if len(rel) else float("nan")
 
 
-def symmetric_floor(offsets, signal) -> float:
-    """The least relative RMS misfit of a ball set-up's ``signal`` (R,) by any pattern of the ring offset alone:
-    ``RMS(signal - its mean by offset) / RMS(signal)``. A scene symmetric under the ring's rotations (a round tank,
-    evenly spaced electrodes, one ball on the axis) gives every drive pattern the same signal at each offset, so
-    no such scene, whatever its radius, depth or ball, fits closer: what is left is the drives' own differences
-    (the ball off the axis, the electrodes' places, the instrument) and the noise.
-
-    >>> round(symmetric_floor(np.array([1, 1, 2, 2]), np.array([1.0, 3.0, -1.0, -1.0])), 3)
-    0.408
-    """
-    offsets, signal = np.asarray(offsets), np.asarray(signal, float)
-    mean = np.zeros_like(signal)
-    for o in np.unique(offsets):
-        mean[offsets == o] = signal[offsets == o].mean()
-    return _rms(signal - mean) / _rms(signal)
-
-
 def mean_by_offset(offsets, values) -> dict:
     """Mean of ``values`` over the rows of each ring offset.
 
@@ -500,12 +483,13 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
     z_fit, ball = fit_ball_height(heights, dm_all, ds_all)
     comparison.heights_m, comparison.measured_signals, comparison.simulated_signals = heights, dm_all, ds_all
     comparison.signals = {k: (dm_all[k], v["signal"]) for k, v in ball.items()}
-    on_axis = [k for k in setups if len(np.reshape(protocol[k], (-1, 2))) == 1
-               and np.hypot(*np.reshape(protocol[k], 2)) < 1e-3]
-    symmetric = {} if comparison.offsets is None else {
-        k: {"object_rms_rel_floor": symmetric_floor(comparison.offsets, dm_all[k]),
-            "signal_noise_rel": signal_floor(t.drive, t.measure, t.Z_ohm, t.Z_ohm * (1 + dm_all[k])) / _rms(dm_all[k])}
-        for k in on_axis}
+    symmetric = {}
+    for k in setups:       # what no scene with the stated symmetry fits (the scene's and the balls' symmetry)
+        maps = scene_symmetries(scene, protocol[k])
+        if len(maps) > 1:
+            symmetric[k] = {"symmetries": len(maps), "object_rms_rel_floor": symmetric_floor(
+                t.drive, t.measure, dm_all[k], maps), "signal_noise_rel": signal_floor(
+                t.drive, t.measure, t.Z_ohm, t.Z_ohm * (1 + dm_all[k])) / _rms(dm_all[k])}
     return {"object_rms_rel": {k: v["at_fitted_height"] for k, v in ball.items()},
             "object_symmetric_floor": symmetric,
             "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},

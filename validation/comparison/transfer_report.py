@@ -227,9 +227,10 @@ def report_markdown(m: dict) -> str:
                f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= {OBJECT_GOAL_REL:g}); measured/BEM "
                f"amplitude {m['ball_height']['measured_over_simulated_amplitude'][k]:.2f}"
                for k, v in m["object_rms_rel"].items()],
-             *[f"  {k}: its one ball on the ring's axis, so any scene symmetric under the ring's rotations leaves at "
-               f"least {v['object_rms_rel_floor']:.3f} of its signal (the drive patterns' own differences at each "
-               f"offset; its noise, from reciprocity, {v['signal_noise_rel']:.3f})"
+             *[f"  {k}: its scene and balls share {v['symmetries'] - 1} "
+               f"symmetr{'y' if v['symmetries'] == 2 else 'ies'} besides the identity, so any scene "
+               f"with them leaves at least {v['object_rms_rel_floor']:.3f} of its signal (the spread over each row's "
+               f"images; its noise, from reciprocity, {v['signal_noise_rel']:.3f})"
                for k, v in m.get("object_symmetric_floor", {}).items()]]
     if "error" in m.get("diagnosis", {}):
         lines += [f"- Diagnosis: {m['diagnosis']['error']}."]
