@@ -279,6 +279,8 @@ def test_esense_validate_and_diagnose_on_a_synthetic_transfer_log(tmp_path, monk
         assert res.exit_code == 0, res.output
         m = json.loads((tmp_path / cmd / "metrics.json").read_text())
         assert m["empty_heldout_rms_rel"] < 0.03                     # the data are the BEM's own, with 0.1 % noise
+        assert m["empty_symmetric_floor"]["symmetries"] == 2          # the mirror through the floating disc
+        assert m["empty_symmetric_floor"]["rms_rel"] < 0.01
         assert m["object_rms_rel"]["Avg1"] < 0.2
         assert ("diagnosis" in m) == (cmd == "diagnose")
         assert (tmp_path / cmd / "report.md").exists() and (tmp_path / cmd / "empty_tank.png").exists()

@@ -20,7 +20,8 @@ matrix K of all its electrodes gives every transfer impedance
   the scene's ``[protocol]`` table says, their unstated height fitted (one
   height shared by every set-up): ``object_rms_rel``; for a set-up whose scene and balls share a symmetry
   (a rotation or a mirror), the least misfit any scene with that symmetry can reach
-  (:mod:`~electrosense.validation.comparison.symmetry`): ``object_symmetric_floor``.
+  (:mod:`~electrosense.validation.comparison.symmetry`): ``object_symmetric_floor``; the same for the empty
+  tank's ``log |Z|`` read through one gain: ``empty_symmetric_floor``.
 
 Nothing is tuned to one file: the ring, the set-ups and the balls come from
 the scene's ``[protocol]`` table, the electrodes from its geometry. The
@@ -513,6 +514,13 @@ def compare_transfer_log(log, scene, sigma_S_per_m: float, bem_options: dict, pr
     bem = {"triangles": sol0.info["triangles"], "solve_s": time.perf_counter() - t0}
     comp = compare_empty_tank(table, sol0, sigma_S_per_m, protocol.get("ring", []))
     comp.metrics = {"noise_floor": comp.metrics.pop("noise_floor"), "bem": bem, **comp.metrics}
+    maps = scene_symmetries(scene)
+    if len(maps) > 1:      # the empty tank: any scene with its symmetry, read through one gain
+        log_Z = np.log(np.abs(table.Z_ohm)) - np.mean(np.log(np.abs(table.Z_ohm)))
+        comp.metrics["empty_symmetric_floor"] = {
+            "symmetries": len(maps), "rms_rel": symmetric_floor(table.drive, table.measure, log_Z, maps) * _rms(log_Z),
+            "meaning": "the least RMS misfit of log|Z| (all rows) by any scene with the tank's symmetry read "
+                       "through one gain: the spread of log|Z| over each row's images"}
     t0 = time.perf_counter()
     objects = compare_objects(comp, log, scene, sigma_S_per_m, bem_options, protocol)
     bem["ball_solves_s"] = time.perf_counter() - t0

@@ -222,6 +222,10 @@ def report_markdown(m: dict) -> str:
              (f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= "
               f"{empty_tank_goal(m) or float('nan'):.4f}, {EMPTY_FLOOR_FACTOR:g}x the floor per measurement)."),
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
+             *([f"  Any scene with the tank's {m['empty_symmetric_floor']['symmetries']} symmetries, read through one "
+                f"gain, leaves at least {m['empty_symmetric_floor']['rms_rel']:.4f} on all rows (the spread of log|Z| "
+                "over each row's images): below it only what breaks the symmetry fits (electrodes' places, the "
+                "instrument's channels)."] if "empty_symmetric_floor" in m else []),
              f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
              *[f"- Set-up {k}: object_rms_rel = {v:.3f} at the fitted height, "
                f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= {OBJECT_GOAL_REL:g}); measured/BEM "
