@@ -106,16 +106,20 @@ def test_a_smooth_model_error_is_not_called_an_object_and_an_object_still_is():
     C = np.kron((1 + r) * np.exp(-r), np.eye(3)) * sd**2
     L = np.linalg.cholesky(C + 1e-12 * np.eye(len(C)))
     gen = np.random.default_rng(1)
-    independent, correlated = 0, 0
+    independent, correlated, blocks = 0, 0, 0
     for k in range(20):
         error = (L @ gen.standard_normal(3 * P)).reshape(P, 3) + NOISE * gen.standard_normal((P, 3))
         measured = base * (1 + error)
         a = locate_object(model, measured, NOISE, poses, tank, sensor, field, model_error_rel=np.full((P, 3), sd),
                           rng=k)
         b = locate_object(model, measured, NOISE, poses, tank, sensor, field, model_error_cov=C, rng=k)
+        h = 3 * (P // 2)                                  # two blocks of consecutive poses, as a long log's
+        c = locate_object(model, measured, NOISE, poses, tank, sensor, field, rng=k,
+                          model_error_cov=[C[:h, :h], C[h:, h:]])
         independent += a["detected"]
         correlated += b["detected"]
-    assert independent >= 8 and correlated <= 2          # 1 % of 20: P(3 or more) = 0.001
+        blocks += c["detected"]
+    assert independent >= 8 and correlated <= 2 and blocks <= 2      # 1 % of 20: P(3 or more) = 0.001
     truth = np.array([0.02, 0.05, 0.0, 0.015**3])
     measured = model(truth) * (1 + error)
     fit = locate_object(model, measured, NOISE, poses, tank, sensor, field, model_error_cov=C, rng=0)

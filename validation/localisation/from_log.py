@@ -202,6 +202,17 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     return result
 
 
+#: poses per block of the map's error covariance in the object search: the correlation falls over the nodes'
+#: spacing (centimetres), so a long log's blocks are independent and its memory grows with its length, not its square
+ERROR_BLOCK_POSES = 500
+
+
+def _error_blocks(tank_map, poses) -> list:
+    """The map's error covariance at ``poses`` as blocks of :data:`ERROR_BLOCK_POSES` consecutive poses."""
+    return [tank_map.error_covariance(poses[i:i + ERROR_BLOCK_POSES])
+            for i in range(0, len(poses), ERROR_BLOCK_POSES)]
+
+
 def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | None = None, true_centre_m=None,
                    progress=None) -> dict:
     """An object the log passes, by the map (and the PSM where given): :func:`~electrosense.validation.
@@ -232,7 +243,7 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
     for name, model in models.items():
         say(f"looking for an object with the {name}")
         fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m,
-                            model_error_cov=tank_map.error_covariance(obs.poses) if name == "map" else None)
+                            model_error_cov=_error_blocks(tank_map, obs.poses) if name == "map" else None)
         out[name] = fit if true_centre_m is None else score_against(fit, true_centre_m)
     return out
 

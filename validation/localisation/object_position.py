@@ -126,18 +126,29 @@ def _scan_places(poses, tank, sensor, z_m: float, spacing_m: float):
 
 def _whitening(measured, noise_rel: float, model_error_rel=None, model_error_cov=None):
     """The map v -> L^-1 v for the currents' covariance ``L L^T``: white noise of ``noise_rel`` (relative), plus the
-    model's error (independent, ``model_error_rel`` (P, m), or correlated, ``model_error_cov`` (N, N)), each
-    relative to ``|measured|``; ``v`` is (N,) or (N, k)."""
+    model's error (independent, ``model_error_rel`` (P, m), or correlated, ``model_error_cov``: (N, N), or a list
+    of square blocks along the diagonal, consecutive currents), each relative to ``|measured|``; ``v`` is (N,) or
+    (N, k).
+
+    >>> w = _whitening(np.ones((2, 1)), 0.1, model_error_cov=[np.zeros((1, 1)), np.zeros((1, 1))])
+    >>> w(np.array([0.1, 0.2])).round(6).tolist()
+    [1.0, 2.0]
+    """
     a = np.abs(np.asarray(measured, float)).ravel()
     if model_error_cov is None:
         spread = float(noise_rel) if model_error_rel is None else np.hypot(noise_rel, np.asarray(model_error_rel, float))
         s = (spread * np.abs(measured)).ravel()
         return lambda v: v / (s if np.ndim(v) == 1 else s[:, None])
-    C = np.asarray(model_error_cov, float)
-    if C.shape != (a.size, a.size):
-        raise ValueError(f"model_error_cov has shape {C.shape}, the currents need ({a.size}, {a.size})")
-    L = cholesky((C + float(noise_rel) ** 2 * np.eye(a.size)) * np.outer(a, a), lower=True)
-    return lambda v: solve_triangular(L, v, lower=True)
+    blocks = [np.asarray(model_error_cov, float)] if not isinstance(model_error_cov, list) else model_error_cov
+    sizes = [len(b) for b in blocks]
+    if sum(sizes) != a.size or any(np.shape(b) != (k, k) for b, k in zip(blocks, sizes)):
+        raise ValueError(f"model_error_cov has blocks of shapes {[np.shape(b) for b in blocks]}, the currents need "
+                         f"{a.size} in all")
+    edges = np.cumsum([0, *sizes])
+    factors = [cholesky((b + float(noise_rel) ** 2 * np.eye(len(b))) * np.outer(a[i:j], a[i:j]), lower=True)
+               for b, i, j in zip(blocks, edges[:-1], edges[1:])]
+    return lambda v: np.concatenate([solve_triangular(L, v[i:j], lower=True)
+                                     for L, i, j in zip(factors, edges[:-1], edges[1:])])
 
 
 def locate_object(currents_of, measured, noise_rel: float, poses, tank, sensor, field, z_m: float | None = None,
