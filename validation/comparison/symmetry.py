@@ -38,6 +38,16 @@ def _centre(electrode):
     return None if c is None else np.asarray(c, float)
 
 
+def _kind(electrode):
+    """What an electrode's image must match besides its centre (None: a body whose turn matters, a block)."""
+    body = getattr(electrode, "body", None)
+    if body is None:
+        return type(electrode).__name__, round(float(getattr(electrode, "radius_m", 0.0)), 6)
+    if type(body).__name__ not in ("Sphere", "Cylinder"):      # a ball, or a rod whose axis is vertical
+        return None
+    return type(body).__name__, round(float(body.radius_m), 6), round(float(getattr(body, "height_m", 0.0)), 6)
+
+
 def _transforms(angles):
     """Candidate plane maps (x, y) -> (x', y') that carry the first angle to another: rotations, reflections."""
     out = []
@@ -60,17 +70,18 @@ def scene_symmetries(scene, balls_xy=(), tol_m: float = 1e-3) -> list[dict]:
     """The rotations about a round tank's axis and reflections across vertical planes through it that carry every
     electrode of ``scene`` onto one of the same kind and size, and the balls at ``balls_xy`` (k, 2) onto
     themselves, each as a map of electrode numbers (1-based, the scene's); the identity first. Only the identity
-    for a tank that is not round, or for electrodes without a centre.
+    for a tank that is not round, an electrode without a centre (a plate) or a block whose turn would matter.
     """
     from electrosense.meshes.cylinder_tank import CylinderTank
 
     n = len(scene.electrodes)
     identity = {k + 1: k + 1 for k in range(n)}
     centres = [_centre(e) for e in scene.electrodes]
-    if not isinstance(scene.tank, CylinderTank) or any(c is None for c in centres) or not n:
+    kinds = [_kind(e) for e in scene.electrodes]
+    if (not isinstance(scene.tank, CylinderTank) or not n or any(c is None for c in centres)
+            or any(k is None for k in kinds)):
         return [identity]
     C = np.array(centres)
-    kinds = [(type(e).__name__, round(float(getattr(e, "radius_m", 0.0)), 6)) for e in scene.electrodes]
     balls = np.asarray(balls_xy, float).reshape(-1, 2)
     r = np.hypot(C[:, 0], C[:, 1])
     angles = np.arctan2(C[r > tol_m, 1], C[r > tol_m, 0])
