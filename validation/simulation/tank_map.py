@@ -58,6 +58,7 @@ import numpy as np
 
 from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
+from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
@@ -571,35 +572,6 @@ def _pool_worker_init(*args):
     exit_with_parent()
     one_thread()
     _worker_init(*args)
-
-
-def one_thread() -> None:
-    """Limit this process's BLAS (numpy's and scipy's OpenBLAS, or MKL) and numba to one thread. A build's workers
-    share the cores: each with a thread per core, two workers on two cores ran the first 20 poses of a random
-    sensor's map in 106 s of wall clock against 21 s on one thread each (OpenBLAS's threads spin while they wait).
-    The environment variables (``OMP_NUM_THREADS``) come too late in a spawned worker, whose unpickled task has
-    imported numpy already."""
-    import numba
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(1)
-    numba.set_num_threads(1)
-
-
-def exit_with_parent(period_s: float = 1.0) -> None:
-    """End this process (a worker) once its parent has gone: a build killed by a signal its workers do not get
-    (``kill PID``, a scheduler's time limit; Ctrl-C reaches them all) left them holding their memory, one 0.7 GB,
-    waiting for work that never came. A daemon thread compares the parent's pid every ``period_s`` seconds."""
-    import threading
-
-    parent = os.getppid()
-
-    def watch():
-        while os.getppid() == parent:
-            time.sleep(period_s)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
 def _worker_sweep(fidelity: str):

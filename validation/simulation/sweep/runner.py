@@ -42,6 +42,7 @@ import numpy as np
 
 from electrosense.bem.conductance import ConductanceMatrix
 from electrosense.validation.simulation.models import poses_array
+from electrosense.validation.simulation.workers import one_thread
 
 __all__ = ["SchedulerError", "SweepResult", "dask_client", "run_sweep", "map_tasks", "local_cores", "default_chunk_poses"]
 
@@ -137,7 +138,13 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
             silence_logs=logging.ERROR,
         )
     with cluster, Client(cluster, set_as_default=False) as client:
+        client.run(_one_thread)     # dask sets the BLAS's threads through the environment, not numba's or scipy's
         yield client
+
+
+def _one_thread() -> None:
+    """:func:`~electrosense.validation.simulation.workers.one_thread` in a dask worker (nothing to send back)."""
+    one_thread()
 
 
 @contextmanager
