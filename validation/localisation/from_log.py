@@ -56,8 +56,9 @@ OBJECT_METHOD = ("one sphere at a given height (default the log's) fitted to the
                  "field (dipole and quadrupole, walls' first reflections), or the PSM with the sphere; started from "
                  "a scan of the dipole term over a 2 cm grid around the path; detected where the scan's statistic "
                  "exceeds its Monte Carlo null quantile at the false-alarm rate; the map's own estimated error in "
-                 "the currents' covariance, correlated along the pass as between the map's nodes; the statistic and the bound scaled by the residuals' variance factor where they exceed "
-                 "it; Cramer-Rao bound from the fit's Jacobian (horizontal position, strength as nuisance)")
+                 "the currents' covariance, correlated along the pass as between the map's nodes; the statistic "
+                 "and the bound scaled by the residuals' variance factor where they exceed it; Cramer-Rao bound "
+                 "from the fit's Jacobian (horizontal position, strength as nuisance)")
 METHOD_PER_SAMPLE = ("per-sample maximum likelihood (Levenberg-Marquardt on the currents whitened by the noise), each "
                      "sample started from the previous estimate, the first from the logged first pose; Cramer-Rao "
                      "bound (J^T S^-1 J)^-1 of each model at the logged poses")

@@ -382,8 +382,8 @@ def smooth_track(model, currents: np.ndarray, t_s: np.ndarray, start, motion: Mo
     start : (3,)
         The pose the iteration starts from (the first logged one): it picks among mirror-image tracks, it is not
         information (the first state's prior is diffuse).
-    noise_rel : float
-        Relative noise of a current (1 sigma).
+    noise_rel : float or (P, m) array
+        Relative noise of a current (1 sigma), one for all or one per current.
     passes : list of index arrays, optional
         The passes, each its own chain, in time order (default: one pass); each but the first starts from the
         previous pass's last estimate.

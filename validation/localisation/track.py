@@ -111,8 +111,9 @@ def track(model, currents: np.ndarray, start, noise_rel: float = 5e-4, max_iter:
         Measured receiver currents, in the model's units (per volt of the emitter).
     start : (3,)
         The pose the first sample starts from.
-    noise_rel : float
-        Relative noise of a current (1 sigma): it weights the receivers, not the answer.
+    noise_rel : float or (P, m) array
+        Relative noise of a current (1 sigma), one for all or one per current (the noise and a model's own
+        error in quadrature): it weights the receivers, not the answer.
     max_step : (3,)
         Largest change of x, y (m) and heading (rad) in one iteration.
     tol : float
