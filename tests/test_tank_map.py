@@ -502,6 +502,16 @@ def test_a_sector_sensor_map_permutes_the_sectors_of_its_mirror_images():
     Km = m.conductance(images)
     for i, reflected in enumerate([False, True, True, False]):
         assert np.allclose(Km[i], Km[0][perm][:, perm] if reflected else Km[0], rtol=1e-12, atol=0.0)
+    # its error estimate and covariance follow the sectors too: an image's receiver is its folded pose's partner,
+    # one error (correlation 1 with the mirror image's permuted receiver)
+    err, C = m.estimated_error(images), m.error_covariance(images)
+    receivers = [k for k in range(len(perm)) if k != e]
+    order = [receivers.index(perm[k]) for k in receivers]
+    assert np.allclose(err[1], err[0][order]) and np.allclose(err[3], err[0])
+    assert np.allclose(np.diag(C), err.ravel() ** 2) and np.linalg.eigvalsh(C).min() > -1e-9 * np.abs(C).max()
+    nr = len(receivers)
+    corr = C / np.outer(err.ravel(), err.ravel())
+    assert np.allclose([corr[k, nr + order.index(k)] for k in range(nr)], 1.0)
     # a ring in 3 sectors has no mirror image: a box is not folded at all, and every pose is its own
     odd = preset("angels-4").with_sectors({2: 3}, gap_m=0.002)
     frame = MapFrame(odd, TANK)

@@ -472,12 +472,13 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
     focus = objects_focus_m([b for su in setups for z in heights for b in balls_at(protocol[su], z, radius)])
     options = bem_options if focus is None else {**bem_options, "tank_focus_m": focus}
     Z_empty = solved_transfer_ohm(scene, sigma_S_per_m, options, t.drive, t.measure) if setups else None
-    dm_all, ds_all = {}, {}
+    dm_all, ds_all, noise = {}, {}, {}
     for setup in setups:
         other = setup_table(log, setup)
         if not (np.array_equal(other.drive, t.drive) and np.array_equal(other.measure, t.measure)):
             raise TransferMismatchError(f"set-up {setup} does not have the reference's measurements")
         dm_all[setup] = other.Z_ohm / t.Z_ohm - 1
+        noise[setup] = signal_floor(t.drive, t.measure, t.Z_ohm, other.Z_ohm) / _rms(dm_all[setup])
         ds_all[setup] = [solved_transfer_ohm(replace(scene, objects=balls_at(protocol[setup], z, radius)),
                                              sigma_S_per_m, options, t.drive, t.measure) / Z_empty - 1
                          for z in heights]
@@ -488,9 +489,8 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
     for k in setups:       # what no scene with the stated symmetry fits (the scene's and the balls' symmetry)
         maps = scene_symmetries(scene, protocol[k])
         if len(maps) > 1:
-            symmetric[k] = {"symmetries": len(maps), "object_rms_rel_floor": symmetric_floor(
-                t.drive, t.measure, dm_all[k], maps), "signal_noise_rel": signal_floor(
-                t.drive, t.measure, t.Z_ohm, t.Z_ohm * (1 + dm_all[k])) / _rms(dm_all[k])}
+            symmetric[k] = {"symmetries": len(maps), "signal_noise_rel": noise[k],
+                            "object_rms_rel_floor": symmetric_floor(t.drive, t.measure, dm_all[k], maps)}
     return {"object_rms_rel": {k: v["at_fitted_height"] for k, v in ball.items()},
             "object_symmetric_floor": symmetric,
             "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},

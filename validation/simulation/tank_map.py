@@ -384,9 +384,12 @@ class TankMap:
     def estimated_error(self, poses) -> np.ndarray:
         """(P, m) estimated relative error of the receiver currents at ``poses`` (zero at the nodes): the coarse
         interpolant's and the reference correction's, in quadrature."""
+        return self._error_at(poses, self.frame.features(np.asarray(poses, float)))
+
+    def _error_at(self, poses, F) -> np.ndarray:
+        """:meth:`estimated_error` at ``poses`` whose map coordinates are ``F``."""
         from electrosense.validation.diagnosis.anchored import estimated_error
 
-        F = self.frame.features(np.asarray(poses, float))
         err = estimated_error(self._parts[0].X, self.leave_one_out, F)
         if len(self._parts) > 1:
             err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
@@ -406,8 +409,9 @@ class TankMap:
         """(P m, P m) covariance of the relative errors of the receiver currents at ``poses``, in the order of a
         (P, m) array's ``ravel()``. Its standard deviations are :meth:`estimated_error`'s; an interpolation error is
         smooth, so two poses between the same nodes share it: the correlation along the poses is a Matern 3/2
-        function of their distance in the map's coordinates, whose length is the spacing of the nodes nearest to them (the median distance
-        from each to its nearest other node), and across receivers that of the nodes' leave-one-out errors. An
+        function of their distance in the map's coordinates, whose length is the spacing of the nodes nearest to
+        them (the median distance from each to its nearest other node), and across receivers that of the (coarse)
+        nodes' leave-one-out errors. An
         object's signal is smooth along a pass too: a detector that took the map's error as independent from
         pose to pose would call the map's error an object (:func:`~electrosense.validation.localisation.
         object_position.locate_object`).
@@ -416,8 +420,8 @@ class TankMap:
         from scipy.spatial.distance import cdist
 
         poses = np.asarray(poses, float).reshape(-1, 4)
-        sd = self.estimated_error(poses)
         F = self.frame.features(poses)
+        sd = self._error_at(poses, F)
         X = self._parts[0].X
         tree = cKDTree(X)
         spacing = tree.query(X, k=2)[0][:, 1] if len(X) > 1 else np.ones(1)
