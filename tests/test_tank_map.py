@@ -456,6 +456,12 @@ def test_the_object_panel_draws_found_missed_and_undetermined_objects():
     assert any("none detected" in t for t in labels[0]) and any("off this view" in t for t in labels[1])
     assert any("bound not determined" in t for t in labels[1]) and any("not separated" in t for t in labels[2])
     assert axes[0][0].get_ylim()[1] >= 60.0 - 1e-9     # wide enough to show the path 5 cm from the object
+    fig, ax = new_figure(1, 1)   # no truth, the map found nothing, the PSM a sphere far off: the view stays on the path
+    far = {**fit, "centre_m": [-0.3, 0.15, 0.0]}
+    object_panel(ax[0][0], Run, {"z_m": 0.0, "true_centre_m": None, "map": {**fit, "detected": False}, "psm": far})
+    (x0, x1), (y0, y1) = ax[0][0].get_xlim(), ax[0][0].get_ylim()
+    assert x0 < 0.0 < x1 and y0 < 50.0 < y1 and x0 > -100.0          # around the path's middle, not the PSM's sphere
+    assert any("off this view" in t.get_text() for t in ax[0][0].get_legend().get_texts())
 
 
 def test_diagnose_and_validate_use_the_map_without_a_new_bem(built, log_by_the_map, tmp_path):

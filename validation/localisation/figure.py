@@ -68,8 +68,11 @@ def object_panel(ax, obs, found: dict, half_width_m: float = 0.04):
 
     fits = {name: found[name] for name in LABEL if name in found}
     true = found.get("true_centre_m")
-    seen = [f["centre_m"][:2] for f in fits.values() if f["detected"]]
-    centre = np.asarray(true[:2] if true is not None else (seen[0] if seen else obs.poses[len(obs.poses) // 2, :2]))
+    # the view: the true centre, else the map's sphere, else the path's middle (a comparison model's detection,
+    # the PSM's own error hundreds of mm off, does not steer it: it is said "off this view")
+    first = next(iter(fits.values()), None)
+    centre = np.asarray(true[:2] if true is not None else first["centre_m"][:2] if first and first["detected"]
+                        else obs.poses[len(obs.poses) // 2, :2])
     # wide enough to show where the path passes it
     half_width_m = max(half_width_m, 0.01 + float(np.min(np.abs(obs.poses[:, :2] - centre).max(axis=1))))
     inside = lambda xy: bool(np.all(np.abs(np.asarray(xy) - centre) < half_width_m))   # noqa: E731
