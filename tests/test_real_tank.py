@@ -506,3 +506,40 @@ def test_a_ball_on_a_symmetry_of_the_tank_gives_each_row_and_its_images_one_sign
         rms = lambda x: np.sqrt(np.mean(x**2))                 # noqa: E731
         assert symmetric_floor(drive, measure, odd + allowed, maps) * rms(odd + allowed) == pytest.approx(
             floor * rms(odd))
+
+
+def test_a_multiplexer_group_crosstalk_is_named_on_a_file_that_names_its_arrays_otherwise(tmp_path):
+    """A fixed voltage added per class of (drive pair, measurement pair) in every set-up (a multiplexer group's
+    crosstalk: relative to the reading, largest on the far side and alternating there with the ring offset's
+    parity), in a file whose reference array is named ``voltRef``: read, the offsets named by the engine with
+    each class's value within four standard errors, the gap brought to the noise."""
+    from electrosense.meshes.scene_file import load_scene, load_scene_settings
+    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.comparison.transfer import compare_transfer_log
+    from electrosense.validation.diagnosis.transfer import diagnose_transfer
+
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(5), noise=2e-4)
+    d = {k: v for k, v in scipy.io.loadmat(mat).items() if not k.startswith("__")}
+    d["voltRef"] = d.pop("voltsRef")
+    n = 8
+    k, m = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")      # drive k: pair (k+1, k+2); measurement m
+    far = np.median(np.abs(d["vvRef"][d["vvRef"] != 0]))
+    # even-even, even-odd, odd-even, odd-odd; the two mixed classes alike, so reciprocity holds (a crosstalk that broke
+    # it would raise the reciprocity floor, which the verdict takes as the noise)
+    offset = np.array([0.0, 0.03, 0.03, -0.02]) * far
+    for s in ("Ref", "Avg1"):
+        vv = d["vv" + s].reshape(n, n)
+        d["vv" + s] = np.where(vv != 0, vv + offset[2 * (k % 2) + m % 2], 0.0).reshape(-1, 1)
+    scipy.io.savemat(mat, d)
+    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
+    scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
+    comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    diag, _, _, _ = diagnose_transfer(comp, scene, 1.0, settings["bem"], settings["protocol"])
+    assert diag["gap_before"] > 10 * diag["gap_after"], diag["engine"]["steps"]
+    assert diag["chosen"] == "pair_parity_offsets" and diag["verdict"] == "explained", diag["engine"]["steps"]
+    found = diag["engine"]["parameters"]["pair_parity_offsets"]
+    se = diag["engine"]["standard_errors"]["pair_parity_offsets"]
+    assert comp.metrics["noise_floor"]["per_measurement_rms_rel"] < 0.01
+    true_ohm = offset / 4.6e-3 / np.median(comp.Z_measured_ohm / np.abs(comp.Z_model_ohm))   # 4.6 mA: the file's
+    assert np.all(np.abs(np.array(list(found.values())) - true_ohm) < 4 * np.array(list(se.values())))
+    assert max(se.values()) < 0.1 * np.max(np.abs(true_ohm))

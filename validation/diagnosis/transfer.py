@@ -6,9 +6,10 @@ even drive patterns and scored on the odd ones
 (:func:`electrosense.validation.comparison.transfer.score_fit`):
 
 * ``channel_gains`` / ``channel_offsets`` / ``common_offset``: the
-  measurement system, per measurement pair; ``pair_parity_gains``: a gain
-  per class of (drive pair, measurement pair) by the parity of their places
-  on the ring (a multiplexer's two groups);
+  measurement system, per measurement pair; ``pair_parity_gains`` /
+  ``pair_parity_offsets``: a gain / a fixed voltage per class of (drive pair,
+  measurement pair) by the parity of their places on the ring (a
+  multiplexer's two groups);
 * ``current_to_electrode_G``: part of the drive current returning through an
   electrode off the ring (a ground);
 * ``electrode_angles`` / ``electrode_heights``: each ring electrode moved
@@ -191,7 +192,10 @@ def candidate_blocks(name: str) -> list[str]:
 def pair_parity_blocks(Z_model, drive, measure, ring) -> dict:
     """``pair_parity_gains``: a gain for each class of (drive pair, measurement pair) by the parity of their place
     along the ring, beside the common scale (the even-even class is its reference): a multiplexer that routes odd
-    and even pairs through different groups. Empty without a ring.
+    and even pairs through different groups. ``pair_parity_offsets``: a fixed voltage per unit current added in
+    each class (all four): that multiplexer's crosstalk from the drive into the measurement, which matters most,
+    relative to the reading, on the far side where the transfer impedance is smallest, and alternates there with
+    the ring offset's parity. Empty without a ring.
 
     Drives held out by parity never see the odd drives' classes; set-ups held out do (:func:`heldout_setups`).
 
@@ -199,12 +203,15 @@ def pair_parity_blocks(Z_model, drive, measure, ring) -> dict:
     ...                        np.array([[3, 4], [4, 1], [4, 1], [3, 4]]), [1, 2, 3, 4])
     >>> [c.tolist() for c in b["pair_parity_gains"]]
     [[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 0.0]]
+    >>> np.sum(b["pair_parity_offsets"], axis=0).tolist()          # every row in one class
+    [1.0, 1.0, 1.0, 1.0]
     """
     d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
     if d is None or m is None:
         return {}
     cls = 2 * (d % 2) + m % 2
-    return {"pair_parity_gains": [Z_model * (cls == k) for k in (1, 2, 3)]}
+    return {"pair_parity_gains": [Z_model * (cls == k) for k in (1, 2, 3)],
+            "pair_parity_offsets": [(cls == k).astype(float) for k in range(4)]}
 
 
 def heldout_setups(comparison, blocks: dict, candidates, R_ring_m=None, common_mode=None) -> dict:
@@ -273,6 +280,9 @@ def block_parameters(block: str, c, scale: float, R_ring_m: float | None = None)
     if block == "pair_parity_gains":
         return {"pair_parity_gains_rel": dict(zip(("even-odd", "odd-even", "odd-odd"),
                                                   np.round(1 + c / scale, 4).tolist()))}
+    if block == "pair_parity_offsets":
+        return {"pair_parity_offsets_ohm": dict(zip(("even-even", "even-odd", "odd-even", "odd-odd"),
+                                                    (c / scale).tolist()))}
     if block == "channel_gains":
         return {"gains_rel": np.round(c / np.mean(c), 4).tolist()}
     return {}
@@ -492,6 +502,10 @@ def engine_blocks(blocks: dict, Z_model, measure, tank, R_ring_m: float | None, 
         "common_offset": (["offset_ohm"], "ohm", offset, False, "every channel adds one fixed voltage"),
         "pair_parity_gains": (["gain_even-odd", "gain_odd-even", "gain_odd-odd"], "1", 0.5, False,
                               "a gain per class of (drive pair, measurement pair) by their places' parity"),
+        "pair_parity_offsets": (["offset_even-even_ohm", "offset_even-odd_ohm", "offset_odd-even_ohm",
+                                 "offset_odd-odd_ohm"], "ohm", offset, False,
+                                "a fixed voltage per unit current per class of (drive pair, measurement pair) by "
+                                "their places' parity"),
         "electrode_angles": ([f"arc_{d}_m" for d in discs], "m", spacing, True,
                              "each ring electrode moved along the ring (the ring's rigid rotation as gauge)"),
         "electrode_heights": ([f"up_{d}_m" for d in discs], "m", spacing, True,
@@ -676,7 +690,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
                        "water_depth+electrode_angles+channel_offsets"]
     blocks.update(pair_parity_blocks(Zm, drive, meas, ring))
     if "pair_parity_gains" in blocks:
-        candidates.append("pair_parity_gains")
+        candidates += ["pair_parity_gains", "pair_parity_offsets"]
     cands, resid = score_candidates(blocks, candidates, Zd, folds, R_ring)
     cm_cands, cm_resid, cm_designs = common_mode_candidates(K0, drive, meas, Zd, folds, ring, floating)
     cands.update(cm_cands)
