@@ -273,11 +273,19 @@ def gauge_rows(log_gains, tolerance: float) -> np.ndarray:
     return np.atleast_1d(np.sum(log_gains) / tolerance)
 
 
-def instrument_unknowns(n_channels: int, ground: bool, parity: bool = True) -> list[Unknown]:
-    """The measurement system's unknowns: scale, multiplexer classes, channel gains, common mode, ground current.
+#: the classes of (drive pair, measurement pair) by the parity of their places on the ring, as ``cls`` numbers them
+PARITY_CLASSES = ("even_even", "even_odd", "odd_even", "odd_odd")
+
+
+def instrument_unknowns(n_channels: int, ground: bool, parity: bool = True,
+                        typical_ohm: float | None = None) -> list[Unknown]:
+    """The measurement system's unknowns: scale, multiplexer classes (a gain each and, given the rows' typical
+    transfer impedance ``typical_ohm``, a crosstalk each), channel gains, common mode, ground current.
 
     The in-phase common mode against a ground electrode and the share of the drive current through that
     electrode change the readings alike (correlation 0.99998 on the Ottawa pail): with a ground, only the latter.
+    A class's crosstalk is a fixed voltage per unit current (ohm at the nominal conductivity) added to each
+    reading of the class: relative to the reading it matters most on the far side, where ``|Z|`` is smallest.
 
     >>> [u.name for u in instrument_unknowns(2, ground=False)]  # doctest: +NORMALIZE_WHITESPACE
     ['log_scale', 'mux_even_odd', 'mux_odd_even', 'mux_odd_odd', 'channel_gain_1', 'channel_gain_2',
@@ -287,7 +295,12 @@ def instrument_unknowns(n_channels: int, ground: bool, parity: bool = True) -> l
     if parity:
         us += [Unknown(f"mux_{c}", 0.0, -1.0, 1.0, 0.02, "log", f"gain of the {c.replace('_', '-')} class of (drive "
                        "pair, measurement pair) by their places' parity, over the even-even class")
-               for c in ("even_odd", "odd_even", "odd_odd")]
+               for c in PARITY_CLASSES[1:]]
+        if typical_ohm:
+            us += [Unknown(f"crosstalk_{c}", 0.0, -10 * typical_ohm, 10 * typical_ohm, 0.01 * typical_ohm, "ohm",
+                           f"fixed voltage per unit current added to each reading of the {c.replace('_', '-')} "
+                           "class (a multiplexer group's crosstalk), at the nominal conductivity")
+                   for c in PARITY_CLASSES]
     us += [Unknown(f"channel_gain_{k + 1}", 0.0, -1.0, 1.0, 0.02, "log",
                    f"measurement channel {k + 1}'s gain (mean 0 over the odd and over the even channels)") for k in range(n_channels)]
     if not ground:       # against a ground electrode, the in-phase part reads as the current through it
@@ -433,8 +446,12 @@ def _reading(Z, Vcm, Zg, inst: dict, cls, channel, Z_anchor_abs=None):
         f = inst["ground_fraction"]
         Z = (1 - f) * Z + f * Zg * (1.0 if Z_anchor_abs is None else np.abs(Z) / Z_anchor_abs)
     cr, ci = inst.get("common_mode_in_phase", 0.0), inst.get("common_mode_quadrature", 0.0)
-    out = np.log(np.hypot(Z + cr * Vcm, ci * Vcm)) + inst.get("log_scale", 0.0)
-    mux = np.array([0.0, inst.get("mux_even_odd", 0.0), inst.get("mux_odd_even", 0.0), inst.get("mux_odd_odd", 0.0)])
+    magnitude = np.hypot(Z + cr * Vcm, ci * Vcm)
+    crosstalk = np.array([inst.get(f"crosstalk_{c}", 0.0) for c in PARITY_CLASSES])[cls]
+    if np.any(crosstalk):           # a reading cannot go below zero: held at a thousandth of the magnitude
+        magnitude = np.maximum(magnitude + crosstalk, 1e-3 * magnitude)
+    out = np.log(magnitude) + inst.get("log_scale", 0.0)
+    mux = np.array([0.0] + [inst.get(f"mux_{c}", 0.0) for c in PARITY_CLASSES[1:]])
     gains = np.array([inst.get(f"channel_gain_{k + 1}", 0.0) for k in range(int(channel.max()) + 1)])
     return out + mux[cls] + gains[channel]
 
@@ -597,11 +614,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     geo = geometry_unknowns(scene, protocol, geometry)
     if fit_setup is None:
         geo = [u for u in geo if u.name not in BALL_ONLY]
-    inst = instrument_unknowns(data.n_channels, ground is not None)
-    unknowns = geo + inst
     gnames = [u.name for u in geo]
     theta0 = {u.name: u.value for u in geo}
-    fit = _Fit(problem, data, unknowns, len(geo), fit_setup, report)
 
     # surrogates at the stated scene: the reference (no derivative for the balls), the fitted set-up
     ref_unknowns = [u for u in geo if u.name not in BALL_ONLY]
@@ -610,6 +624,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     D[:, [gnames.index(u.name) for u in ref_unknowns]] = s_ref.D
     s_ref = replace(s_ref, names=gnames, anchor=np.array([theta0[n] for n in gnames]), D=D)
     s_ball = _surrogate(problem, geo, theta0, fit_setup, report) if fit_setup else None
+    inst = instrument_unknowns(data.n_channels, ground is not None, typical_ohm=float(np.exp(np.median(s_ref.log_Z))))
+    fit = _Fit(problem, data, geo + inst, len(geo), fit_setup, report)
     data.bem_log_Z, data.bem_signal = discretisation_error(problem, theta0, fit_setup)
     bem_ref, bem_sig = _rms(data.bem_log_Z), _rms(data.bem_signal) if fit_setup is not None else float("nan")
     data.floor_ref = float(np.hypot(data.floor_ref, bem_ref))
@@ -626,15 +642,18 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
                         "scatter where larger) weigh less (soft L1)"}}
     explains = _instrument_models(fit, s_ref, s_ball, theta0, ball_setups)
 
-    fits = {}
-    ok = fit.chord(s_ref, s_ball, fixed=(), ref_block=True, max_iterations=max_iterations)
+    fits, optional = {}, [u.name for u in inst if u.name.startswith(OPTIONAL_INSTRUMENT)]
+    out["optional_instrument"] = {}
+    ok = fit.chord(s_ref, s_ball, fixed=optional, ref_block=True, max_iterations=max_iterations)
+    ok, out["optional_instrument"]["joint"] = _with_optional(fit, ok, optional, [], max_iterations)
     fits["joint"] = fit.result(*ok, ball_setups)
     if fit_setup is not None:
         seen = [n for n in gnames if n in GEOMETRY_GROUPS["tank"][:2] or n in BALL_ONLY]
         inst_names = [u.name for u in inst]
         a = fit.chord(s_ref, s_ball, fixed=inst_names + [n for n in gnames if n not in seen], ref_block=False,
                       max_iterations=max_iterations)
-        b = fit.chord(a[2], a[3], fixed=gnames, ref_block=True, max_iterations=0)
+        b = fit.chord(a[2], a[3], fixed=gnames + optional, ref_block=True, max_iterations=0)
+        b, out["optional_instrument"]["staged"] = _with_optional(fit, b, optional, gnames, 0)
         fits["staged"] = fit.result(*b, ball_setups)
         shift = bem_shift(a[0], a[1])       # the geometry's uncertainty is that of the first stage
         for k, n in enumerate(gnames):
@@ -644,7 +663,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
         fits["staged"]["iterations"] = a[4]
         fits["staged"]["converged"] = a[5]
     for name, f in fits.items():
-        explains.append({"model": f"scene, {name}", "n_parameters": len(unknowns),
+        left_out = 0 if out["optional_instrument"][name].get("kept", True) else len(optional)
+        explains.append({"model": f"scene, {name}", "n_parameters": len(fit.unknowns) - left_out,
                          "empty_heldout_rms_rel": f["scores"]["empty_heldout_rms_rel"],
                          "setups_rms_rel": {k: v["rms_rel"] for k, v in f["scores"]["setups"].items()}})
     out["fits"] = fits
@@ -799,13 +819,28 @@ def bem_shift(model: _Model, sf) -> np.ndarray:
     return out
 
 
+#: the instrument's unknowns that enter a fit only where they lower its BIC at the scene fitted without them
+OPTIONAL_INSTRUMENT = ("crosstalk_",)
+
 #: the instrument's unknowns added one group at a time at the stated scene (name prefixes)
 INSTRUMENT_GROUPS = (("scale", ("log_scale",)), ("multiplexer_classes", ("mux_",)),
+                     ("multiplexer_crosstalk", ("crosstalk_",)),
                      ("channel_gains", ("channel_gain_",)), ("common_mode_and_ground", ("common_mode_", "ground_")))
 
 
+def bic(residual, n_parameters: int) -> float:
+    """Schwarz's criterion of a least-squares fit whose noise level is estimated from it: ``N ln(SSE / N) + k ln N``.
+
+    >>> round(bic(np.ones(100), 2) - bic(np.ones(100), 1), 3)          # a parameter that explains nothing costs ln N
+    4.605
+    """
+    r = np.asarray(residual, float)
+    return float(len(r) * np.log(max(float(r @ r), 1e-300) / len(r)) + n_parameters * np.log(len(r)))
+
+
 def _instrument_models(fit: _Fit, s_ref, s_ball, theta0: dict, ball_setups) -> list[dict]:
-    """The instrument's groups added one at a time at the stated scene, each scored as the fits are."""
+    """The instrument's groups added one at a time at the stated scene, each scored as the fits are (with the
+    fitted rows' :func:`bic`)."""
     names = [u.name for u in fit.unknowns]
     solved = {su: fit.problem.solve(theta0, su) for su in [None, *ball_setups]}
     out, free = [], set()
@@ -818,7 +853,7 @@ def _instrument_models(fit: _Fit, s_ref, s_ball, theta0: dict, ball_setups) -> l
         inst = m.inst(sf.x)
         lr = _reading(*solved[None], inst, fit.data.cls, fit.data.channel)
         rel = np.exp(lr - np.log(fit.data.Z_ref)) - 1
-        row = {"model": label, "adds": sorted(new), "n_parameters": len(free),
+        row = {"model": label, "adds": sorted(new), "n_parameters": len(free), "bic": bic(m.residual(sf.x), len(free)),
                "empty_heldout_rms_rel": _rms(rel[~fit.data.train]), "empty_train_rms_rel": _rms(rel[fit.data.train]),
                "setups_rms_rel": {}, "setups_amplitude_largest_quarter_other_rows": {}}
         for su in ball_setups:
@@ -831,6 +866,22 @@ def _instrument_models(fit: _Fit, s_ref, s_ball, theta0: dict, ball_setups) -> l
                    + ", ".join(f"{k} {v:.2f}" for k, v in row["setups_rms_rel"].items()))
         out.append(row)
     return out
+
+
+def _with_optional(fit: _Fit, without: tuple, optional: list, fixed: list, max_iterations: int) -> tuple:
+    """A fit (``without``: :meth:`_Fit.chord`'s result with the ``optional`` unknowns held at their start)
+    continued from its scene with them free; the one of lower :func:`bic` (free unknowns counted, the plain
+    residuals of each fit's vector) is returned, with what was compared. So an instrument's group that could
+    stand in for a scene's error at the stated scene is weighed at the scene fitted without it."""
+    if not optional:
+        return without, {}
+    n_free = len([n for n in fit.names if n not in set(fixed) | set(optional)])
+    b0 = bic(without[0].residual(without[1].x), n_free)
+    with_ = fit.chord(without[2], without[3], fixed=fixed, ref_block=without[0].ref_block,
+                      max_iterations=max_iterations)
+    b1 = bic(with_[0].residual(with_[1].x), n_free + len(optional))
+    chosen = (*with_[:4], without[4] + with_[4], with_[5]) if b1 < b0 else without
+    return chosen, {"unknowns": optional, "bic_without": b0, "bic_with": b1, "kept": bool(b1 < b0)}
 
 
 def scene_fit_summary(m: dict) -> str:

@@ -298,6 +298,14 @@ def _interval(values: dict, errors: dict) -> dict:
     return {e: {p: [v - z * errors[e][p], v + z * errors[e][p]] for p, v in ps.items()} for e, ps in values.items()}
 
 
+def _restore(problem, label, name, kept) -> None:
+    """Put back a block's previous secant correction (or none) and columns, ``kept`` = (secant, columns)."""
+    problem.secants.pop(label, None)
+    if kept[0] is not None:
+        problem.secants[label] = kept[0]
+    problem.columns[name] = kept[1]
+
+
 def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, names, folds, noise: float, r0,
                 iterations: int = 4) -> tuple[list, list[dict]]:
     """Geometric candidates made exact on the BEM where they were fitted (:mod:`.bem_secant`'s correction).
@@ -337,6 +345,12 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
                     replace(problem.blocks[name], columns=problem.scale * np.asarray(columns, float)))
             theta_hat = fraction * theta
             Z_block = predict(problem, [effect], theta_hat, everything)[:, 0]
+            if np.any(Z_block <= 0):        # the linear block far outside its range: no ratio to correct by
+                info["solves"].append({"refused": f"the linear block predicts a magnitude <= 0 on "
+                                                  f"{int(np.sum(Z_block <= 0))} of {len(Z_block)} rows at its "
+                                                  "fit: far outside the range where it is linear"})
+                _restore(problem, effect.label, name, kept)
+                break
             c = np.log(problem.scale * np.abs(Z) / Z_block)
             c = c - c.mean()
             problem.secants[effect.label] = SecantCorrection(theta_hat / np.asarray(effect.scales, float), c[:, None])
@@ -345,10 +359,7 @@ def bem_secants(problem: TransferProblem, ranking: list, lib: dict, solve_at, na
                     "heldout_rms_rel": again.heldout_gap, **({"note": note} if note else {})}
             info["solves"].append(step)
             if again.score >= best.score:        # no better: the previous correction (or none) stays
-                problem.secants.pop(effect.label, None)
-                if kept[0] is not None:
-                    problem.secants[effect.label] = kept[0]
-                problem.columns[name] = kept[1]
+                _restore(problem, effect.label, name, kept)
                 break
             best = by_name[name] = again
         info["heldout_rms_rel"] = best.heldout_gap
