@@ -947,6 +947,11 @@ def scene_fit_markdown(m: dict) -> str:
               f"{m['solves']['count']} BEM solves, {m['wall_s']:.0f} s.", ""]
     for name, f in m["fits"].items():
         lines += _fit_markdown(name, f, m["stated"])
+    for name, o in m.get("optional_instrument", {}).items():
+        if o:
+            lines += [f"Fit `{name}`: the multiplexer classes' crosstalk ({', '.join(o['unknowns'])}) "
+                      + ("entered" if o["kept"] else "left out") + f": BIC {o['bic_without']:.1f} without it, "
+                      f"{o['bic_with']:.1f} with it, at the scene fitted without it.", ""]
     setups = list(next(iter(m["fits"].values()))["scores"]["setups"])
     lines += ["What each change explains (the instrument's groups added one at a time at the stated scene, then "
               "each fit):", "", "| model | parameters | empty tank held out | " + " | ".join(setups) + " |",
