@@ -170,6 +170,22 @@ def test_one_local_worker_starts_nothing():
     assert set(threading.enumerate()) <= before  # threads of earlier tests may end meanwhile; none may start
 
 
+def _thread_pools():
+    import numba
+    from threadpoolctl import threadpool_info
+
+    return numba.get_num_threads(), tuple(sorted({p["num_threads"] for p in threadpool_info()}))
+
+
+def test_every_worker_computes_on_one_thread_also_one_started_again():
+    """Two local workers: numba and every BLAS or OpenMP pool on one thread in each, and in a worker the nanny
+    starts again (the limit is a worker plugin, not a call made once at the cluster's start)."""
+    with dask_client(workers=2) as client:
+        assert set(client.run(_thread_pools).values()) == {(1, (1,))}
+        client.restart_workers([next(iter(client.scheduler_info()["workers"]))])
+        assert set(client.run(_thread_pools).values()) == {(1, (1,))}
+
+
 def test_tiny_bem_grid_on_two_worker_processes_equals_the_serial_sweep(tmp_path):
     """The real BEM: one tank mesh for the whole grid, blocks built once and scattered; chunks on two
     worker processes give the serial sweep's numbers (to round-off)."""

@@ -14,6 +14,9 @@ import time
 
 __all__ = ["exit_with_parent", "one_thread"]
 
+#: the environment variables a thread pool loaded after :func:`one_thread` reads its size from
+THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
 
 def one_thread():
     """Limit this process's BLAS (numpy's and scipy's OpenBLAS, or MKL) and numba to one thread. A build's workers
@@ -24,12 +27,20 @@ def one_thread():
     import numba
     from threadpoolctl import threadpool_limits
 
-    limits, before = threadpool_limits(1), numba.get_num_threads()
-    numba.set_num_threads(1)
+    before = numba.get_num_threads()
+    numba.set_num_threads(1)            # first: it loads numba's threading layer (libgomp), which the limit then takes
+    limits = threadpool_limits(1)
+    variables = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    os.environ.update({k: "1" for k in THREAD_VARIABLES})    # for a library loaded later (libgomp reads it then)
 
     def restore():
         limits.restore_original_limits()
         numba.set_num_threads(before)
+        for k, v in variables.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
     return restore
 

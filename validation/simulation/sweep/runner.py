@@ -138,13 +138,24 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
             silence_logs=logging.ERROR,
         )
     with cluster, Client(cluster, set_as_default=False) as client:
-        client.run(_one_thread)     # dask sets the BLAS's threads through the environment, not numba's or scipy's
+        # dask sets the BLAS's threads through the environment, not numba's or scipy's; a plugin reaches every
+        # worker, also one the nanny starts again after a crash
+        client.register_plugin(_one_thread_plugin())
         yield client
 
 
-def _one_thread() -> None:
-    """:func:`~electrosense.validation.simulation.workers.one_thread` in a dask worker (nothing to send back)."""
-    one_thread()
+def _one_thread_plugin():
+    """A dask worker plugin that calls :func:`~electrosense.validation.simulation.workers.one_thread` in each
+    worker as it starts (dask is optional: imported here)."""
+    from distributed import WorkerPlugin
+
+    class OneThread(WorkerPlugin):
+        name = "electrosense-one-thread"
+
+        def setup(self, worker) -> None:
+            one_thread()
+
+    return OneThread()
 
 
 @contextmanager
