@@ -33,6 +33,10 @@ __all__ = ["CylinderTank", "CYLINDER_TANK_REGIONS"]
 CYLINDER_TANK_REGIONS = ("wall", "floor", "free_surface")
 
 
+#: a point this close to a boundary, relative to the tank's size, is on it
+ON_BOUNDARY_REL_TOL = 1e-6
+
+
 @dataclass(frozen=True)
 class CylinderTank:
     """Inner radius at the top and height (m) of a vertical tank, its water depth (default: full), radius at the floor.
@@ -95,6 +99,21 @@ class CylinderTank:
         wall = (self.radius_at(p[..., 2]) - np.hypot(p[..., 0], p[..., 1])) / np.hypot(1.0, self.wall_slope)
         return np.stack([wall, p[..., 2] - self.floor_z_m,
                          self.free_surface_z_m - p[..., 2]], axis=-1)
+
+    @property
+    def boundary_tolerance_m(self) -> float:
+        """A point this close to a boundary is on it (a millionth of the tank's size: a scene file's rounded
+        coordinates land on the wall)."""
+        return ON_BOUNDARY_REL_TOL * max(self.radius_m, self.height_m)
+
+    def on_wall(self, point_m) -> bool:
+        """Whether a point lies on the wall (within :attr:`boundary_tolerance_m`).
+
+        >>> t = CylinderTank(0.15, 0.3)
+        >>> t.on_wall((0.138582, 0.057403, 0.0)), t.on_wall((0.14, 0.0, 0.0))     # 6 decimals of a point at 22.5 deg
+        (True, False)
+        """
+        return bool(abs(self.distance_to_boundary_m(np.asarray(point_m, float))[0]) <= self.boundary_tolerance_m)
 
     def contains(self, points_m: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
         """True where the points lie in the water at least ``margin_m`` from every boundary."""

@@ -41,13 +41,9 @@ from electrosense.meshes.tank_mesh import _weld, equidistributed_nodes, graded_s
 
 __all__ = ["mesh_cylinder_tank", "default_far_edge_length_m", "electrode_surface", "disc_problems", "mesh_plane_with_discs"]
 
-#: a disc centre this close (relative to the tank's size) to a boundary is on it
-_ON_TOL = 1e-6
-
-
 def electrode_surface(tank: CylinderTank, electrode: DiscElectrode, index: int) -> str:
     """Which region (``wall``, ``floor``, ``free_surface``) the disc lies on; ``ValueError`` if none or outside."""
-    tol = _ON_TOL * max(tank.radius_m, tank.height_m)
+    tol = tank.boundary_tolerance_m
     d = tank.distance_to_boundary_m(np.asarray(electrode.centre_m))
     on = [name for name, g in zip(CYLINDER_TANK_REGIONS, d) if abs(g) <= tol]
     label = f"electrode {index}{' (' + electrode.name + ')' if electrode.name else ''}"

@@ -220,3 +220,19 @@ def test_a_scene_fit_that_stops_leaves_the_comparison_written(tmp_path):
     protocol = {k: v for k, v in settings["protocol"].items() if k != "ball_radius_m"}
     with pytest.raises(ValueError, match="ball_radius_m"):
         T.fit_tank_scene(log, load_scene(tmp_path / "tank.toml"), 1.0, settings["bem"], protocol)
+
+
+def test_a_ring_written_with_rounded_coordinates_is_on_the_wall():
+    """A scene file lists a ring's discs with six decimals (as a user writes them): every disc is on the wall for
+    the mesher, the diagnosis's moves and the scene fit alike; a disc 1 mm inside is not."""
+    from electrosense.validation.diagnosis.transfer import wall_discs
+
+    n, R = 16, 0.15
+    phi = 2 * np.pi * np.arange(n) / n
+    discs = [DiscElectrode((round(R * np.cos(p), 6), round(R * np.sin(p), 6), -0.02), 0.004) for p in phi]
+    scene = Scene(None, tank=CylinderTank(R, 0.3, 0.26), electrodes=discs)
+    assert T._ring_discs(scene, list(range(1, n + 1))) == list(range(n))
+    assert [w.index for w in wall_discs(scene)] == list(range(n))
+    inside = Scene(None, tank=scene.tank, electrodes=[DiscElectrode((R - 1e-3, 0.0, -0.02), 0.004), *discs[1:]])
+    with pytest.raises(ValueError, match="electrode 1 is not"):
+        T._ring_discs(inside, list(range(1, n + 1)))

@@ -108,7 +108,7 @@ def _ring_discs(scene, ring) -> list[int]:
     out = []
     for e in ring:
         el = scene.electrodes[int(e) - 1 - scene.n_sensor_electrodes]
-        if not isinstance(el, DiscElectrode) or abs(np.hypot(*el.centre_m[:2]) - tank.radius_at(el.centre_m[2])) > 1e-9:
+        if not isinstance(el, DiscElectrode) or not tank.on_wall(el.centre_m):
             raise ValueError(f"the scene fit needs the ring's electrodes as discs on the wall: electrode {e} is not")
         out.append(int(e) - 1 - scene.n_sensor_electrodes)
     return out
@@ -207,7 +207,7 @@ def scene_at(scene, protocol, values: dict, setup: str | None = None):
     dz = z - stated["ring_z_m"]
     es = []
     for k, e in enumerate(scene.electrodes):
-        on_wall = isinstance(e, DiscElectrode) and abs(np.hypot(*e.centre_m[:2]) - tank.radius_at(e.centre_m[2])) < 1e-9
+        on_wall = isinstance(e, DiscElectrode) and tank.on_wall(e.centre_m)
         if on_wall:
             ze = e.centre_m[2] + (dz if k in idx else 0.0)
             r, phi = float(new.radius_at(ze)), np.arctan2(e.centre_m[1], e.centre_m[0])

@@ -103,7 +103,7 @@ __all__ = [
 
 
 def _on_wall(tank, centre_m) -> bool:
-    return abs(np.hypot(*centre_m[:2]) - tank.radius_at(centre_m[2])) < 1e-9
+    return hasattr(tank, "on_wall") and tank.on_wall(centre_m)
 
 
 class WallDisc(NamedTuple):
