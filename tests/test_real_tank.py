@@ -543,3 +543,24 @@ def test_a_multiplexer_group_crosstalk_is_named_on_a_file_that_names_its_arrays_
     true_ohm = offset / 4.6e-3 / np.median(comp.Z_measured_ohm / np.abs(comp.Z_model_ohm))   # 4.6 mA: the file's
     assert np.all(np.abs(np.array(list(found.values())) - true_ohm) < 4 * np.array(list(se.values())))
     assert max(se.values()) < 0.1 * np.max(np.abs(true_ohm))
+
+
+def test_a_protocol_without_the_balls_height_takes_the_rings_plane_and_says_so(tmp_path):
+    """The scene's [protocol] gives the balls' radius but not their height: the comparison (and the scene fit) take
+    the ring's plane, where the data's ball is, and the metrics say what was taken."""
+    from electrosense.meshes.scene_file import load_scene, load_scene_settings
+    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
+    from electrosense.validation.comparison.transfer import compare_transfer_log
+    from electrosense.validation.diagnosis.tank_scene_fit import ring_state
+
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(6), noise=2e-4)
+    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
+    scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
+    stated = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    z_ring = settings["protocol"].pop("ball_z_m")                  # the synthetic phantom's ball: in the ring's plane
+    comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    assert comp.metrics["ball_height"]["assumed_z_m"] == pytest.approx(z_ring)
+    assert "the ring's plane" in comp.metrics["ball_height"]["not_stated"][0]
+    assert not stated.metrics["ball_height"]["not_stated"]
+    assert comp.metrics["object_rms_rel"]["Avg1"] == pytest.approx(stated.metrics["object_rms_rel"]["Avg1"])
+    assert ring_state(scene, settings["protocol"])["ball_z_m"] == pytest.approx(z_ring)

@@ -57,6 +57,7 @@ __all__ = [
     "TransferComparison",
     "TransferMismatchError",
     "ball_heights_m",
+    "stated_balls",
     "balls_at",
     "compare_empty_tank",
     "compare_objects",
@@ -338,6 +339,41 @@ def ball_heights_m(z_m: float, radius_m: float, tank) -> np.ndarray:
     return heights
 
 
+#: a ball's radius (m) where the ``[protocol]`` table gives none: a golf ball's (the Ottawa phantoms' object)
+DEFAULT_BALL_RADIUS_M = 0.02135
+
+
+def stated_balls(scene, protocol: dict) -> dict:
+    """The ``[protocol]`` table's balls: ``radius_m`` (``ball_radius_m``, else :data:`DEFAULT_BALL_RADIUS_M`),
+    ``z_m`` (``ball_z_m``, else the mean height of the ring's electrodes, else the water's mid-depth) and
+    ``assumed``: what the table left open and was taken, said in words (empty if nothing).
+
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> from electrosense.meshes.surface_electrodes import DiscElectrode
+    >>> s = Scene(None, tank=CylinderTank(0.15, 0.3), electrodes=[DiscElectrode((0.15, 0.0, -0.02), 0.004)])
+    >>> b = stated_balls(s, {"ring": [1], "ball_radius_m": 0.02})
+    >>> b["radius_m"], b["z_m"], b["assumed"]
+    (0.02, -0.02, ["the balls' height: the ring's plane, z = -0.02 m"])
+    """
+    assumed = []
+    radius = protocol.get("ball_radius_m")
+    if radius is None:
+        radius = DEFAULT_BALL_RADIUS_M
+        assumed.append(f"the balls' radius: {radius} m (a golf ball's)")
+    z = protocol.get("ball_z_m")
+    if z is None:
+        first = scene.n_sensor_electrodes if scene.sensor is not None else 0
+        ring = [scene.electrodes[int(e) - 1 - first] for e in protocol.get("ring", [])
+                if 0 <= int(e) - 1 - first < len(scene.electrodes)]
+        if ring:
+            z = float(np.mean([e.centre_m[2] for e in ring]))
+            assumed.append(f"the balls' height: the ring's plane, z = {z:g} m")
+        else:
+            z = 0.5 * (scene.tank.floor_z_m + scene.tank.free_surface_z_m) if hasattr(scene.tank, "floor_z_m") else 0.0
+            assumed.append(f"the balls' height: the water's mid-depth, z = {z:g} m")
+    return {"radius_m": float(radius), "z_m": float(z), "assumed": assumed}
+
+
 def balls_at(positions_xy, z_m: float, radius_m: float) -> tuple:
     """Spheres of ``radius_m`` at the (x, y) positions (m) of a set-up, centred at height ``z_m``.
 
@@ -462,8 +498,8 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
     """
     t = comparison.table
     ref = str(protocol.get("reference", log.setups[0]))
-    radius = float(protocol.get("ball_radius_m", 0.02))
-    zb = float(protocol.get("ball_z_m", 0.0))
+    stated = stated_balls(scene, protocol)
+    radius, zb = stated["radius_m"], stated["z_m"]
     setups = [k for k in log.setups if k != ref and k in protocol]
     heights = ball_heights_m(zb, radius, scene.tank)
     # every ball scene and the empty one on one tank mesh, graded towards every ball: a tank mesh graded to each
@@ -495,6 +531,7 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
             "object_symmetric_floor": symmetric,
             "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},
             "ball_height": {"assumed_z_m": zb, "fitted_z_m": z_fit, "scanned_z_m": heights.tolist(),
+                            "not_stated": stated["assumed"],
                             "note": "one height shared by every set-up, scanned above the assumed plane "
                                     "(a ball as far below it gives nearly the same signal)",
                             "measured_over_simulated_amplitude": {

@@ -291,7 +291,8 @@ def report_markdown(m: dict) -> str:
                 f"gain, leaves at least {m['empty_symmetric_floor']['rms_rel']:.4f} on all rows (the spread of log|Z| "
                 "over each row's images): below it only what breaks the symmetry fits (electrodes' places, the "
                 "instrument's channels)."] if "empty_symmetric_floor" in m else []),
-             f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m).",
+             f"- Balls: height fitted {m['ball_height']['fitted_z_m']:.3f} m (assumed {m['ball_height']['assumed_z_m']:.3f} m)."
+             + "".join(f" Not stated in the scene's [protocol], taken: {t}." for t in m['ball_height'].get('not_stated', [])),
              *[f"- Set-up {k}: object_rms_rel = {v:.3f} at the fitted height, "
                f"{m['object_rms_rel_at_assumed_height'][k]:.3f} at the assumed one (goal <= {OBJECT_GOAL_REL:g}); measured/BEM "
                f"amplitude {m['ball_height']['measured_over_simulated_amplitude'][k]:.2f}"

@@ -68,6 +68,7 @@ from electrosense.validation.comparison.transfer import (
     ring_pair_places,
     setup_table,
     signal_floor,
+    stated_balls,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, instrument_reference
 from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns
@@ -131,8 +132,8 @@ def ring_state(scene, protocol) -> dict:
            "water_depth_m": float(tank.water_depth_m), "ring_z_m": z,
            "electrode_radius_m": float(np.mean([scene.electrodes[i].radius_m for i in idx]))}
     if "ball_radius_m" in protocol:
-        out["ball_radius_m"] = float(protocol["ball_radius_m"])
-        out["ball_z_m"] = float(protocol.get("ball_z_m", z))
+        balls = stated_balls(scene, protocol)
+        out["ball_radius_m"], out["ball_z_m"] = balls["radius_m"], balls["z_m"]
         out.update(frame_dx_m=0.0, frame_dy_m=0.0, frame_rotation_rad=0.0)
     return out
 
@@ -605,8 +606,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     grounds = [e for e in range(1, scene.n_electrodes + 1) if e not in set(ring) | set(floating)]
     ground = grounds[0] if len(grounds) == 1 else None
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
-    if ball_setups and "ball_radius_m" not in protocol:
-        raise ValueError("the [protocol] table gives no ball_radius_m: the ball set-ups cannot be modelled")
+    if ball_setups and "ball_radius_m" not in protocol:      # the comparison's assumption (said in its metrics)
+        protocol = {**protocol, "ball_radius_m": stated_balls(scene, protocol)["radius_m"]}
     stated = ring_state(scene, protocol)
     focus = objects_focus_m([o for su in ball_setups
                              for o in balls_at(protocol[su], stated["ball_z_m"], stated["ball_radius_m"])])
@@ -770,11 +771,14 @@ class _Fit:
     def result(self, model, sf, s_ref, s_ball, iterations, converged, ball_setups) -> dict:
         """Scores of a fit: the reference's held-out drives, every ball set-up solved at the fitted scene."""
         data, x = self.data, sf.x
-        values = dict(zip(self.gnames, x[:self.nG]))
+        # the fit's last move on the surrogate, from the last scene solved, kept placeable (shortened and said)
+        f, note = placeable_step(self.problem.scene, self.problem.protocol, dict(zip(self.gnames, s_ref.anchor)),
+                                 dict(zip(self.gnames, x[:self.nG] - s_ref.anchor)), (None, *ball_setups))
+        values = dict(zip(self.gnames, s_ref.anchor + f * (x[:self.nG] - s_ref.anchor)))
         lr_ref = model.log_reading(s_ref, x)
         rel = np.exp(lr_ref - np.log(data.Z_ref)) - 1
         scores = {"empty_heldout_rms_rel": _rms(rel[~data.train]), "empty_train_rms_rel": _rms(rel[data.train]),
-                  "setups": {}}
+                  "setups": {}, **({"solved_at": note} if note else {})}
         signals = {}
         for su in ball_setups:
             if su == self.fit_setup and s_ball is not None and np.allclose(s_ball.anchor, x[:self.nG]):

@@ -79,6 +79,7 @@ from electrosense.validation.comparison.transfer import (
     ring_pair_places,
     score_fit,
     solved_transfer_ohm,
+    stated_balls,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, fit_common_mode, instrument_reference
 from electrosense.validation.diagnosis.transfer_engine import Block, TransferProblem, diagnose_rows
@@ -752,8 +753,8 @@ def one_geometry(comparison, shape: dict, ring_radius_candidate: dict, sigma_S_p
     (``ring_radius_candidate``, from :func:`diagnose_transfer`).
     """
     t = comparison.table
-    radius = float(protocol.get("ball_radius_m", 0.02))
-    zb = float(protocol.get("ball_z_m", 0.0))
+    stated = stated_balls(shape["scene"], protocol)
+    radius, zb = stated["radius_m"], stated["z_m"]
     want = {}
     for setup, dm in comparison.measured_signals.items():
         balls = balls_at(protocol[setup], zb, radius)
