@@ -10,8 +10,9 @@ amplifier ``c = c' + i c''`` is complex, and an instrument that demodulates a ma
 (``Z`` the signed transfer impedance, ``V_cm`` per ampere, ``g`` the system's gain, one per measurement
 channel where asked). It makes no error where ``V_cm`` vanishes: for adjacent drives on a symmetric ring, on
 the drive's plane of antisymmetry, in the middle of the far side. The quadrature part ``c''`` errs most,
-relative to ``Z``, just beside it, where ``|V_cm / Z|`` is largest, and alike on both sides (mirror-symmetric
-by ring offset); the in-phase part ``c'`` errs with opposite signs on the two sides.
+relative to ``Z``, where ``|V_cm / Z|`` is largest (on a 16-electrode pail 2.2 at ring offsets 4-5 and 11-12,
+0.98 at 7 and 9, 0.04 at 8), alike on both sides (mirror-symmetric by ring offset); the in-phase part ``c'``
+errs with opposite signs on the two sides.
 
 The fit is nonlinear in ``c''`` (it enters squared), so it is its own least-squares problem
 (:func:`scipy.optimize.least_squares`, relative residuals, each fold predicted by the fit on the others, as
