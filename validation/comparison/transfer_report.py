@@ -248,10 +248,11 @@ def remainder_figure(folder, before: dict, after: dict, chosen: str) -> Path:
     return save(fig, Path(folder) / "remainder.png")
 
 
-def candidates_figure(folder, diagnosis: dict, floor_rel: float) -> Path | None:
-    """What each candidate explains: its RMS gap on held-out drives and, fitted on the empty tank, on the object
-    set-ups, against the stated geometry's and the measurement's own floor (per measurement, reciprocity).
-    None when no candidate was scored on object set-ups."""
+def candidates_figure(folder, diagnosis: dict, floor_rel: float, stated_heldout_rel: float) -> Path | None:
+    """What each candidate explains: its RMS gap on the held-out (odd) drives and, fitted on the empty tank, on the
+    object set-ups, against the stated geometry's on each (``stated_heldout_rel``: the comparison's
+    ``empty_heldout_rms_rel``, the same folds as the candidates') and the measurement's own floor (per
+    measurement, reciprocity). None when no candidate was scored on object set-ups."""
     cands = {k: v for k, v in diagnosis["candidates"].items() if "heldout_setups" in v}
     stated = diagnosis.get("stated_geometry_heldout_setups")
     if not cands or not stated:
@@ -260,10 +261,11 @@ def candidates_figure(folder, diagnosis: dict, floor_rel: float) -> Path | None:
     y = np.arange(len(names))
     fig, ax = new_figure(1, 1, panel_size_in=(8.5, 1.8 + 0.26 * len(names)))
     a = ax[0, 0]
-    a.barh(y + 0.2, [100 * cands[k]["heldout_rms_rel"] for k in names], 0.4, color="0.7", label="held-out drives")
+    a.barh(y + 0.2, [100 * cands[k]["heldout_rms_rel"] for k in names], 0.4, color="0.7",
+           label="held-out (odd) drives")
     a.barh(y - 0.2, [100 * cands[k]["heldout_setups"]["empty_to_objects_rms_rel"] for k in names], 0.4,
            color="tab:blue", label="object set-ups, fitted on the empty tank")
-    a.axvline(100 * diagnosis["gap_before"], color="0.4", ls="--", lw=1, label="stated geometry, held-out drives")
+    a.axvline(100 * stated_heldout_rel, color="0.4", ls="--", lw=1, label="stated geometry, held-out (odd) drives")
     a.axvline(100 * stated["empty_to_objects_rms_rel"], color="tab:blue", ls="--", lw=1,
               label="stated geometry, object set-ups")
     a.axvline(100 * floor_rel, color="k", lw=1.2, label="floor per measurement (reciprocity)")
@@ -387,7 +389,7 @@ def write_transfer_report(folder, comparison, metrics: dict, resid: dict | None 
         label = d["chosen"] if d["chosen"] != "unexplained" else \
             f"nearest (not named):\n{d.get('engine', {}).get('combination', '?')}"
         remainder_figure(folder, d["gap_before_split"], d["remaining"], label)
-        candidates_figure(folder, d, metrics["noise_floor"]["per_measurement_rms_rel"])
+        candidates_figure(folder, d, metrics["noise_floor"]["per_measurement_rms_rel"], metrics["empty_heldout_rms_rel"])
     path = folder / "report.md"
     text = report_markdown(metrics)
     if "scene_fit" in metrics:

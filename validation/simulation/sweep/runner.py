@@ -147,7 +147,7 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
 def _one_thread_plugin():
     """A dask worker plugin that calls :func:`~electrosense.validation.simulation.workers.one_thread` in each
     worker as it starts (dask is optional: imported here)."""
-    from distributed import WorkerPlugin
+    from dask.distributed import WorkerPlugin
 
     class OneThread(WorkerPlugin):
         name = "electrosense-one-thread"
