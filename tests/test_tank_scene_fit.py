@@ -185,7 +185,7 @@ def test_a_multiplexer_crosstalk_enters_the_scene_fit_where_the_fitted_scene_nee
     mat, scene, settings, truth = _phantom(tmp_path, np.random.default_rng(4), crosstalk=(0.0, 0.06, 0.06, -0.03),
                                            n=16)     # on 8 electrodes the classes' gains and offsets barely part
     log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="unused.toml"))
-    out = T.fit_tank_scene(log, scene, 1.0, settings["bem"], settings["protocol"], "Avg1", max_iterations=4,
+    out = T.fit_tank_scene(log, scene, 1.0, settings["bem"], settings["protocol"], "Avg1", max_iterations=2,
                            geometry=("ring_radius_m", "ball_radius_m"), report=lambda *a: None)
     chosen = out["optional_instrument"]["joint"]
     assert chosen["kept"] and chosen["bic_with"] < chosen["bic_without"] - 10
@@ -221,7 +221,8 @@ def test_a_scene_fit_that_stops_leaves_the_comparison_written(tmp_path):
     log = read_transfer_log(tmp_path / "out" / "transfer_log.csv")
     settings = load_scene_settings(tmp_path / "tank.toml")
     protocol = {k: v for k, v in settings["protocol"].items() if k != "ball_radius_m"}
-    out = T.fit_tank_scene(log, load_scene(tmp_path / "tank.toml"), 1.0, settings["bem"], protocol, max_iterations=2,
+    out = T.fit_tank_scene(log, load_scene(tmp_path / "tank.toml"), 1.0, settings["bem"], protocol, max_iterations=1,
+                           geometry=("ring_z_m", "electrode_radius_m", "ball_radius_m", "ball_z_m"),
                            report=lambda *a: None)
     assert out["stated"]["ball_radius_m"] == DEFAULT_BALL_RADIUS_M and set(out["fits"]) == {"joint", "staged"}
 
