@@ -362,7 +362,7 @@ def stated_balls(scene, protocol: dict) -> dict:
         assumed.append(f"the balls' radius: {radius} m (a golf ball's)")
     z = protocol.get("ball_z_m")
     if z is None:
-        first = scene.n_sensor_electrodes if scene.sensor is not None else 0
+        first = scene.n_sensor_electrodes
         ring = [scene.electrodes[int(e) - 1 - first] for e in protocol.get("ring", [])
                 if 0 <= int(e) - 1 - first < len(scene.electrodes)]
         if ring:
