@@ -531,7 +531,7 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
             "object_symmetric_floor": symmetric,
             "object_rms_rel_at_assumed_height": {k: v["at_assumed_height"] for k, v in ball.items()},
             "ball_height": {"assumed_z_m": zb, "fitted_z_m": z_fit, "scanned_z_m": heights.tolist(),
-                            "not_stated": stated["assumed"],
+                            "not_stated": stated["assumed"] if setups else [],    # no ball: nothing was taken
                             "note": "one height shared by every set-up, scanned above the assumed plane "
                                     "(a ball as far below it gives nearly the same signal)",
                             "measured_over_simulated_amplitude": {
