@@ -177,3 +177,41 @@ def test_the_files_electrodes_become_the_scenes_ring(tmp_path):
     np.testing.assert_array_equal(mapped.measure, np.asarray(ring)[plain.measure - 1])
     with pytest.raises(BenchLogError, match="the file's ring has 8 electrodes, the scene's \\[protocol\\] ring 16"):
         eit_mat_to_transfer_log(p, tmp_path / "x.csv", scene="s.toml", ring=range(1, 17))
+
+
+def test_the_blind_phantoms_instrument_adds_its_fault_where_it_belongs():
+    """``esense study phantom_blind``'s instrument on a ring of resistors: the crosstalk lands on its parity class
+    (the mixed classes alike, so reciprocity holds), the quadrature common mode leaves a row whose pair sits
+    where the common-mode voltage vanishes, the rows touching a drive are zero, and the gains multiply."""
+    from electrosense.bem.protocol import adjacent_protocol, involves_drive, transfer_impedances_ohm
+    from electrosense.validation.studies.phantom_blind import CROSSTALK_OF_MEDIAN, CURRENT_A, instrument_reading
+
+    n = 8
+    K = np.zeros((n, n))
+    for i in range(n):            # 1 S between neighbours, 0.2 S across
+        for j, g in (((i + 1) % n, 1.0), ((i + n // 2) % n, 0.2)):
+            K[i, j] = K[j, i] = -g
+    K[np.diag_indices(n)] = -K.sum(axis=1)
+    ring = list(range(1, n + 1))
+    d, m = adjacent_protocol(ring)
+    touched = involves_drive(d, m)
+    Z = np.abs(transfer_impedances_ohm(K, d, m))
+    rng = np.random.default_rng(0)
+    zero = np.zeros(n), np.zeros((n, n))
+    plain = instrument_reading(K, ring, "none", *zero, rng) / CURRENT_A
+    assert np.all(plain[touched] == 0)
+    assert np.allclose(plain[~touched], Z[~touched], rtol=5e-3)           # the frame noise only (0.05 %)
+    crosstalk = instrument_reading(K, ring, "crosstalk", *zero, rng) / CURRENT_A - plain
+    k, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    cls = 2 * (k % 2) + j % 2
+    median = np.median(Z[~touched])
+    for c, share in enumerate(CROSSTALK_OF_MEDIAN):
+        assert np.allclose(crosstalk[~touched & (cls == c)], share * median, atol=0.01 * median)
+    common = instrument_reading(K, ring, "common_mode", *zero, rng) / CURRENT_A
+    far = (j - k) % n == n // 2          # measurement pair opposite the drive pair: V_cm = 0 by symmetry
+    assert np.allclose(common[far & ~touched], Z[far & ~touched], rtol=5e-3)
+    assert np.all(common[~far & ~touched] >= Z[~far & ~touched] * (1 - 5e-3))
+    assert np.max(common[~touched] / Z[~touched]) > 1.01            # 2 % on this ring of resistors
+    gains = 0.01 * np.arange(n)
+    ratio = instrument_reading(K, ring, "none", gains, zero[1], rng) / CURRENT_A / np.where(touched, 1.0, plain)
+    assert np.allclose(ratio[~touched], (1 + gains[None, :] + 0 * ratio)[~touched], rtol=4e-3)

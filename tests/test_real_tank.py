@@ -564,3 +564,37 @@ def test_a_protocol_without_the_balls_height_takes_the_rings_plane_and_says_so(t
     assert not stated.metrics["ball_height"]["not_stated"]
     assert comp.metrics["object_rms_rel"]["Avg1"] == pytest.approx(stated.metrics["object_rms_rel"]["Avg1"])
     assert ring_state(scene, settings["protocol"])["ball_z_m"] == pytest.approx(z_ring)
+
+
+def test_a_scene_without_a_bem_table_is_solved_on_the_coarsest_mesh_the_noise_hides(tmp_path):
+    """No [bem] table: the study climbs the mesh ladder and takes the first level whose estimated error is within
+    half the data's noise (one level and the next solved where the noise is large); a stated table is used as
+    written, and without a noise floor the solver's defaults are taken, neither with a solve; the report says it."""
+    import re
+
+    from electrosense.meshes.scene_file import load_scene
+    from electrosense.validation.cli.transfer_logs import run_transfer_comparison
+    from electrosense.validation.comparison.study_mesh import mesh_level, study_bem_options
+
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(11), noise=0.02)
+    toml = tmp_path / "tank.toml"
+    toml.write_text(re.sub(r"\[bem\][^\[]*", "", toml.read_text()))
+    scene = load_scene(toml)
+    d, m = adjacent_protocol(range(1, 9))
+    keep = ~involves_drive(d, m).ravel()
+
+    def rows(K):
+        return transfer_impedances_ohm(K, d, m).ravel()[keep]
+
+    options, record = study_bem_options(scene, 1.0, {}, rows, 0.02, log=lambda *_: None)
+    assert record["chosen"] == 0 and options == mesh_level(scene.tank, 0) and len(record["levels"]) == 2
+    assert 0 < record["levels"][0]["error_rms_rel"] <= 0.01
+    assert record["levels"][0]["triangles"] < record["levels"][1]["triangles"]
+    stated = {"tank_edge_length_m": 0.05}
+    assert study_bem_options(scene, 1.0, stated, rows, 0.02)[0] == stated
+    options, record = study_bem_options(scene, 1.0, {}, rows, float("nan"))
+    assert record["chosen"] == "defaults" and options == mesh_level(scene.tank, 3) and not record.get("levels")
+    # the study: the data's own floor (about 2 % per measurement) picks the mesh, and the report says which
+    metrics = run_transfer_comparison(mat, toml, tmp_path / "out", diagnose=False)
+    assert metrics["bem"]["mesh"]["chosen"] in (0, 1, 2, "defaults")
+    assert "no [bem] table" in (tmp_path / "out" / "report.md").read_text()

@@ -40,7 +40,14 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
     from electrosense.meshes.scene_file import load_scene, load_scene_settings
     from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
     from electrosense.validation.bench.transfer.log import read_transfer_log
-    from electrosense.validation.comparison.transfer import compare_transfer_log
+    from electrosense.validation.comparison.study_mesh import study_bem_options
+    from electrosense.validation.comparison.transfer import (
+        compare_transfer_log,
+        model_transfer_ohm,
+        noise_floor,
+        reciprocity_rel,
+        setup_table,
+    )
     from electrosense.validation.comparison.transfer_report import goals, write_transfer_report
 
     t_start, cpu_start = time.perf_counter(), time.process_time()
@@ -57,8 +64,12 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
                 if data.suffix.lower() == ".mat" else data)
     log = read_transfer_log(log_path)
     sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
-    bem_options = dict(settings.get("bem", {}))
+    table = setup_table(log, str(protocol.get("reference", log.setups[0])))
+    bem_options, mesh = study_bem_options(
+        scene, sigma, dict(settings.get("bem", {})), lambda K: model_transfer_ohm(K, table.drive, table.measure),
+        noise_floor(reciprocity_rel(table.drive, table.measure, table.Z_ohm))["per_measurement_rms_rel"])
     comp = compare_transfer_log(log, scene, sigma, bem_options, protocol)
+    comp.metrics["bem"]["mesh"] = mesh
     metrics: dict = {"data": data.name, "scene": scene_path.name, "setups": list(log.setups), **comp.metrics}
     resid = None
     if diagnose:

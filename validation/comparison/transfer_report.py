@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.validation.comparison.study_mesh import BEM_ERROR_OVER_NOISE
 from electrosense.validation.report.style import new_figure, save
 
 __all__ = [
@@ -276,11 +277,29 @@ def candidates_figure(folder, diagnosis: dict, floor_rel: float, stated_heldout_
     return save(fig, Path(folder) / "candidates.png")
 
 
+def study_mesh_words(mesh: dict | None) -> str:
+    """How the study's mesh was chosen, in words (:func:`~electrosense.validation.comparison.study_mesh.study_bem_options`).
+
+    >>> study_mesh_words({"chosen": 1, "threshold_rel": 0.006, "levels": [{"error_rms_rel": 0.0071},
+    ...                                                                  {"error_rms_rel": 0.0052}]})
+    'no [bem] table: mesh level 1 of the ladder, its error 0.52 % against 0.60 % (0.5x the noise)'
+    >>> study_mesh_words({"chosen": "stated"})
+    "the scene file's [bem] table"
+    """
+    if not mesh or mesh.get("chosen") == "stated":
+        return "the scene file's [bem] table"
+    if mesh["chosen"] == "defaults":
+        return f"no [bem] table: the solver's defaults, no coarser mesh's error within {BEM_ERROR_OVER_NOISE:g}x the noise"
+    k = mesh["chosen"]
+    return (f"no [bem] table: mesh level {k} of the ladder, its error {100 * mesh['levels'][k]['error_rms_rel']:.2f} % "
+            f"against {100 * mesh['threshold_rel']:.2f} % ({BEM_ERROR_OVER_NOISE:g}x the noise)")
+
+
 def report_markdown(m: dict) -> str:
     """The report (markdown) of a metrics dict written by the transfer comparison."""
     lines = ["# Real tank: BEM against the measured phantom", "",
-             (f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles; "
-              f"wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s."), "",
+             (f"Data {m['data']}, scene {m['scene']}, BEM {m['bem']['triangles']} triangles "
+              f"({study_mesh_words(m['bem'].get('mesh'))}); wall {m['wall_s']:.0f} s, CPU {m['cpu_s']:.0f} s."), "",
              "The goals beside what the stated scene, the diagnosis and the scene fits reach (details below):", "",
              goals_table(m), "",
              (f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "

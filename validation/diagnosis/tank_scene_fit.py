@@ -61,7 +61,8 @@ import numpy as np
 from electrosense.bem.solve import solve_scene
 from electrosense.meshes.cylinder_tank_mesh import disc_problems
 from electrosense.meshes.scene_mesh import objects_focus_m
-from electrosense.meshes.surface_electrodes import DEFAULT_EDGE_FRACTION, DiscElectrode
+from electrosense.meshes.surface_electrodes import DiscElectrode
+from electrosense.validation.comparison.study_mesh import BEM_ORDER, REFINE, refined_options
 from electrosense.validation.comparison.transfer import (
     balls_at,
     model_transfer_ohm,
@@ -382,21 +383,15 @@ class _Problem:
         return _rows(sol.conductance.K_S, self.table, self.reference, self.ground)
 
 
-#: the BEM's observed order of convergence assumed for the error of the fit's mesh (Richardson, from one finer
-#: mesh): first, the conservative one (the current density at an electrode's edge is singular)
-BEM_ORDER = 1.0
-
-
-def discretisation_error(problem: _Problem, values: dict, setup, refine: float = 0.8) -> tuple:
+def discretisation_error(problem: _Problem, values: dict, setup, refine: float = REFINE) -> tuple:
     """The BEM's own error at the fit's mesh, row by row: ``log |Z|`` (and, with ``setup``, its difference signal)
-    against the same scene on a mesh whose edge lengths (the tank's far edge, the electrodes' rim edge) are
-    ``refine`` times the stated ones, over ``1 - refine ** BEM_ORDER`` (Richardson), the mean of ``log |Z|``
-    (a scale, which the instrument's scale takes) removed. Two solves per set-up (the reference and ``setup``).
+    against the same scene on a mesh whose lengths (the tank's far edge, the electrodes' rim edge, the edge's growth
+    from a rim: :func:`~electrosense.validation.comparison.study_mesh.refined_options`) are ``refine`` times the
+    fit's, over ``1 - refine ** BEM_ORDER`` (Richardson), the mean of ``log |Z|`` removed (a scale, which the
+    instrument's scale takes). Two solves per set-up (the reference and ``setup``).
     Returns the two (R,) error vectors (the signal's None without ``setup``).
     """
-    fine = {**problem.bem_options, **{k: refine * float(problem.bem_options.get(k, d))
-                                      for k, d in (("edge_fraction", DEFAULT_EDGE_FRACTION), ("tank_edge_length_m", None))
-                                      if problem.bem_options.get(k, d) is not None}}
+    fine = refined_options(problem.bem_options, problem.scene.tank, refine)
     factor = 1.0 / (1.0 - refine ** BEM_ORDER)
     z = [problem.solve(values, None, o)[0] for o in (None, fine)]
     d = np.log(np.abs(z[0])) - np.log(np.abs(z[1]))
