@@ -44,6 +44,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import scipy.stats
 
 from electrosense.bem.protocol import transfer_impedances_ohm
 from electrosense.bem.solve import solve_scene
@@ -66,10 +67,13 @@ __all__ = [
     "fit_ball_height",
     "fit_linear",
     "mean_by_offset",
+    "measurement_noise",
     "model_transfer_ohm",
     "noise_floor",
+    "pair_parity_classes",
     "reciprocal_pairs",
     "reciprocity_after_pair_gains",
+    "reciprocity_after_parity_offsets",
     "reciprocity_rel",
     "ring_offsets",
     "ring_pair_places",
@@ -200,6 +204,37 @@ def noise_floor(rec) -> dict:
             "per_measurement_rms_rel": _rms(rec) / np.sqrt(2), "pairs": len(rec)}
 
 
+#: the false-alarm rate at which an instrument's non-reciprocal part is taken out of the reciprocity floor (the
+#: diagnosis's detection test uses the same)
+RECIPROCITY_ALPHA = 0.01
+
+
+def measurement_noise(drive, measure, Z_ohm, ring=()) -> dict:
+    """The measurement's noise from its reciprocal pairs: the floor (:func:`noise_floor`), what a gain per electrode
+    pair (:func:`reciprocity_after_pair_gains`) and a crosstalk differing between the mixed multiplexer classes
+    (:func:`reciprocity_after_parity_offsets`) explain of it, and the noise per measurement a fit assumes:
+    ``fit_noise_rel``, the floor, or where that crosstalk is significant at :data:`RECIPROCITY_ALPHA` the floor it
+    leaves (an instrument's error that breaks reciprocity is not noise); ``fit_noise_from`` says which.
+
+    >>> d = np.array([[1, 2], [4, 5]]); m = np.array([[4, 5], [1, 2]])
+    >>> out = measurement_noise(d, m, np.array([1.02, 0.98]))
+    >>> round(float(out["per_measurement_rms_rel"]), 4), out["fit_noise_from"]
+    (0.0283, 'reciprocity')
+    """
+    rec = reciprocity_rel(drive, measure, Z_ohm)
+    out = {**noise_floor(rec), "pair_gains": reciprocity_after_pair_gains(drive, measure, Z_ohm),
+           "fit_noise_rel": None, "fit_noise_from": "reciprocity"}
+    out["fit_noise_rel"] = out["per_measurement_rms_rel"]
+    crosstalk = reciprocity_after_parity_offsets(drive, measure, Z_ohm, list(ring)) if len(ring) else {}
+    if crosstalk:
+        out["parity_offsets"] = crosstalk
+        if crosstalk["p_value"] < RECIPROCITY_ALPHA:
+            out["fit_noise_rel"] = crosstalk["rms_rel_after"] / np.sqrt(2)
+            out["fit_noise_from"] = ("reciprocity after the mixed multiplexer classes' crosstalk difference "
+                                     f"(p = {crosstalk['p_value']:.1e})")
+    return out
+
+
 def drive_folds(drive) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Distinct drive pairs (D, 2), each row's index among them, and its fold: 0 even drive patterns, 1 odd.
 
@@ -293,6 +328,54 @@ def ring_pair_places(pairs, ring) -> np.ndarray | None:
     except KeyError:
         return None
 
+
+def pair_parity_classes(drive, measure, ring) -> np.ndarray | None:
+    """(R,) class of each row by the parity of its pairs' places along ``ring``
+    (:func:`ring_pair_places`): ``2 * parity(drive pair) + parity(measurement pair)``, numbered as
+    ``PARITY_CLASSES`` names them (a multiplexer that routes odd and even pairs through different groups);
+    None when a pair is off the ring.
+
+    >>> pair_parity_classes(np.array([[1, 2], [2, 3]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
+    [0, 3]
+    """
+    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
+    return None if d is None or m is None else 2 * (d % 2) + m % 2
+
+
+def reciprocity_after_parity_offsets(drive, measure, Z_ohm, ring) -> dict:
+    """Does a crosstalk that differs between the two mixed multiplexer classes explain the reciprocity error?
+
+    A fixed reading ``c`` added to each class of (drive pair, measurement pair)
+    (:func:`pair_parity_classes`) moves a row of the even-odd class and its
+    reciprocal (odd-even) apart by ``c_eo - c_oe``: ``z - z' = +-(c_eo - c_oe)``, one
+    number, fitted by weighted least squares on the relative differences. The part of the
+    reciprocity error that is this instrument's, not noise: ``p_value`` of the F test (one
+    parameter), ``rms_rel_after`` the error left (scaled for the parameter fitted),
+    ``difference_ohm`` and ``standard_error_ohm``. Empty without a ring or mixed reciprocal pairs.
+
+    >>> d = np.array([[1, 2], [3, 4], [1, 2], [4, 5]]); m = np.array([[3, 4], [1, 2], [4, 5], [1, 2]])
+    >>> out = reciprocity_after_parity_offsets(d, m, np.array([1.0, 1.0, 1.02, 0.98]), [1, 2, 3, 4, 5, 6])
+    >>> round(out["difference_ohm"], 4), out["pairs"]
+    (0.04, 2)
+    """
+    i, j = reciprocal_pairs(drive, measure)
+    cls = pair_parity_classes(drive, measure, ring)
+    if cls is None or not len(i):
+        return {}
+    s = np.where(cls[i] == 1, 1.0, np.where(cls[i] == 2, -1.0, 0.0))       # row i even-odd: +; odd-even: -
+    if not np.any(s):
+        return {}
+    Z = np.abs(np.asarray(Z_ohm, float))
+    mean = 0.5 * (Z[i] + Z[j])
+    y, x = (Z[i] - Z[j]) / mean, s / mean                                  # relative: y = c x + noise
+    c = float(x @ y / (x @ x))
+    n = len(y)
+    rss0, rss1 = float(y @ y), float((y - c * x) @ (y - c * x))
+    dof = max(n - 1, 1)
+    F = (rss0 - rss1) / max(rss1 / dof, np.finfo(float).tiny)
+    return {"difference_ohm": c, "standard_error_ohm": float(np.sqrt(rss1 / dof / (x @ x))),
+            "rms_rel_before": float(np.sqrt(rss0 / n)), "rms_rel_after": float(np.sqrt(rss1 / dof)),
+            "p_value": float(scipy.stats.f.sf(F, 1, dof)), "pairs": n}
 
 def ring_offsets(drive, measure, ring) -> np.ndarray | None:
     """(R,) cyclic offset of each measurement pair from its drive pair along ``ring`` (None: no ring, or off it).
@@ -463,9 +546,9 @@ def compare_empty_tank(table: SetupTable, solution, sigma_S_per_m: float, ring=(
     Raises :class:`TransferMismatchError` when a measurement has the opposite
     sign to the BEM's (electrode numbering or sign convention).
     """
+    noise = measurement_noise(table.drive, table.measure, table.Z_ohm, ring)
     rec = reciprocity_rel(table.drive, table.measure, table.Z_ohm)
-    metrics: dict = {"noise_floor": {**noise_floor(rec),
-                                     "pair_gains": reciprocity_after_pair_gains(table.drive, table.measure, table.Z_ohm)}}
+    metrics: dict = {"noise_floor": noise}
     Zm = model_transfer_ohm(solution.conductance.K_S, table.drive, table.measure)
     Zd = table.Z_ohm
     if np.any(np.sign(Zm) != np.sign(Zd)):

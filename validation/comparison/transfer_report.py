@@ -305,6 +305,15 @@ def report_markdown(m: dict) -> str:
              (f"- Noise floor (reciprocity): RMS {m['noise_floor']['reciprocity_rms_rel']:.4f} per reciprocal pair, "
               f"~{m['noise_floor']['per_measurement_rms_rel']:.4f} per measurement; with a gain per electrode pair "
               f"driving and another measuring fitted to it: {m['noise_floor']['pair_gains']['rms_rel_after']:.4f}."),
+             *([f"  A crosstalk differing between the mixed multiplexer classes (even-odd less odd-even: "
+                f"{m['noise_floor']['parity_offsets']['difference_ohm']:.3g} +- "
+                f"{m['noise_floor']['parity_offsets']['standard_error_ohm']:.2g} ohm, p = "
+                f"{m['noise_floor']['parity_offsets']['p_value']:.2g}) leaves "
+                f"{m['noise_floor']['parity_offsets']['rms_rel_after']:.4f} per reciprocal pair."]
+               if "parity_offsets" in m["noise_floor"] else []),
+             (f"  The noise per measurement the diagnosis and the scene fit assume: "
+              f"{m['noise_floor'].get('fit_noise_rel', m['noise_floor']['per_measurement_rms_rel']):.4f} "
+              f"(from {m['noise_floor'].get('fit_noise_from', 'reciprocity')})."),
              (f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= "
               f"{empty_tank_goal(m) or float('nan'):.4f}, {EMPTY_FLOOR_FACTOR:g}x the floor per measurement)."),
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",

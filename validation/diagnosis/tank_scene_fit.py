@@ -547,7 +547,7 @@ class _Model:
 
 def measured_data(log, protocol) -> _Data:
     """The reference set-up's magnitudes and rows, and every ball set-up's difference signal with its floor."""
-    from electrosense.validation.comparison.transfer import noise_floor, reciprocity_rel
+    from electrosense.validation.comparison.transfer import measurement_noise, pair_parity_classes
 
     ref = str(protocol.get("reference", log.setups[0]))
     t = setup_table(log, ref)
@@ -565,8 +565,10 @@ def measured_data(log, protocol) -> _Data:
             raise ValueError(f"set-up {su} does not have the reference's measurements")
         signals[su] = np.abs(o.Z_ohm) / Z - 1
         floors[su] = signal_floor(t.drive, t.measure, Z, np.abs(o.Z_ohm))
-    floor = noise_floor(reciprocity_rel(t.drive, t.measure, t.Z_ohm))["per_measurement_rms_rel"]
-    return _Data(Z, alternate_pair_folds(t.drive, ring) == 0, 2 * (dp % 2) + mp % 2, mp, len(ring), signals,
+    # the reciprocity floor, less an instrument's part that breaks reciprocity
+    floor = measurement_noise(t.drive, t.measure, t.Z_ohm, ring)["fit_noise_rel"]
+    return _Data(Z, alternate_pair_folds(t.drive, ring) == 0, pair_parity_classes(t.drive, t.measure, ring), mp,
+                 len(ring), signals,
                  float(floor), floors)
 
 

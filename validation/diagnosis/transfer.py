@@ -76,7 +76,7 @@ from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.comparison.transfer import (
     balls_at,
     model_transfer_ohm,
-    ring_pair_places,
+    pair_parity_classes,
     score_fit,
     solved_transfer_ohm,
     stated_balls,
@@ -207,10 +207,9 @@ def pair_parity_blocks(Z_model, drive, measure, ring) -> dict:
     >>> np.sum(b["pair_parity_offsets"], axis=0).tolist()          # every row in one class
     [1.0, 1.0, 1.0, 1.0]
     """
-    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
-    if d is None or m is None:
+    cls = pair_parity_classes(drive, measure, ring)
+    if cls is None:
         return {}
-    cls = 2 * (d % 2) + m % 2
     return {"pair_parity_gains": [Z_model * (cls == k) for k in (1, 2, 3)],
             "pair_parity_offsets": [(cls == k).astype(float) for k in range(4)]}
 
@@ -701,7 +700,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
         if name in cands:
             cands[name]["heldout_setups"] = scores
     resid = {"stated geometry": comparison.residual, **resid}
-    floor = comparison.metrics["noise_floor"]["per_measurement_rms_rel"]
+    # the noise the engine assumes: the reciprocity floor, less an instrument's part that breaks reciprocity
+    floor = comparison.metrics["noise_floor"]["fit_noise_rel"]
     # the choice: the pose diagnosis's engine on these rows (:mod:`.transfer_engine`)
     t0 = time.perf_counter()
     Z_signed, V_cm, _ = cm_designs["common_mode"]
@@ -724,6 +724,7 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
     diagnosis = {
         "chosen": chosen, "verdict": engine["verdict"], "gap_before": engine["gap_before"],
         "gap_after": engine["gap_after"], "shrink": engine["shrink"],
+        "noise_rel": floor, "noise_from": comparison.metrics["noise_floor"]["fit_noise_from"],
         "rule": ("the pose diagnosis's engine (:mod:`transfer_engine`): each candidate fitted on four fifths of the "
                  "drive patterns and scored on the rest, a BIC charge per parameter, an effect named only when the "
                  f"best held-out improvement passes the detection test at a {engine['detection']['alpha']:.0%} "

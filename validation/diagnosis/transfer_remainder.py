@@ -44,9 +44,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from electrosense.validation.comparison.transfer import reciprocal_pairs, ring_pair_places
+from electrosense.validation.comparison.transfer import pair_parity_classes, reciprocal_pairs
 
-__all__ = ["pair_parity_classes", "where_the_rest_lies"]
+__all__ = ["where_the_rest_lies"]
 
 _MEANING = {
     "by_ring_offset": "the tank's symmetric shape (mean by ring offset): a smooth geometric effect could remove it",
@@ -56,21 +56,6 @@ _MEANING = {
              "model of the water",
     "unpaired": "rows without a reciprocal partner",
 }
-
-
-def pair_parity_classes(drive, measure, ring) -> np.ndarray | None:
-    """(R,) class 0..3 = 2 * parity(drive pair) + parity(measurement pair) along ``ring`` (None: no even ring).
-
-    A pair's parity is that of its place along the ring
-    (:func:`~electrosense.validation.comparison.transfer.ring_pair_places`).
-
-    >>> pair_parity_classes(np.array([[1, 2], [2, 3]]), np.array([[4, 3], [1, 4]]), [1, 2, 3, 4]).tolist()
-    [0, 3]
-    """
-    if len(ring) % 2:
-        return None
-    d, m = ring_pair_places(drive, ring), ring_pair_places(measure, ring)
-    return None if d is None or m is None else 2 * (d % 2) + m % 2
 
 
 def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, ring=()) -> dict:
@@ -116,7 +101,7 @@ def where_the_rest_lies(drive, measure, offsets, residual, n_largest: int = 4, r
     shares = {k: v / total for k, v in ss.items()}
     n = len(r)
     parity = None
-    classes = pair_parity_classes(drive, measure, ring)
+    classes = None if len(ring) % 2 else pair_parity_classes(drive, measure, ring)     # an even ring's classes
     if classes is not None:
         parity = {f"{'eo'[c // 2]}{'eo'[c % 2]}": float(s[classes == c].mean()) for c in range(4)
                   if np.any(classes == c)}
