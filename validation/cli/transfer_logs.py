@@ -43,9 +43,8 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
     from electrosense.validation.comparison.study_mesh import study_bem_options
     from electrosense.validation.comparison.transfer import (
         compare_transfer_log,
+        measurement_noise,
         model_transfer_ohm,
-        noise_floor,
-        reciprocity_rel,
         setup_table,
     )
     from electrosense.validation.comparison.transfer_report import goals, write_transfer_report
@@ -67,7 +66,7 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
     bem_options, mesh = study_bem_options(
         scene, sigma, dict(settings.get("bem", {})), lambda K: model_transfer_ohm(K, table.drive, table.measure),
-        noise_floor(reciprocity_rel(table.drive, table.measure, table.Z_ohm))["per_measurement_rms_rel"])
+        measurement_noise(table.drive, table.measure, table.Z_ohm, protocol.get("ring", []))["fit_noise_rel"])
     comp = compare_transfer_log(log, scene, sigma, bem_options, protocol)
     comp.metrics["bem"]["mesh"] = mesh
     metrics: dict = {"data": data.name, "scene": scene_path.name, "setups": list(log.setups), **comp.metrics}

@@ -8,8 +8,10 @@ solve), while a study solves the tank some fifty times. So the study climbs a
 ladder of meshes from coarse to fine (:func:`mesh_level`: every length
 ``REFINE`` times the level's before, the last level the solver's defaults) and
 takes the first whose own error on the reference set-up's ``log |Z|`` is at
-most ``BEM_ERROR_OVER_NOISE`` times the data's per-measurement reciprocity
-floor: there the BEM adds at most 12 % to the noise the fit assumes.
+most ``BEM_ERROR_OVER_NOISE`` times the data's noise per measurement (its
+reciprocity floor, less an instrument's part that breaks reciprocity:
+:func:`~electrosense.validation.comparison.transfer.measurement_noise`): there
+the BEM adds at most 12 % to the noise the fits assume.
 
 The error of a level is estimated against the next finer one
 (:func:`richardson_error`): the difference of the two meshes' ``log |Z|``
@@ -144,7 +146,7 @@ def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, n
                     "meaning": f"no [bem] table in the scene file: the coarsest mesh whose error on the reference's "
                                f"log|Z| (against a mesh {REFINE} times finer, order {BEM_ORDER} or the order three meshes show up to "
                                f"{MAX_ORDER}, mean removed) is at "
-                               f"most {BEM_ERROR_OVER_NOISE} times the per-measurement reciprocity floor"}
+                               f"most {BEM_ERROR_OVER_NOISE} times the noise per measurement the fits assume"}
     last = mesh_level(scene.tank, LEVELS - 1)
     if not (np.isfinite(noise_rel) and noise_rel > 0):
         return last, {**record, "chosen": "defaults", "options": last,

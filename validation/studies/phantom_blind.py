@@ -200,6 +200,7 @@ def main(argv=None) -> None:
            "mesh": m["bem"].get("mesh", {}).get("chosen"), "triangles": m["bem"]["triangles"],
            "diagnosis": {k: d.get(k) for k in ("chosen", "verdict", "gap_before", "gap_after")},
            "named": None if named is None else named in str(d.get("chosen", "")),
+           "faults_named_falsely": [f for f in NAMED.values() if f and f != named and f in str(d.get("chosen", ""))],
            "found": d.get("engine", {}).get("parameters", {}).get(named) if named else None}
     if args.fault == "crosstalk" and out["found"]:      # as fractions of the median reading, as the truth is given
         vv = scipy.io.loadmat(mat)[f"vv{truth['reference']}"].ravel()
@@ -210,7 +211,8 @@ def main(argv=None) -> None:
     (args.out / "blind.json").write_text(json.dumps(out, indent=1, default=float))
     print(goals_table(m))
     print(f"truth: {args.fault}; scene drawn {truth['scene_drawn']}")
-    print(f"diagnosis: {out['diagnosis']}; the fault named: {out['named']}; found {out['found']}")
+    print(f"diagnosis: {out['diagnosis']}; the fault named: {out['named']}; found {out['found']}; "
+          f"a fault not put in named: {out['faults_named_falsely'] or 'none'}")
     if "found_of_median" in out:
         print("crosstalk found, of the median reading (truth " + " / ".join(f"{c:g}" for c in CROSSTALK_OF_MEDIAN)
               + "): " + " / ".join(f"{v:.4f} +- {out['standard_error_of_median'][k]:.4f}"
