@@ -219,19 +219,19 @@ def measurement_noise(drive, measure, Z_ohm, ring=()) -> dict:
     >>> d = np.array([[1, 2], [4, 5]]); m = np.array([[4, 5], [1, 2]])
     >>> out = measurement_noise(d, m, np.array([1.02, 0.98]))
     >>> round(float(out["per_measurement_rms_rel"]), 4), out["fit_noise_from"]
-    (0.0283, 'reciprocity')
+    (0.0283, 'the reciprocity floor')
     """
     rec = reciprocity_rel(drive, measure, Z_ohm)
     out = {**noise_floor(rec), "pair_gains": reciprocity_after_pair_gains(drive, measure, Z_ohm),
-           "fit_noise_rel": None, "fit_noise_from": "reciprocity"}
+           "fit_noise_rel": None, "fit_noise_from": "the reciprocity floor"}
     out["fit_noise_rel"] = out["per_measurement_rms_rel"]
     crosstalk = reciprocity_after_parity_offsets(drive, measure, Z_ohm, list(ring)) if len(ring) else {}
     if crosstalk:
         out["parity_offsets"] = crosstalk
         if crosstalk["p_value"] < RECIPROCITY_ALPHA:
             out["fit_noise_rel"] = crosstalk["rms_rel_after"] / np.sqrt(2)
-            out["fit_noise_from"] = ("reciprocity after the mixed multiplexer classes' crosstalk difference "
-                                     f"(p = {crosstalk['p_value']:.1e})")
+            out["fit_noise_from"] = ("the reciprocity floor less the mixed multiplexer classes' crosstalk "
+                                     f"difference (p = {crosstalk['p_value']:.1e})")
     return out
 
 

@@ -313,7 +313,7 @@ def report_markdown(m: dict) -> str:
                if "parity_offsets" in m["noise_floor"] else []),
              (f"  The noise per measurement the diagnosis and the scene fit assume: "
               f"{m['noise_floor'].get('fit_noise_rel', m['noise_floor']['per_measurement_rms_rel']):.4f} "
-              f"(from {m['noise_floor'].get('fit_noise_from', 'reciprocity')})."),
+              f"(from {m['noise_floor'].get('fit_noise_from', 'the reciprocity floor')})."),
              (f"- Empty tank, held-out drives: empty_heldout_rms_rel = {m['empty_heldout_rms_rel']:.4f} (goal <= "
               f"{empty_tank_goal(m) or float('nan'):.4f}, {EMPTY_FLOOR_FACTOR:g}x the floor per measurement)."),
              f"  Both halves held out in turn (2-fold): {m['empty_twofold_rms_rel']:.4f}.",
@@ -343,7 +343,8 @@ def report_markdown(m: dict) -> str:
         lines += [(f"- Diagnosis ({d.get('verdict', '')}): {named}, held-out gap {d['gap_before']:.4f} "
                    f"-> {d['gap_after']:.4f} ({100 * d['shrink']:.0f} % shrink; goal >= {100 * SHRINK_GOAL:.0f} %)."),
                   *([f"  - the engine: {e['engine']}; {e['noise_model']}; detection: best improvement "
-                     f"{det['improvement']:.1f} s^2 against a threshold of {det['improvement_threshold']:.1f} s^2 "
+                     f"{det['improvement']:.1f} noise variances against a threshold of "
+                     f"{det['improvement_threshold']:.1f} "
                      f"(p = {det['p_detection']:.3g})"] if det else []),
                   *[f"  - {name}.{p} = {v:.4g} (95 % interval {lo:.4g} to {hi:.4g})"
                     for name, ps in e.get("parameters", {}).items() for p, v in ps.items()

@@ -642,17 +642,17 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
 
     fits, optional = {}, [u.name for u in inst if u.name.startswith(OPTIONAL_INSTRUMENT)]
     out["optional_instrument"] = {}
-    ok = fit.chord(s_ref, s_ball, fixed=optional, ref_block=True, max_iterations=max_iterations)
-    ok, out["optional_instrument"]["joint"] = _with_optional(fit, ok, optional, [], max_iterations)
-    fits["joint"] = fit.result(*ok, ball_setups)
+    ok, held = fit.placed_chord(s_ref, s_ball, optional, True, max_iterations)
+    ok, out["optional_instrument"]["joint"] = _with_optional(fit, ok, optional, held, max_iterations)
+    fits["joint"] = {**fit.result(*ok, ball_setups), "held_at_stated": held}
     if fit_setup is not None:
         seen = [n for n in gnames if n in GEOMETRY_GROUPS["tank"][:2] or n in BALL_ONLY]
         inst_names = [u.name for u in inst]
-        a = fit.chord(s_ref, s_ball, fixed=inst_names + [n for n in gnames if n not in seen], ref_block=False,
-                      max_iterations=max_iterations)
+        a, held = fit.placed_chord(s_ref, s_ball, inst_names + [n for n in gnames if n not in seen], False,
+                                   max_iterations)
         b = fit.chord(a[2], a[3], fixed=gnames + optional, ref_block=True, max_iterations=0)
         b, out["optional_instrument"]["staged"] = _with_optional(fit, b, optional, gnames, 0)
-        fits["staged"] = fit.result(*b, ball_setups)
+        fits["staged"] = {**fit.result(*b, ball_setups), "held_at_stated": held}
         shift = bem_shift(a[0], a[1])       # the geometry's uncertainty is that of the first stage
         for k, n in enumerate(gnames):
             if np.isfinite(a[1].se[k]):
@@ -765,6 +765,24 @@ class _Fit:
             sf.se[:nG] = free_se
         return model, sf, s_ref, s_ball, iterations, converged
 
+    def placed_chord(self, s_ref, s_ball, fixed, ref_block, max_iterations, rounds: int = 2):
+        """:meth:`chord` from the stated scene, then again with the geometry the data do not place
+        (:func:`unplaced`) held at its stated value, until none is left (at most ``rounds`` more fits): an unknown
+        the data leave anywhere within its bounds would otherwise stay where the search left it, and a scene
+        scored on set-ups it never saw pays for it. Returns (the chord's result, the names held)."""
+        held: list[str] = []
+        result = self.chord(s_ref, s_ball, fixed=list(fixed), ref_block=ref_block, max_iterations=max_iterations)
+        for _ in range(rounds):
+            loose = [n for n in unplaced(result[1].se[:self.nG], self.unknowns[:self.nG])
+                     if n not in set(held) | set(fixed)]
+            if not loose:
+                break
+            held += loose
+            self.report(f"  held at their stated values (the data do not place them): {', '.join(loose)}")
+            result = self.chord(s_ref, s_ball, fixed=list(fixed) + held, ref_block=ref_block,
+                                max_iterations=max_iterations)
+        return result, held
+
     def result(self, model, sf, s_ref, s_ball, iterations, converged, ball_setups) -> dict:
         """Scores of a fit: the reference's held-out drives, every ball set-up solved at the fitted scene."""
         data, x = self.data, sf.x
@@ -869,6 +887,18 @@ def _instrument_models(fit: _Fit, s_ref, s_ball, theta0: dict, ball_setups) -> l
     return out
 
 
+def unplaced(se, unknowns) -> list[str]:
+    """The unknowns whose data do not place them within their bounds: no finite standard error, or a 95 % interval
+    (+-1.96 se) wider than the bounds' span.
+
+    >>> us = [Unknown("a", 0.0, -1.0, 1.0, 0.1), Unknown("b", 0.0, -1.0, 1.0, 0.1), Unknown("c", 0.0, -1.0, 1.0, 0.1)]
+    >>> unplaced(np.array([0.1, np.nan, 0.6]), us)
+    ['b', 'c']
+    """
+    return [u.name for u, e in zip(unknowns, np.asarray(se, float))
+            if not np.isfinite(e) or 2 * 1.96 * e > u.upper - u.lower]
+
+
 def _with_optional(fit: _Fit, without: tuple, optional: list, fixed: list, max_iterations: int) -> tuple:
     """A fit (``without``: :meth:`_Fit.chord`'s result with the ``optional`` unknowns held at their start)
     continued from its scene with them free; the one of lower :func:`bic` (free unknowns counted, the plain
@@ -926,7 +956,11 @@ def _fit_markdown(name: str, f: dict, stated: dict) -> list[str]:
         bem = f"{v['se_bem']:.3g}" if "se_bem" in v else ""
         st = f"{stated[k]:.4g}" if k in stated else ""
         lines.append(f"| {k} | {st} | {v['value']:.4g} | {se} | {bem} | {v['unit']} |")
-    return lines + ["", "Not separable (directions of the unknowns the data do not determine): "
+    held = f.get("held_at_stated", [])
+    return lines + ["", "Held at their stated values, the data not placing them within their bounds (a first fit "
+                    "left them without a standard error or with a 95 % interval wider than the bounds): "
+                    + (", ".join(held) or "none") + ".",
+                    "Not separable (directions of the unknowns the data do not determine): "
                     + ("; ".join(str(d["unknowns"]) for d in f["not_separable"]) or "none") + ".",
                     "Correlated above 0.95: " + ("; ".join(str(c["unknowns"]) for c in f["correlated"]) or "none")
                     + ".", "At a bound (its own or the surrogate's trust region): " + (", ".join(f["at_bound"]) or "none")

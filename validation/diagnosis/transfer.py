@@ -709,7 +709,8 @@ def diagnose_transfer(comparison, scene, sigma_S_per_m: float, bem_options: dict
                                      engine_blocks(blocks, Zm, meas, tank, R_ring, wall, ring), V_cm)
     engine, *heldout = diagnose_rows(problem, floor, solve_at=solver_at(scene, wall, R_ring, sigma_S_per_m,
                                                                       bem_options, comparison),
-                                  solvable=GEOMETRIC_BLOCKS)
+                                  solvable=GEOMETRIC_BLOCKS,
+                                  noise_source=comparison.metrics["noise_floor"]["fit_noise_from"])
     seconds["engine_s"] = time.perf_counter() - t0
     # the engine's (measured - predicted) / model, turned to the table's sign (model / measured - 1 to first order;
     # its RMS is then the engine's gaps)
