@@ -508,32 +508,39 @@ def test_a_ball_on_a_symmetry_of_the_tank_gives_each_row_and_its_images_one_sign
             floor * rms(odd))
 
 
-def test_a_multiplexer_group_crosstalk_is_named_on_a_file_that_names_its_arrays_otherwise(tmp_path):
-    """A fixed voltage added per class of (drive pair, measurement pair) in every set-up (a multiplexer group's
-    crosstalk: relative to the reading, largest on the far side and alternating there with the ring offset's
-    parity), in a file whose reference array is named ``voltRef``: read, the offsets named by the engine with
-    each class's value within four standard errors, the gap brought to the noise."""
+def _crosstalk_phantom(tmp_path, seed, shares, rename_reference=False):
+    """The synthetic phantom with a fixed reading added per class of (drive, measurement) by their parity (even-even,
+    even-odd, odd-even, odd-odd: ``shares`` of the median reading) in both set-ups, compared with its scene.
+    Returns the comparison, the scene, its settings and the offsets (V)."""
     from electrosense.meshes.scene_file import load_scene, load_scene_settings
     from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
     from electrosense.validation.comparison.transfer import compare_transfer_log
-    from electrosense.validation.diagnosis.transfer import diagnose_transfer
 
-    mat = _synthetic_phantom(tmp_path, np.random.default_rng(5), noise=2e-4)
+    mat = _synthetic_phantom(tmp_path, np.random.default_rng(seed), noise=2e-4)
     d = {k: v for k, v in scipy.io.loadmat(mat).items() if not k.startswith("__")}
-    d["voltRef"] = d.pop("voltsRef")
+    if rename_reference:
+        d["voltRef"] = d.pop("voltsRef")
     n = 8
     k, m = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")      # drive k: pair (k+1, k+2); measurement m
-    far = np.median(np.abs(d["vvRef"][d["vvRef"] != 0]))
-    # even-even, even-odd, odd-even, odd-odd; the two mixed classes alike, so reciprocity holds (a crosstalk that broke
-    # it would raise the reciprocity floor, which the verdict takes as the noise)
-    offset = np.array([0.0, 0.03, 0.03, -0.02]) * far
+    offset = np.asarray(shares) * np.median(np.abs(d["vvRef"][d["vvRef"] != 0]))
     for s in ("Ref", "Avg1"):
         vv = d["vv" + s].reshape(n, n)
         d["vv" + s] = np.where(vv != 0, vv + offset[2 * (k % 2) + m % 2], 0.0).reshape(-1, 1)
     scipy.io.savemat(mat, d)
     log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
     scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
-    comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    return compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"]), scene, settings, offset
+
+
+def test_a_multiplexer_group_crosstalk_is_named_on_a_file_that_names_its_arrays_otherwise(tmp_path):
+    """A fixed voltage added per class of (drive pair, measurement pair) in every set-up (a multiplexer group's
+    crosstalk: relative to the reading, largest on the far side and alternating there with the ring offset's
+    parity), in a file whose reference array is named ``voltRef``: read, the offsets named by the engine with
+    each class's value within four standard errors, the gap brought to the noise."""
+    from electrosense.validation.diagnosis.transfer import diagnose_transfer
+
+    # even-even, even-odd, odd-even, odd-odd; the two mixed classes alike, so reciprocity holds
+    comp, scene, settings, offset = _crosstalk_phantom(tmp_path, 5, (0.0, 0.03, 0.03, -0.02), rename_reference=True)
     diag, _, _, _ = diagnose_transfer(comp, scene, 1.0, settings["bem"], settings["protocol"])
     assert diag["gap_before"] > 10 * diag["gap_after"], diag["engine"]["steps"]
     assert diag["chosen"] == "pair_parity_offsets" and diag["verdict"] == "explained", diag["engine"]["steps"]
@@ -606,24 +613,9 @@ def test_a_crosstalk_that_breaks_reciprocity_is_taken_out_of_the_noise_and_named
     """The mixed multiplexer classes' crosstalks differ (even-odd 5 %, odd-even 1 % of the median reading): the
     reciprocity floor holds that difference, measured and taken out of the noise the engine assumes (it was the
     floor, and the engine called the rest explained at once); the engine still names the crosstalk."""
-    from electrosense.meshes.scene_file import load_scene, load_scene_settings
-    from electrosense.validation.bench.transfer.eit_mat import eit_mat_to_transfer_log
-    from electrosense.validation.comparison.transfer import compare_transfer_log
     from electrosense.validation.diagnosis.transfer import diagnose_transfer
 
-    mat = _synthetic_phantom(tmp_path, np.random.default_rng(7), noise=2e-4)
-    d = {k: v for k, v in scipy.io.loadmat(mat).items() if not k.startswith("__")}
-    n = 8
-    k, m = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
-    far = np.median(np.abs(d["vvRef"][d["vvRef"] != 0]))
-    offset = np.array([0.0, 0.05, 0.01, -0.02]) * far         # even-even, even-odd, odd-even, odd-odd
-    for s in ("Ref", "Avg1"):
-        vv = d["vv" + s].reshape(n, n)
-        d["vv" + s] = np.where(vv != 0, vv + offset[2 * (k % 2) + m % 2], 0.0).reshape(-1, 1)
-    scipy.io.savemat(mat, d)
-    log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="tank.toml"))
-    scene, settings = load_scene(tmp_path / "tank.toml"), load_scene_settings(tmp_path / "tank.toml")
-    comp = compare_transfer_log(log, scene, 1.0, settings["bem"], settings["protocol"])
+    comp, scene, settings, offset = _crosstalk_phantom(tmp_path, 7, (0.0, 0.05, 0.01, -0.02))
     noise = comp.metrics["noise_floor"]
     assert noise["parity_offsets"]["p_value"] < 1e-6
     true_difference_ohm = (offset[1] - offset[2]) / 4.6e-3                # the file's 4.6 mA
