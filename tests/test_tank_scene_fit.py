@@ -243,27 +243,38 @@ def test_a_ring_written_with_rounded_coordinates_is_on_the_wall():
         T._ring_discs(inside, list(range(1, n + 1)))
 
 
-def test_geometry_the_data_do_not_place_is_held_at_its_stated_value_and_the_fit_repeated():
+def test_geometry_the_data_do_not_place_is_held_at_its_stated_value_where_the_bic_prefers_it():
     """A first fit that leaves an unknown without a standard error (or with a 95 % interval wider than its bounds)
-    is repeated with that unknown held at its stated value: an unknown the data leave anywhere would otherwise
-    stay where the search left it, and the held-out set-ups pay for it (seen on a blind file of the pail whose
-    stated scene met every goal: the held-out balls from 0.07 to 0.48 after the joint fit)."""
+    is repeated with it held at its stated value, and the fit of lower BIC kept: an unknown the data leave
+    anywhere would otherwise stay where the search left it, and the held-out set-ups pay for it (a blind file of
+    the pail whose stated scene met every goal: the held-out balls from 0.07 to 0.48 after the joint fit); a pair
+    each unplaced alone but placed together (a larger ball in a narrower tank) fits better free, and stays free."""
     from types import SimpleNamespace
 
     from electrosense.validation.diagnosis.scene_fit import Unknown
 
     us = [Unknown("ring_radius_m", 0.15, 0.1, 0.2, 0.005), Unknown("ball_z_m", -0.02, -0.1, 0.1, 0.01),
           Unknown("wall_slope", 0.0, -0.25, 0.25, 0.02), Unknown("log_scale", 0.0, -5, 5, 0.1)]
-    calls = []
 
-    def chord(s_ref, s_ball, fixed, ref_block, max_iterations):
-        calls.append(list(fixed))
-        se = {0: [0.002, np.nan, 0.2, 0.01], 1: [0.002, np.nan, 0.01, 0.01]}[min(len(calls) - 1, 1)]
-        return (None, SimpleNamespace(se=np.array(se)), None, None, [], True)
+    def fit_with(sse_held):
+        calls = []
 
-    said = []
-    fake = SimpleNamespace(chord=chord, unknowns=us, nG=3, report=said.append)
-    result, held = T._Fit.placed_chord(fake, None, None, ["log_scale"], True, 4)
-    assert held == ["ball_z_m", "wall_slope"]               # no standard error; +-1.96 se wider than its bounds
-    assert calls == [["log_scale"], ["log_scale", "ball_z_m", "wall_slope"]] and "ball_z_m" in said[0]
-    assert T.unplaced(result[1].se[:3], us[:3]) == ["ball_z_m"]    # held, so without its own standard error
+        def chord(s_ref, s_ball, fixed, ref_block, max_iterations):
+            calls.append(list(fixed))
+            held = len(calls) > 1
+            r = np.full(100, np.sqrt((sse_held if held else 1.0) / 100))
+            se = [0.002, np.nan, 0.01, 0.01] if held else [0.002, np.nan, 0.2, 0.01]
+            return (SimpleNamespace(residual=lambda x, r=r: r), SimpleNamespace(se=np.array(se), x=None), None, None,
+                    [], True)
+
+        said = []
+        fake = SimpleNamespace(chord=chord, unknowns=us, nG=3, report=said.append, names=[u.name for u in us])
+        return T._Fit.placed_chord(fake, None, None, ["log_scale"], True, 4), calls, said
+
+    (result, held, compared), calls, said = fit_with(sse_held=1.0)       # as good held: two parameters fewer
+    assert held == ["ball_z_m", "wall_slope"] and compared["held"]      # no standard error; +-1.96 se beyond bounds
+    assert calls == [["log_scale"], ["log_scale", "ball_z_m", "wall_slope"]] and "held" in said[0]
+    assert compared["bic_free"] - compared["bic_held"] == pytest.approx(2 * np.log(100))
+    (result, held, compared), _, said = fit_with(sse_held=2.0)          # far worse held: left free
+    assert held == [] and not compared["held"] and "left free" in said[0]
+    assert T.unplaced(result[1].se[:3], us[:3]) == ["ball_z_m", "wall_slope"]

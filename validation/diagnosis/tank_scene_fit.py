@@ -642,17 +642,17 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
 
     fits, optional = {}, [u.name for u in inst if u.name.startswith(OPTIONAL_INSTRUMENT)]
     out["optional_instrument"] = {}
-    ok, held = fit.placed_chord(s_ref, s_ball, optional, True, max_iterations)
+    ok, held, placed = fit.placed_chord(s_ref, s_ball, optional, True, max_iterations)
     ok, out["optional_instrument"]["joint"] = _with_optional(fit, ok, optional, held, max_iterations)
-    fits["joint"] = {**fit.result(*ok, ball_setups), "held_at_stated": held}
+    fits["joint"] = {**fit.result(*ok, ball_setups), "held_at_stated": held, "unplaced": placed}
     if fit_setup is not None:
         seen = [n for n in gnames if n in GEOMETRY_GROUPS["tank"][:2] or n in BALL_ONLY]
         inst_names = [u.name for u in inst]
-        a, held = fit.placed_chord(s_ref, s_ball, inst_names + [n for n in gnames if n not in seen], False,
-                                   max_iterations)
+        a, held, placed = fit.placed_chord(s_ref, s_ball, inst_names + [n for n in gnames if n not in seen], False,
+                                           max_iterations)
         b = fit.chord(a[2], a[3], fixed=gnames + optional, ref_block=True, max_iterations=0)
         b, out["optional_instrument"]["staged"] = _with_optional(fit, b, optional, gnames, 0)
-        fits["staged"] = {**fit.result(*b, ball_setups), "held_at_stated": held}
+        fits["staged"] = {**fit.result(*b, ball_setups), "held_at_stated": held, "unplaced": placed}
         shift = bem_shift(a[0], a[1])       # the geometry's uncertainty is that of the first stage
         for k, n in enumerate(gnames):
             if np.isfinite(a[1].se[k]):
@@ -765,23 +765,26 @@ class _Fit:
             sf.se[:nG] = free_se
         return model, sf, s_ref, s_ball, iterations, converged
 
-    def placed_chord(self, s_ref, s_ball, fixed, ref_block, max_iterations, rounds: int = 2):
-        """:meth:`chord` from the stated scene, then again with the geometry the data do not place
-        (:func:`unplaced`) held at its stated value, until none is left (at most ``rounds`` more fits): an unknown
-        the data leave anywhere within its bounds would otherwise stay where the search left it, and a scene
-        scored on set-ups it never saw pays for it. Returns (the chord's result, the names held)."""
-        held: list[str] = []
-        result = self.chord(s_ref, s_ball, fixed=list(fixed), ref_block=ref_block, max_iterations=max_iterations)
-        for _ in range(rounds):
-            loose = [n for n in unplaced(result[1].se[:self.nG], self.unknowns[:self.nG])
-                     if n not in set(held) | set(fixed)]
-            if not loose:
-                break
-            held += loose
-            self.report(f"  held at their stated values (the data do not place them): {', '.join(loose)}")
-            result = self.chord(s_ref, s_ball, fixed=list(fixed) + held, ref_block=ref_block,
-                                max_iterations=max_iterations)
-        return result, held
+    def placed_chord(self, s_ref, s_ball, fixed, ref_block, max_iterations):
+        """:meth:`chord` from the stated scene, and again with the geometry the data do not place (:func:`unplaced`)
+        held at its stated value; the fit of lower :func:`bic` is kept (an unknown the data leave anywhere within
+        its bounds would otherwise stay where the search left it, and the set-ups the fit never saw pay for it;
+        a pair that trades off, each unplaced alone, may still be placed together, and then the free fit wins).
+        Returns (the chord's result, the names held, what was compared)."""
+        free = self.chord(s_ref, s_ball, fixed=list(fixed), ref_block=ref_block, max_iterations=max_iterations)
+        loose = [n for n in unplaced(free[1].se[:self.nG], self.unknowns[:self.nG]) if n not in set(fixed)]
+        if not loose:
+            return free, [], {}
+        held = self.chord(s_ref, s_ball, fixed=list(fixed) + loose, ref_block=ref_block,
+                          max_iterations=max_iterations)
+        n_free = len([n for n in self.names if n not in set(fixed)])
+        b_free = bic(free[0].residual(free[1].x), n_free)
+        b_held = bic(held[0].residual(held[1].x), n_free - len(loose))
+        kept = b_held <= b_free
+        self.report(f"  {', '.join(loose)} not placed by the data: held at their stated values the BIC is "
+                    f"{b_held:.1f}, free {b_free:.1f}: {'held' if kept else 'left free'}")
+        return (held if kept else free), (loose if kept else []), {"unplaced": loose, "bic_free": b_free,
+                                                                   "bic_held": b_held, "held": bool(kept)}
 
     def result(self, model, sf, s_ref, s_ball, iterations, converged, ball_setups) -> dict:
         """Scores of a fit: the reference's held-out drives, every ball set-up solved at the fitted scene."""
@@ -956,10 +959,12 @@ def _fit_markdown(name: str, f: dict, stated: dict) -> list[str]:
         bem = f"{v['se_bem']:.3g}" if "se_bem" in v else ""
         st = f"{stated[k]:.4g}" if k in stated else ""
         lines.append(f"| {k} | {st} | {v['value']:.4g} | {se} | {bem} | {v['unit']} |")
-    held = f.get("held_at_stated", [])
-    return lines + ["", "Held at their stated values, the data not placing them within their bounds (a first fit "
-                    "left them without a standard error or with a 95 % interval wider than the bounds): "
-                    + (", ".join(held) or "none") + ".",
+    u = f.get("unplaced") or {}
+    placed = ("none" if not u else f"{', '.join(u['unplaced'])}: " + ("held at their stated values" if u["held"] else
+              "left free") + f" (BIC held {u['bic_held']:.1f}, free {u['bic_free']:.1f})")
+    return lines + ["", "Not placed by the data within their bounds (a first fit left them without a standard error "
+                    "or with a 95 % interval wider than the bounds; the fit repeated with them held at their stated "
+                    "values, the lower BIC kept): " + placed + ".",
                     "Not separable (directions of the unknowns the data do not determine): "
                     + ("; ".join(str(d["unknowns"]) for d in f["not_separable"]) or "none") + ".",
                     "Correlated above 0.95: " + ("; ".join(str(c["unknowns"]) for c in f["correlated"]) or "none")
