@@ -222,9 +222,9 @@ def measurement_noise(drive, measure, Z_ohm, ring=()) -> dict:
     (0.0283, 'the reciprocity floor')
     """
     rec = reciprocity_rel(drive, measure, Z_ohm)
-    out = {**noise_floor(rec), "pair_gains": reciprocity_after_pair_gains(drive, measure, Z_ohm),
-           "fit_noise_rel": None, "fit_noise_from": "the reciprocity floor"}
-    out["fit_noise_rel"] = out["per_measurement_rms_rel"]
+    floor = noise_floor(rec)
+    out = {**floor, "pair_gains": reciprocity_after_pair_gains(drive, measure, Z_ohm),
+           "fit_noise_rel": floor["per_measurement_rms_rel"], "fit_noise_from": "the reciprocity floor"}
     crosstalk = reciprocity_after_parity_offsets(drive, measure, Z_ohm, list(ring)) if len(ring) else {}
     if crosstalk:
         out["parity_offsets"] = crosstalk
@@ -348,7 +348,7 @@ def reciprocity_after_parity_offsets(drive, measure, Z_ohm, ring) -> dict:
     A fixed reading ``c`` added to each class of (drive pair, measurement pair)
     (:func:`pair_parity_classes`) moves a row of the even-odd class and its
     reciprocal (odd-even) apart by ``c_eo - c_oe``: ``z - z' = +-(c_eo - c_oe)``, one
-    number, fitted by weighted least squares on the relative differences. The part of the
+    number, fitted by least squares on the relative differences. The part of the
     reciprocity error that is this instrument's, not noise: ``p_value`` of the F test (one
     parameter), ``rms_rel_after`` the error left (scaled for the parameter fitted),
     ``difference_ohm`` and ``standard_error_ohm``. Empty without a ring or mixed reciprocal pairs.
@@ -376,6 +376,7 @@ def reciprocity_after_parity_offsets(drive, measure, Z_ohm, ring) -> dict:
     return {"difference_ohm": c, "standard_error_ohm": float(np.sqrt(rss1 / dof / (x @ x))),
             "rms_rel_before": float(np.sqrt(rss0 / n)), "rms_rel_after": float(np.sqrt(rss1 / dof)),
             "p_value": float(scipy.stats.f.sf(F, 1, dof)), "pairs": n}
+
 
 def ring_offsets(drive, measure, ring) -> np.ndarray | None:
     """(R,) cyclic offset of each measurement pair from its drive pair along ``ring`` (None: no ring, or off it).

@@ -43,6 +43,9 @@ update) and the fit repeated, until the geometry's step is below its
 standard errors (a chord Gauss-Newton: two solves per iteration). Every
 step that would leave the water or put an electrode off the wall is
 shortened (:func:`placeable_step`) and said.
+Geometry the data do not place (no standard error, or a 95 % interval wider
+than its bounds: :func:`unplaced`) is held at its stated value in a second
+fit, and the fit of lower :func:`bic` kept (:meth:`_Fit.placed_chord`).
 
 Example
 -------
@@ -568,8 +571,7 @@ def measured_data(log, protocol) -> _Data:
     # the reciprocity floor, less an instrument's part that breaks reciprocity
     floor = measurement_noise(t.drive, t.measure, t.Z_ohm, ring)["fit_noise_rel"]
     return _Data(Z, alternate_pair_folds(t.drive, ring) == 0, pair_parity_classes(t.drive, t.measure, ring), mp,
-                 len(ring), signals,
-                 float(floor), floors)
+                 len(ring), signals, float(floor), floors)
 
 
 def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict, fit_setup: str | None = None,
