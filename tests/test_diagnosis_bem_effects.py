@@ -108,6 +108,7 @@ def test_the_chosen_scene_solved_by_its_secant_is_not_solved_again():
     assert not check_from_secant(chosen, {**secant, "gap_bem": 3e-3}, 5e-4)["confirmed"]
 
 
+@pytest.mark.slow      # 15-20 s: out of the default run, which must stay under 10 min (-m slow)
 def test_the_secant_stops_where_the_model_is_already_the_bem(bench, monkeypatch):
     """A fitted tank solved at the poses of largest change first; the others only where the model misses there."""
     from types import SimpleNamespace

@@ -110,6 +110,7 @@ def test_an_elongated_object_is_never_a_confident_wrong_name():
     assert d.selection.verdict == "unexplained" or d.chosen[0] in ("unmodelled_object", "none"), d.chosen
 
 
+@pytest.mark.slow      # 15-20 s: out of the default run, which must stay under 10 min (-m slow)
 def test_a_null_effect_solved_by_the_bem_is_the_baseline(small, tmp_path):
     """The BEM check of an explanation at zero (the walls where they were believed) reproduces the baseline at
     its BEM poses: the check compares models, not meshes."""

@@ -40,6 +40,7 @@ def built(tmp_path_factory):
     return m, path
 
 
+@pytest.mark.slow      # 15-20 s: out of the default run, which must stay under 10 min (-m slow)
 def test_a_spent_budget_stops_the_first_poses_but_leaves_a_map(tmp_path):
     """The first poses come in rounds with the budget checked between them: a scene whose BEM is slow gets a map
     from one round and the fewest reference poses, in about its budget, not a build that ignores it."""
@@ -481,6 +482,7 @@ def test_diagnose_and_validate_use_the_map_without_a_new_bem(built, log_by_the_m
     assert "map" in json.dumps(metrics)
 
 
+@pytest.mark.slow      # 15-20 s: out of the default run, which must stay under 10 min (-m slow)
 def test_a_sector_sensor_map_permutes_the_sectors_of_its_mirror_images():
     """A reflection of the pose carries the sensor's mirror image: the left and right sectors swap. The BEM says
     so (the images' K differ by the permutation to the tank mesh's noise, and by far more without it), and the map,
