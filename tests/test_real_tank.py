@@ -593,8 +593,9 @@ def test_a_scene_without_a_bem_table_is_solved_on_the_coarsest_mesh_the_noise_hi
 
     stated = {"tank_edge_length_m": 0.05}
     assert study_bem_options(scene, 1.0, stated, no_solve, 0.02)[0] == stated
-    options, record = study_bem_options(scene, 1.0, {}, no_solve, float("nan"))
+    options, record, solution = study_bem_options(scene, 1.0, {}, no_solve, float("nan"))
     assert record["chosen"] == "defaults" and options == mesh_level(scene.tank, 3) and not record.get("levels")
+    assert solution is None
     # the study: the data's own floor picks the mesh
     metrics = run_transfer_comparison(mat, toml, tmp_path / "out", diagnose=False)
     mesh = metrics["bem"]["mesh"]

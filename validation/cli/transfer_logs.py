@@ -64,10 +64,10 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
     log = read_transfer_log(log_path)
     sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
-    bem_options, mesh = study_bem_options(
+    bem_options, mesh, empty = study_bem_options(
         scene, sigma, dict(settings.get("bem", {})), lambda K: model_transfer_ohm(K, table.drive, table.measure),
         measurement_noise(table.drive, table.measure, table.Z_ohm, protocol.get("ring", []))["fit_noise_rel"])
-    comp = compare_transfer_log(log, scene, sigma, bem_options, protocol)
+    comp = compare_transfer_log(log, scene, sigma, bem_options, protocol, solution=empty)
     comp.metrics["bem"]["mesh"] = mesh
     metrics: dict = {"data": data.name, "scene": scene_path.name, "setups": list(log.setups), **comp.metrics}
     resid = None

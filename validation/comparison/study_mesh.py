@@ -118,7 +118,7 @@ def observed_order(log_Z_coarse, log_Z_middle, log_Z_fine, refine: float = REFIN
 
 
 def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, noise_rel: float,
-                      log=print) -> tuple[dict, dict]:
+                      log=print) -> tuple[dict, dict, object]:
     """The BEM options a study solves ``scene`` with, and what decided them.
 
     Parameters
@@ -138,10 +138,12 @@ def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, n
     record : dict
         ``chosen`` ("stated", a level, or "defaults"), ``levels`` (each level's options, triangles, seconds and
         estimated error), ``threshold_rel`` and ``meaning``: for the study's metrics.
+    solution : the BEM solution of ``scene`` at ``options`` where the ladder solved it (the study need not solve it
+        again), else None.
     """
     if stated:
         return dict(stated), {"chosen": "stated", "options": dict(stated),
-                              "meaning": "the scene file's [bem] table, used as written"}
+                              "meaning": "the scene file's [bem] table, used as written"}, None
     record: dict = {"noise_rel": noise_rel, "threshold_rel": BEM_ERROR_OVER_NOISE * noise_rel, "levels": [],
                     "meaning": f"no [bem] table in the scene file: the coarsest mesh whose error on the reference's "
                                f"log|Z| (against a mesh {REFINE} times finer, order {BEM_ORDER} or the order three meshes show up to "
@@ -150,13 +152,15 @@ def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, n
     last = mesh_level(scene.tank, LEVELS - 1)
     if not (np.isfinite(noise_rel) and noise_rel > 0):
         return last, {**record, "chosen": "defaults", "options": last,
-                      "meaning": "no [bem] table and no reciprocity floor to judge a mesh by: the solver's defaults"}
-    solved: list = []
+                      "meaning": "no [bem] table and no reciprocity floor to judge a mesh by: the solver's defaults"}, None
+    solved: list = []          # log|Z| of each level solved, and its solution
+    solutions: list = []
 
     def level_log_Z(k):
         while len(solved) <= k:
             options = mesh_level(scene.tank, len(solved))
             t0 = time.perf_counter()
+            sol = None
             try:
                 sol = solve_scene(scene, sigma_S_per_m, **options)
                 z = np.log(np.abs(transfer_ohm(sol.conductance.K_S)))
@@ -165,6 +169,7 @@ def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, n
                 z, entry = None, {"level": len(solved), "options": options, "error": str(exc)}
             entry["solve_s"] = time.perf_counter() - t0
             solved.append(z)
+            solutions.append(sol)
             record["levels"].append(entry)
         return solved[k]
 
@@ -182,5 +187,5 @@ def study_bem_options(scene, sigma_S_per_m: float, stated: dict, transfer_ohm, n
                 f"at order {order:.2f} (threshold {100 * record['threshold_rel']:.2f} %)")
             if err <= record["threshold_rel"]:
                 options = mesh_level(scene.tank, j)
-                return options, {**record, "chosen": j, "options": options}
-    return last, {**record, "chosen": "defaults", "options": last}
+                return options, {**record, "chosen": j, "options": options}, solutions[j]
+    return last, {**record, "chosen": "defaults", "options": last}, solutions[-1] if len(solutions) == LEVELS else None

@@ -622,17 +622,20 @@ def compare_objects(comparison: TransferComparison, log, scene, sigma_S_per_m: f
                                 k: v["measured_over_simulated_amplitude"] for k, v in ball.items()}}}
 
 
-def compare_transfer_log(log, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict) -> TransferComparison:
+def compare_transfer_log(log, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict,
+                         solution=None) -> TransferComparison:
     """The whole comparison of a transfer log with its scene (one solve of the empty tank, a few per ball set-up).
 
     ``protocol``: the scene's ``[protocol]`` table (``reference``, ``ring``,
-    ball set-ups). ``metrics`` of the result holds the noise floor, the empty
-    tank's scores, the objects' and the BEM's size and times (``bem``).
+    ball set-ups). ``solution``: the empty scene already solved at ``bem_options`` (else solved here).
+    ``metrics`` of the result holds the noise floor, the empty tank's scores, the objects' and the BEM's size and
+    times (``bem``).
     """
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
     t0 = time.perf_counter()
-    sol0 = solve_scene(scene, sigma_S_per_m, **bem_options)
-    bem = {"triangles": sol0.info["triangles"], "solve_s": time.perf_counter() - t0}
+    sol0 = solve_scene(scene, sigma_S_per_m, **bem_options) if solution is None else solution
+    bem = {"triangles": sol0.info["triangles"],
+           "solve_s": time.perf_counter() - t0 if solution is None else sol0.info["seconds"]}
     comp = compare_empty_tank(table, sol0, sigma_S_per_m, protocol.get("ring", []))
     comp.metrics = {"noise_floor": comp.metrics.pop("noise_floor"), "bem": bem, **comp.metrics}
     maps = scene_symmetries(scene)

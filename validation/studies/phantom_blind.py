@@ -14,7 +14,7 @@ what its description says.
   2 mm; built from the scene file's own objects, not by the fit's code.
 * **Another mesh**: the solver's defaults (the finest level of the study's
   ladder, :func:`~electrosense.validation.comparison.study_mesh.mesh_level`),
-  graded towards the balls of each set-up, at a geometry the study never
+  graded towards every set-up's balls (one tank mesh for all, as the study), at a geometry the study never
   solves; the study itself takes a coarser level unless the data's noise asks
   for this one.
 * **An instrument** read on the file's own layout (``vvX``; the reference's
@@ -61,12 +61,12 @@ from electrosense.bem.protocol import (
     transfer_impedances_ohm,
 )
 from electrosense.bem.solve import solve_scene
-from electrosense.meshes.objects import Sphere
 from electrosense.meshes.scene_file import load_scene, load_scene_settings
+from electrosense.meshes.scene_mesh import objects_focus_m
 from electrosense.meshes.surface_electrodes import DiscElectrode
 from electrosense.validation.cli.transfer_logs import run_transfer_comparison
 from electrosense.validation.comparison.study_mesh import LEVELS, mesh_level
-from electrosense.validation.comparison.transfer import stated_balls
+from electrosense.validation.comparison.transfer import balls_at, stated_balls
 from electrosense.validation.comparison.transfer_report import goals_table
 
 #: the source's current (A), as the Ottawa files drive it
@@ -103,9 +103,8 @@ def true_scene(scene, protocol: dict, rng) -> tuple:
         electrodes.append(e)
     truth = replace(scene, tank=true_tank, electrodes=tuple(electrodes))
     balls = stated_balls(scene, protocol)
-    shift = np.asarray(draw["frame_shift_m"])
-    setups = {name: tuple(Sphere(centre_m=(float(x + shift[0]), float(y + shift[1]), balls["z_m"]),
-                                 radius_m=balls["radius_m"] * draw["ball_radius_rel"]) for x, y in positions)
+    setups = {name: balls_at(np.asarray(positions, float) + draw["frame_shift_m"], balls["z_m"],
+                             balls["radius_m"] * draw["ball_radius_rel"])
               for name, positions in protocol.items() if _is_setup(name, positions)}
     return truth, setups, draw
 
@@ -154,11 +153,14 @@ def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=pri
     data = {"description": f"blind file of {scene_path.name}'s layout made by esense study phantom_blind "
                            f"(fault {fault}, seed {seed})"}
     reference = str(protocol.get("reference", "Ref"))
+    # every set-up on one tank mesh graded towards all the balls, as the study solves them: a mesh graded to each
+    # set-up's own balls would put the difference of two tank meshes into the file's signals
+    focus = objects_focus_m([b for s in setups.values() for b in s])
+    if focus is not None:
+        options = {**options, "tank_focus_m": focus}
     for name, balls in {reference: (), **setups}.items():
         t0 = time.perf_counter()
-        focus = np.array([b.centre_m for b in (balls or [b for s in setups.values() for b in s])])
-        sol = solve_scene(replace(truth, objects=balls), 1.0, **options,
-                          **({"tank_focus_m": focus} if len(focus) else {}))
+        sol = solve_scene(replace(truth, objects=balls), 1.0, **options)
         K = sol.conductance.K_S
         data["vv" + name] = instrument_reading(K, ring, fault, gains, row_error, rng).reshape(-1, 1)
         current = "volt" if name == reference else "volts"        # as the second Ottawa file spells them
@@ -168,7 +170,8 @@ def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=pri
         log(f"set-up {name}: {sol.info['triangles']} triangles, {time.perf_counter() - t0:.1f} s")
     path = out / f"blind_{fault}_seed{seed}.mat"
     scipy.io.savemat(path, data)
-    return path, {"fault": fault, "seed": seed, "reference": reference, "scene_drawn": draw, "mesh": options,
+    return path, {"fault": fault, "seed": seed, "reference": reference, "scene_drawn": draw,
+                  "mesh": {k: v for k, v in options.items() if k != "tank_focus_m"},
                   "crosstalk_of_median": list(CROSSTALK_OF_MEDIAN) if fault == "crosstalk" else None,
                   "common_mode_quadrature": COMMON_MODE_QUADRATURE if fault == "common_mode" else None,
                   "channel_gain_rms": CHANNEL_GAIN_RMS, "row_error_rms": ROW_ERROR_RMS,
