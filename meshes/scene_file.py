@@ -58,6 +58,9 @@ allowed when it has electrodes)::
     centre_m = [0.0, 0.0, -0.15]
     radius_m = 0.005
 
+    [tolerance]                 # optional: how well the description knows a length (one standard
+    ring_radius_m = 0.008       # deviation; the real-tank scene fit's priors; inf: none)
+
 Unknown tables or keys are refused (a misspelt key must not be silently
 ignored). Tables other than ``tank``, ``sensor`` and ``objects`` that the
 geometry does not use (``[water]``...) are returned by
@@ -93,7 +96,7 @@ from electrosense.meshes.tank import Tank
 __all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
 
 #: tables that carry physics or run settings rather than geometry; passed through
-SETTINGS_TABLES = ("water", "bem", "psm", "contact", "protocol")
+SETTINGS_TABLES = ("water", "bem", "psm", "contact", "protocol", "tolerance")
 
 _SHAPES = {
     "sphere": (Sphere, {"radius_m"}),

@@ -100,6 +100,19 @@ def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_s
         assert abs(got[k] - truth[k]) < 4 * sf.se[i] + 1e-9, (k, got[k], truth[k], sf.se[i])
     assert np.isnan(sf.se[names.index("unseen")])
     assert any("unseen" in d["unknowns"] for d in sf.not_separable)
+    # the description's tolerance as a prior: the unseen unknown at its stated value, its standard error the
+    # prior's (times the fit's noise scale), still named as what the data do not separate; the others unmoved
+    us[2] = T.Unknown("unseen", 0.0, -1, 1, 0.1, prior=(0.05, 0.02))
+    _, sp = fit.once(ref, ball)
+    i = names.index("unseen")
+    assert sp.x[i] == pytest.approx(0.05, abs=1e-6) and sp.se[i] == pytest.approx(0.02 * sp.noise_rms, rel=1e-3)
+    assert sp.table()["unseen"]["set_by_prior"] and any("unseen" in d["unknowns"] for d in sp.not_separable)
+    assert np.allclose(sp.x[:2], sf.x[:2], atol=0.1 * sf.se[:2].max())
+
+
+#: the phantom's scene file is off by more than a hand's tolerance (the tank 6 %, the ball 25 %): its
+#: ``[tolerance]`` table says so, and the fit has no prior on them
+LOOSE = {"ring_radius_m": np.inf, "ball_radius_m": np.inf}
 
 
 def _phantom(tmp_path, rng, noise=3e-3, crosstalk=(0.0, 0.0, 0.0, 0.0), n=8):
@@ -152,7 +165,7 @@ def test_a_variant_phantom_the_tank_ball_and_multiplexer_found_within_their_stan
     mat, scene, settings, truth = _phantom(tmp_path, np.random.default_rng(3))
     log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="unused.toml"))
     out = T.fit_tank_scene(log, scene, 1.0, settings["bem"], settings["protocol"], "Avg1", max_iterations=4,
-                           geometry=("ring_radius_m", "ball_radius_m"), report=lambda *a: None)
+                           geometry=("ring_radius_m", "ball_radius_m"), tolerance=LOOSE, report=lambda *a: None)
     assert out["noise"]["bem_discretisation_log_Z"] > 0 and out["noise"]["reference_per_measurement_rel"] > 1e-3
     stated = out["what_each_explains"][-3]["setups_rms_rel"]["Avg2"]     # the instrument alone, stated scene
     assert stated > 0.2
@@ -186,7 +199,7 @@ def test_a_multiplexer_crosstalk_enters_the_scene_fit_where_the_fitted_scene_nee
                                            n=16)     # on 8 electrodes the classes' gains and offsets barely part
     log = read_transfer_log(eit_mat_to_transfer_log(mat, tmp_path / "log.csv", scene="unused.toml"))
     out = T.fit_tank_scene(log, scene, 1.0, settings["bem"], settings["protocol"], "Avg1", max_iterations=2,
-                           geometry=("ring_radius_m", "ball_radius_m"), report=lambda *a: None)
+                           geometry=("ring_radius_m", "ball_radius_m"), tolerance=LOOSE, report=lambda *a: None)
     chosen = out["optional_instrument"]["joint"]
     assert chosen["kept"] and chosen["bic_with"] < chosen["bic_without"] - 10
     f = out["fits"]["joint"]
@@ -210,6 +223,10 @@ def test_a_scene_fit_that_stops_leaves_the_comparison_written(tmp_path):
     from electrosense.validation.cli.transfer_logs import run_transfer_comparison
 
     mat = _synthetic_phantom(tmp_path, np.random.default_rng(2))
+    bad = tmp_path / "bad_tolerance.toml"        # a misspelt tolerance: refused before any solve, naming it
+    bad.write_text((tmp_path / "tank.toml").read_text() + "\n[tolerance]\ndepth_m = 0.01\n")
+    with pytest.raises(ValueError, match=r"bad_tolerance.toml: \[tolerance\] names depth_m"):
+        run_transfer_comparison(mat, bad, tmp_path / "bad", diagnose=False, scene_fit=True)
     m = run_transfer_comparison(mat, tmp_path / "tank.toml", tmp_path / "out", diagnose=False, scene_fit=True,
                                 fit_setup="Avg9")
     assert "Avg9" in m["scene_fit"]["error"] and m["object_rms_rel"]["Avg1"] < 0.2
@@ -264,7 +281,7 @@ def test_geometry_the_data_do_not_place_is_held_at_its_stated_value_where_the_bi
             held = len(calls) > 1
             r = np.full(100, np.sqrt((sse_held if held else 1.0) / 100))
             se = [0.002, np.nan, 0.01, 0.01] if held else [0.002, np.nan, 0.2, 0.01]
-            return (SimpleNamespace(residual=lambda x, r=r: r), SimpleNamespace(se=np.array(se), x=None), None, None,
+            return (SimpleNamespace(posterior_rows=lambda x, r=r: r), SimpleNamespace(se=np.array(se), x=None), None, None,
                     [], True)
 
         said = []

@@ -63,6 +63,13 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
                 if data.suffix.lower() == ".mat" else data)
     log = read_transfer_log(log_path)
     sigma = float(settings.get("water", {}).get("sigma_S_per_m", 1.0))
+    if scene_fit:        # a misspelt tolerance refused before any solve
+        from electrosense.validation.diagnosis.tank_scene_fit import checked_tolerance
+
+        try:
+            checked_tolerance(settings.get("tolerance"))
+        except ValueError as exc:
+            raise ValueError(f"{scene_path}: {exc}") from None
     table = setup_table(log, str(protocol.get("reference", log.setups[0])))
     bem_options, mesh, empty = study_bem_options(
         scene, sigma, dict(settings.get("bem", {})), lambda K: model_transfer_ohm(K, table.drive, table.measure),
@@ -92,7 +99,8 @@ def run_transfer_comparison(data, scene_path, out, diagnose: bool = True, scene_
         from electrosense.validation.diagnosis.tank_scene_fit import fit_tank_scene
 
         try:
-            metrics["scene_fit"] = fit_tank_scene(log, scene, sigma, bem_options, protocol, fit_setup)
+            metrics["scene_fit"] = fit_tank_scene(log, scene, sigma, bem_options, protocol, fit_setup,
+                                                  tolerance=settings.get("tolerance"))
         except Exception as exc:     # an optional step: what was computed before is written all the same
             metrics["scene_fit"] = {"error": f"the scene fit stopped: {type(exc).__name__}: {exc}"}
     metrics["goals"] = goals(metrics)

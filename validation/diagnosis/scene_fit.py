@@ -11,7 +11,8 @@ finite differences where a parameter moves the geometry).
 The statistics (:func:`uncertainty`): the noise model is independent residuals of one variance, estimated from
 the fit's own residuals, ``s^2 = |r|^2 / (n - p)`` (the data's
 linear floor says how far that is from white); the covariance is
-``s^2 (J^T J)^+`` in the unknowns' scaled coordinates. Directions of ``J``
+``s^2 (J^T J)^+`` in the unknowns' scaled coordinates (with an unknown's Gaussian prior, :attr:`Unknown.prior`,
+as one more row of ``r`` and ``J``: a maximum a posteriori fit, the standard errors the posterior's). Directions of ``J``
 whose singular value is below ``1e-3`` of the largest (a change of the
 unknowns that moves the data by less than a thousandth of the best
 determined one) are not determined by the data: they are named
@@ -41,7 +42,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Unknown", "SceneFit", "fit_unknowns", "uncertainty", "not_separable"]
+__all__ = ["Unknown", "SceneFit", "fit_unknowns", "prior_rows", "uncertainty", "not_separable"]
 
 #: singular values below this fraction of the largest: directions the data do not determine
 UNDETERMINED = 1e-3
@@ -51,7 +52,10 @@ CORRELATED = 0.95
 
 @dataclass(frozen=True)
 class Unknown:
-    """A named unknown: start ``value``, bounds, ``step`` (its typical size, for scaling), unit and meaning."""
+    """A named unknown: start ``value``, bounds, ``step`` (its typical size, for scaling), unit and meaning;
+    ``prior``: (mean, standard deviation) of what is known before the data (a description's value and its
+    tolerance), a Gaussian that :func:`fit_unknowns` adds as one residual row, ``(x - mean) / sd``, in the
+    units of the data's rows (which the caller scales to one noise standard deviation)."""
 
     name: str
     value: float
@@ -60,6 +64,17 @@ class Unknown:
     step: float = 1.0
     unit: str = ""
     meaning: str = ""
+    prior: tuple | None = None
+
+
+def prior_rows(unknowns: Sequence[Unknown], x, fixed: Sequence[str] = ()) -> np.ndarray:
+    """The Gaussian priors' residual rows ``(x - mean) / sd`` of the free unknowns that have one.
+
+    >>> prior_rows([Unknown("a", 0.0, prior=(1.0, 0.5)), Unknown("b", 0.0)], np.array([2.0, 7.0]))
+    array([2.])
+    """
+    return np.array([(v - u.prior[0]) / u.prior[1] for u, v in zip(unknowns, np.asarray(x, float))
+                     if u.prior is not None and u.name not in set(fixed)], float)
 
 
 @dataclass
@@ -76,16 +91,22 @@ class SceneFit:
     at_bound: list = field(default_factory=list)
     noise_rms: float = float("nan")
     nfev: int = 0
+    prior_sd: dict = field(default_factory=dict)
 
     @property
     def values(self) -> dict:
         return {n: float(v) for n, v in zip(self.names, self.x)}
 
     def table(self, units: dict | None = None) -> dict:
-        """{name: {value, se, unit}} for metrics files."""
+        """{name: {value, se, unit}} for metrics files; with a prior also its ``prior_sd`` and ``set_by_prior``
+        (the standard error above 0.7 of the prior's: the data narrow it by less than 30 %)."""
         units = units or {}
-        return {n: {"value": float(v), "se": None if not np.isfinite(s) else float(s), "unit": units.get(n, "")}
-                for n, v, s in zip(self.names, self.x, self.se)}
+        out = {n: {"value": float(v), "se": None if not np.isfinite(s) else float(s), "unit": units.get(n, "")}
+               for n, v, s in zip(self.names, self.x, self.se)}
+        for n, sd in self.prior_sd.items():
+            se = out[n]["se"]
+            out[n].update(prior_sd=float(sd), set_by_prior=bool(se is not None and se > 0.7 * sd))
+        return out
 
 
 def not_separable(J: np.ndarray, names: Sequence[str], scale: np.ndarray, rtol: float = UNDETERMINED) -> list:
@@ -143,17 +164,26 @@ def fit_unknowns(residual_fn: Callable[[np.ndarray], np.ndarray], jacobian_fn: C
     step = np.array([u.step for u in unknowns], float)
     free = np.array([n not in set(fixed) for n in names])
     x0 = np.clip(x0, lo, hi)
+    # the priors' rows: d row / d x = 1 / sd in the unknown's column
+    with_prior = [k for k, u in enumerate(unknowns) if u.prior is not None and free[k]]
+    P = np.zeros((len(with_prior), len(names)))
+    P[np.arange(len(with_prior)), with_prior] = [1.0 / unknowns[k].prior[1] for k in with_prior]
 
     def full(xf):
         x = x0.copy()
         x[free] = xf
         return x
 
-    res = least_squares(lambda xf: residual_fn(full(xf)), x0[free], jac=lambda xf: jacobian_fn(full(xf))[:, free],
+    def rows(xf):
+        x = full(xf)
+        return np.concatenate([residual_fn(x), prior_rows(unknowns, x, fixed)])
+
+    res = least_squares(rows, x0[free], jac=lambda xf: np.vstack([jacobian_fn(full(xf)), P])[:, free],
                         bounds=(lo[free], hi[free]), x_scale=step[free], max_nfev=max_nfev, method="trf",
                         loss=loss, f_scale=f_scale)
     x = full(res.x)
     J = res.jac
+    n_data = len(res.fun) - len(with_prior)     # what the data alone leave undetermined, before any prior
     se_f, corr, noise = uncertainty(J, res.fun, step[free])
     se = np.full(len(names), np.nan)
     se[free] = se_f
@@ -166,5 +196,5 @@ def fit_unknowns(residual_fn: Callable[[np.ndarray], np.ndarray], jacobian_fn: C
     span = np.where(np.isfinite(hi - lo), hi - lo, np.inf)
     at_bound = [n for n, v, a, b, sp, f in zip(names, x, lo, hi, span, free)
                 if f and (abs(v - a) <= 1e-6 * min(sp, 1e6) + 1e-12 or abs(v - b) <= 1e-6 * min(sp, 1e6) + 1e-12)]
-    return SceneFit(names, x, se, res.fun, J, not_separable(J, fnames, step[free]), corr_list, at_bound, noise,
-                    int(res.nfev))
+    return SceneFit(names, x, se, res.fun, J, not_separable(J[:n_data], fnames, step[free]), corr_list, at_bound, noise,
+                    int(res.nfev), {unknowns[k].name: unknowns[k].prior[1] for k in with_prior})

@@ -75,12 +75,14 @@ from electrosense.validation.comparison.transfer import (
     stated_balls,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, instrument_reference
-from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns
+from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns, prior_rows
 
 __all__ = [
     "GEOMETRY_GROUPS",
     "SetupSurrogate",
     "alternate_pair_folds",
+    "checked_tolerance",
+    "description_tolerance",
     "fit_tank_scene",
     "gauge_rows",
     "geometry_unknowns",
@@ -142,9 +144,71 @@ def ring_state(scene, protocol) -> dict:
     return out
 
 
-def geometry_unknowns(scene, protocol, names=None) -> list[Unknown]:
+#: what a description written by hand knows of each geometry unknown, one standard deviation in the unknown's
+#: unit: the scene fit's Gaussian priors about the stated values (:func:`description_tolerance`; a scene file's
+#: ``[tolerance]`` table overrides them). A length read off a ruler or a tape, 3 mm; a water mark, 5 mm; a
+#: wall's taper, 0.05; a ball placed by hand on a line or a grid, 5 mm each way; its height, where stated, 5 mm.
+DESCRIPTION_TOLERANCE = {"ring_radius_m": 0.003, "wall_slope": 0.05, "water_depth_m": 0.005, "ring_z_m": 0.003,
+                         "ball_z_m": 0.005, "frame_dx_m": 0.005, "frame_dy_m": 0.005}
+#: ... and those relative to the stated value: a manufactured ball's radius, 2 %; a ring electrode's effective
+#: radius (a screw's or a tack's head is no flush disc), half of it
+DESCRIPTION_TOLERANCE_REL = {"ball_radius_m": 0.02, "electrode_radius_m": 0.5}
+
+
+def description_tolerance(scene, protocol, overrides: dict | None = None, stated_keys=None) -> dict:
+    """Each geometry unknown's prior standard deviation: :data:`DESCRIPTION_TOLERANCE`, the relative ones of
+    :data:`DESCRIPTION_TOLERANCE_REL`, the frame's turn a quarter of the ring's spacing; none (``inf``) for what
+    the ``[protocol]`` did not state (``stated_keys``: its keys as the user wrote them; a ball's radius or height
+    taken by assumption); then ``overrides`` (a scene file's ``[tolerance]`` table: positive numbers, ``inf`` for
+    no prior), checked against the unknowns' names.
+
+    >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> s = Scene(None, tank=CylinderTank(0.15, 0.3), electrodes=[DiscElectrode((0.15, 0.0, -0.05), 0.004)])
+    >>> t = description_tolerance(s, {"ring": [1]}, {"water_depth_m": 0.01})
+    >>> t["ring_radius_m"], t["water_depth_m"], t["electrode_radius_m"]
+    (0.003, 0.01, 0.002)
+    >>> description_tolerance(s, {"ring": [1]}, {"depth": 0.01})
+    Traceback (most recent call last):
+    ...
+    ValueError: [tolerance] names depth, not an unknown of the scene fit (ring_radius_m, wall_slope, water_depth_m, ring_z_m, electrode_radius_m)
+    """
+    v = ring_state(scene, protocol)
+    stated_keys = set(protocol if stated_keys is None else stated_keys)
+    out = {n: DESCRIPTION_TOLERANCE.get(n, np.inf) for n in v}
+    out.update({n: r * v[n] for n, r in DESCRIPTION_TOLERANCE_REL.items() if n in v})
+    if "frame_rotation_rad" in v:
+        out["frame_rotation_rad"] = 0.25 * 2 * np.pi / max(len(protocol.get("ring", [])), 1)
+    for key in ("ball_radius_m", "ball_z_m"):
+        if key in v and key not in stated_keys:
+            out[key] = np.inf
+    out.update(checked_tolerance(overrides, out))
+    return out
+
+
+def checked_tolerance(table: dict | None, names=None) -> dict:
+    """A scene file's ``[tolerance]`` table checked: each key one of ``names`` (default every geometry unknown of
+    :data:`GEOMETRY_GROUPS`), each value a positive number (``inf``: no prior); a clear error otherwise.
+
+    >>> checked_tolerance({"water_depth_m": 0.01})
+    {'water_depth_m': 0.01}
+    >>> checked_tolerance({"water_depth_m": -1})
+    Traceback (most recent call last):
+    ...
+    ValueError: [tolerance] water_depth_m = -1: a standard deviation must be a positive number (inf: none)
+    """
+    names = [n for group in GEOMETRY_GROUPS.values() for n in group] if names is None else list(names)
+    for n, val in (table or {}).items():
+        if n not in names:
+            raise ValueError(f"[tolerance] names {n}, not an unknown of the scene fit ({', '.join(names)})")
+        if isinstance(val, bool) or not isinstance(val, (int, float)) or not val > 0:
+            raise ValueError(f"[tolerance] {n} = {val!r}: a standard deviation must be a positive number (inf: none)")
+    return {n: float(v) for n, v in (table or {}).items()}
+
+
+def geometry_unknowns(scene, protocol, names=None, tolerance: dict | None = None) -> list[Unknown]:
     """The scene's unknowns (start: as stated) with bounds that keep the ring, the balls and the electrodes in the
-    water; ``names`` picks some (default: all, the balls' only where the protocol places balls).
+    water; ``names`` picks some (default: all, the balls' only where the protocol places balls); ``tolerance``:
+    each one's prior standard deviation about its stated value (:func:`description_tolerance`; default none).
 
     >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.15, 0.3), electrodes=[DiscElectrode((0.15, 0.0, -0.05), 0.004)])
@@ -180,6 +244,9 @@ def geometry_unknowns(scene, protocol, names=None) -> list[Unknown]:
                Unknown("frame_dy_m", 0.0, -0.3 * R, 0.3 * R, 0.004, "m", "the same in y"),
                Unknown("frame_rotation_rad", 0.0, -np.pi / n, np.pi / n, 0.03, "rad",
                        "the set-ups' frame turned about the axis from the ring's (counter-clockwise)")]
+    tolerance = tolerance or {}
+    us = [replace(u, prior=(u.value, tolerance[u.name])) if np.isfinite(tolerance.get(u.name, np.inf)) else u
+          for u in us]
     return [u for u in us if names is None or u.name in names]
 
 
@@ -509,6 +576,10 @@ class _Model:
     def inst(self, x) -> dict:
         return dict(zip(self.names[self.nG:], x[self.nG:]))
 
+    def posterior_rows(self, x) -> np.ndarray:
+        """:meth:`residual` and the geometry's prior rows (:func:`prior_rows`): what the fit minimises."""
+        return np.concatenate([self.residual(x), prior_rows(self.unknowns, x)])
+
     def log_reading(self, sur: SetupSurrogate, x):
         la = sur.log_abs(x[:self.nG])
         return _reading(sur.sign * np.exp(la), sur.V_cm, sur.Z_ground, self.inst(x), self.data.cls,
@@ -575,7 +646,7 @@ def measured_data(log, protocol) -> _Data:
 
 
 def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol: dict, fit_setup: str | None = None,
-                   max_iterations: int = 4, geometry=None, report=print) -> dict:
+                   max_iterations: int = 4, geometry=None, tolerance: dict | None = None, report=print) -> dict:
     """The scene's and the instrument's unknowns fitted on the reference set-up's training drives and one ball
     set-up (``fit_setup``; default the first the protocol places), scored on the held-out drives and the other
     ball set-ups, each solved on the BEM at the fitted scene. Two ways (``fits``):
@@ -590,8 +661,12 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     over its RMS, the floor, the amplitude), ``iterations``; ``stated`` and ``what_each_explains`` (the
     instrument's unknowns added one group at a time at the stated scene, then each fit); ``solves``.
     ``geometry``: the names of the geometry unknowns to fit (default all of :func:`geometry_unknowns`; the others
-    stay as stated).
+    stay as stated). ``tolerance``: the scene file's ``[tolerance]`` table (:func:`description_tolerance`): the
+    description is a measurement too, and a fit maximises the posterior with each stated value a Gaussian prior
+    (a scene scaled as a whole, its balls shifted to the same places relative to the wall, fits one ball set-up
+    and an empty tank alike; only the description tells them apart).
     """
+    stated_keys = set(protocol)
     t_start = time.perf_counter()
     data = measured_data(log, protocol)
     ball_setups = list(data.signals)
@@ -611,7 +686,8 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     focus = objects_focus_m([o for su in ball_setups
                              for o in balls_at(protocol[su], stated["ball_z_m"], stated["ball_radius_m"])])
     problem = _Problem(scene, protocol, sigma_S_per_m, bem_options, table, reference, ground, [], focus)
-    geo = geometry_unknowns(scene, protocol, geometry)
+    tolerances = description_tolerance(scene, protocol, tolerance, stated_keys)
+    geo = geometry_unknowns(scene, protocol, geometry, tolerances)
     if fit_setup is None:
         geo = [u for u in geo if u.name not in BALL_ONLY]
     gnames = [u.name for u in geo]
@@ -632,14 +708,15 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
     if fit_setup is not None:
         data.floors = {k: float(np.hypot(v, bem_sig)) for k, v in data.floors.items()}
     out = {"fit_setup": fit_setup, "heldout_setups": [s for s in ball_setups if s != fit_setup],
-           "stated": theta0, "noise": {
+           "stated": theta0, "tolerance": {n: t for n, t in tolerances.items() if np.isfinite(t)}, "noise": {
                "reference_per_measurement_rel": data.floor_ref, "signal_floor_rel": dict(data.floors),
                "bem_discretisation_log_Z": bem_ref, "bem_discretisation_signal": bem_sig,
                "model": "independent errors: the reference's log|Z| of one standard deviation (its reciprocity "
                         "floor and the BEM's discretisation error against a finer mesh, in quadrature), each ball "
                         "signal's of its own floor (its reciprocity, and the BEM's); the fit's scatter scales both "
                         "(noise_rms); rows beyond 3 times the typical misfit (the floor, or the plain fit's "
-                        "scatter where larger) weigh less (soft L1)"}}
+                        "scatter where larger) weigh less (soft L1); each stated length a Gaussian prior of "
+                        "the description's tolerance (`tolerance`, one standard deviation)"}}
     explains = _instrument_models(fit, s_ref, s_ball, theta0, ball_setups)
 
     fits, optional = {}, [u.name for u in inst if u.name.startswith(OPTIONAL_INSTRUMENT)]
@@ -769,7 +846,7 @@ class _Fit:
 
     def placed_chord(self, s_ref, s_ball, fixed, ref_block, max_iterations):
         """:meth:`chord` from the stated scene, and again with the geometry the data do not place (:func:`unplaced`)
-        held at its stated value; the fit of lower :func:`bic` is kept (an unknown the data leave anywhere within
+        held at its stated value; the fit of lower :func:`bic` (of :meth:`_Model.posterior_rows`) is kept (an unknown the data leave anywhere within
         its bounds would otherwise stay where the search left it, and the set-ups the fit never saw pay for it;
         a pair that trades off, each unplaced alone, may still be placed together, and then the free fit wins).
         Returns (the chord's result, the names held, what was compared)."""
@@ -780,8 +857,8 @@ class _Fit:
         held = self.chord(s_ref, s_ball, fixed=list(fixed) + loose, ref_block=ref_block,
                           max_iterations=max_iterations)
         n_free = len([n for n in self.names if n not in set(fixed)])
-        b_free = bic(free[0].residual(free[1].x), n_free)
-        b_held = bic(held[0].residual(held[1].x), n_free - len(loose))
+        b_free = bic(free[0].posterior_rows(free[1].x), n_free)
+        b_held = bic(held[0].posterior_rows(held[1].x), n_free - len(loose))
         kept = b_held <= b_free
         self.report(f"  {', '.join(loose)} not placed by the data: held at their stated values the BIC is "
                     f"{b_held:.1f}, free {b_free:.1f}: {'held' if kept else 'left free'}")
@@ -794,18 +871,25 @@ class _Fit:
         # the fit's last move on the surrogate, from the last scene solved, kept placeable (shortened and said)
         f, note = placeable_step(self.problem.scene, self.problem.protocol, dict(zip(self.gnames, s_ref.anchor)),
                                  dict(zip(self.gnames, x[:self.nG] - s_ref.anchor)), (None, *ball_setups))
-        values = dict(zip(self.gnames, s_ref.anchor + f * (x[:self.nG] - s_ref.anchor)))
-        lr_ref = model.log_reading(s_ref, x)
+        theta = s_ref.anchor + f * (x[:self.nG] - s_ref.anchor)
+        values, inst = dict(zip(self.gnames, theta)), model.inst(x)
+        # every row of one scene from one kind of solve: a signal is a ratio of two set-ups' rows a few per cent
+        # apart, and a surrogate's error on one of them (or two meshes' difference) would be all of its error
+        if np.allclose(theta, s_ref.anchor):
+            lr_ref = model.log_reading(s_ref, np.r_[theta, x[self.nG:]])
+        else:
+            lr_ref = _reading(*self.problem.solve(values, None), inst, data.cls, data.channel)
         rel = np.exp(lr_ref - np.log(data.Z_ref)) - 1
         scores = {"empty_heldout_rms_rel": _rms(rel[~data.train]), "empty_train_rms_rel": _rms(rel[data.train]),
                   "setups": {}, **({"solved_at": note} if note else {})}
         signals = {}
         for su in ball_setups:
-            if su == self.fit_setup and s_ball is not None and np.allclose(s_ball.anchor, x[:self.nG]):
-                signals[su] = np.exp(model.log_reading(s_ball, x) - lr_ref) - 1
+            if su == self.fit_setup and s_ball is not None and np.allclose(s_ball.anchor, theta) \
+                    and np.allclose(theta, s_ref.anchor):
+                signals[su] = np.exp(model.log_reading(s_ball, np.r_[theta, x[self.nG:]]) - lr_ref) - 1
             else:
-                Zs, Vs, Zgs = self.problem.solve(values, su)
-                signals[su] = np.exp(_reading(Zs, Vs, Zgs, model.inst(x), data.cls, data.channel) - lr_ref) - 1
+                signals[su] = np.exp(_reading(*self.problem.solve(values, su), inst, data.cls, data.channel)
+                                     - lr_ref) - 1
         odd = reference_outliers(signals, data)
         keep = np.ones(len(data.Z_ref), bool)
         keep[odd] = False
@@ -822,6 +906,9 @@ class _Fit:
             for r in odd]
         units = {u.name: u.unit for u in self.unknowns}
         fitted = sf.table(units)
+        for u, se in zip(self.unknowns, sf.se):      # a prior of geometry held in the fit's last stage, too
+            if u.prior is not None and "prior_sd" not in fitted[u.name]:
+                fitted[u.name].update(prior_sd=u.prior[1], set_by_prior=bool(np.isfinite(se) and se > 0.7 * u.prior[1]))
         for name, shift in zip(self.names, bem_shift(model, sf)):
             if np.isfinite(shift):
                 se = fitted[name]["se"]
@@ -912,10 +999,10 @@ def _with_optional(fit: _Fit, without: tuple, optional: list, fixed: list, max_i
     if not optional:
         return without, {}
     n_free = len([n for n in fit.names if n not in set(fixed) | set(optional)])
-    b0 = bic(without[0].residual(without[1].x), n_free)
+    b0 = bic(without[0].posterior_rows(without[1].x), n_free)
     with_ = fit.chord(without[2], without[3], fixed=fixed, ref_block=without[0].ref_block,
                       max_iterations=max_iterations)
-    b1 = bic(with_[0].residual(with_[1].x), n_free + len(optional))
+    b1 = bic(with_[0].posterior_rows(with_[1].x), n_free + len(optional))
     chosen = (*with_[:4], without[4] + with_[4], with_[5]) if b1 < b0 else without
     return chosen, {"unknowns": optional, "bic_without": b0, "bic_with": b1, "kept": bool(b1 < b0)}
 
@@ -953,14 +1040,16 @@ def _fit_markdown(name: str, f: dict, stated: dict) -> list[str]:
     if sc["outlying_reference_rows"]:
         lines += ["", "Reference rows that every set-up's signal contradicts alike (the reference's value is off): "
                   + "; ".join(f"drive {r['drive']} measure {r['measure']}" for r in sc["outlying_reference_rows"])]
-    lines += ["", "| unknown | stated | fitted | standard error | the BEM's error | unit |", "|---|---|---|---|---|---|"]
+    lines += ["", "| unknown | stated | tolerance (prior) | fitted | standard error | the BEM's error | unit |",
+              "|---|---|---|---|---|---|---|"]
     for k, v in f["fitted"].items():
         if k.startswith("channel_gain_"):
             continue
         se = "not determined" if v["se"] is None else f"{v['se']:.3g}"
         bem = f"{v['se_bem']:.3g}" if "se_bem" in v else ""
         st = f"{stated[k]:.4g}" if k in stated else ""
-        lines.append(f"| {k} | {st} | {v['value']:.4g} | {se} | {bem} | {v['unit']} |")
+        tol = (f"{v['prior_sd']:.3g}" + (" (sets it)" if v["set_by_prior"] else "")) if "prior_sd" in v else ""
+        lines.append(f"| {k} | {st} | {tol} | {v['value']:.4g} | {se} | {bem} | {v['unit']} |")
     u = f.get("unplaced") or {}
     placed = ("none" if not u else f"{', '.join(u['unplaced'])}: " + ("held at their stated values" if u["held"] else
               "left free") + f" (BIC held {u['bic_held']:.1f}, free {u['bic_free']:.1f})")
