@@ -99,13 +99,14 @@ class SceneFit:
 
     def table(self, units: dict | None = None) -> dict:
         """{name: {value, se, unit}} for metrics files; with a prior also its ``prior_sd`` and ``set_by_prior``
-        (the standard error above 0.7 of the prior's: the data narrow it by less than 30 %)."""
+        (the standard error above 0.7 of the prior's, both scaled by the fit's scatter ``noise_rms`` as every
+        standard error is: the data narrow it by less than 30 %)."""
         units = units or {}
         out = {n: {"value": float(v), "se": None if not np.isfinite(s) else float(s), "unit": units.get(n, "")}
                for n, v, s in zip(self.names, self.x, self.se)}
         for n, sd in self.prior_sd.items():
             se = out[n]["se"]
-            out[n].update(prior_sd=float(sd), set_by_prior=bool(se is not None and se > 0.7 * sd))
+            out[n].update(prior_sd=float(sd), set_by_prior=bool(se is not None and se > 0.7 * self.noise_rms * sd))
         return out
 
 

@@ -32,7 +32,23 @@ scatter), ``se_bem`` (how far the BEM's error moves it: a systematic, to first
 order) and ``se_total`` (the two in quadrature). The fit is scored on what
 it never saw: the reference's held-out drives (:func:`alternate_pair_folds`:
 every multiplexer class has training drives) and the other ball set-ups,
-each solved on the BEM at the fitted scene.
+each solved on the BEM at the fitted scene (the reference too: a signal is a
+ratio of two set-ups' rows, and the surrogate's error on one of them would be
+all of its error).
+
+The description is a measurement too: each stated length is a Gaussian
+prior about its stated value of the description's tolerance
+(:func:`description_tolerance`, :data:`DESCRIPTION_TOLERANCE`; a scene file's
+``[tolerance]`` table overrides it), and the fit maximises the posterior. The
+data alone do not fix a scene's scale: a tank scaled as a whole, with its
+balls shifted to the same places relative to the wall, fits an empty tank and
+one ball set-up alike (the instrument's scale takes the rest) and predicts
+set-ups elsewhere wrongly; the report marks an unknown whose standard error is
+still above 0.7 of its tolerance, both scaled by the fit's scatter
+(``set_by_prior``: the tolerance, not the data, sets it). The rows weigh the
+data at their floors and the priors at their tolerances, as stated; where the
+model misfits by more than the floor, the data weigh more than their scatter
+warrants.
 
 Few solves (:class:`SetupSurrogate`): the BEM's ``log |Z|`` of each fitted
 set-up is linear in the geometry about an anchor, its derivatives from one
@@ -908,7 +924,8 @@ class _Fit:
         fitted = sf.table(units)
         for u, se in zip(self.unknowns, sf.se):      # a prior of geometry held in the fit's last stage, too
             if u.prior is not None and "prior_sd" not in fitted[u.name]:
-                fitted[u.name].update(prior_sd=u.prior[1], set_by_prior=bool(np.isfinite(se) and se > 0.7 * u.prior[1]))
+                fitted[u.name].update(prior_sd=u.prior[1],
+                                      set_by_prior=bool(np.isfinite(se) and se > 0.7 * sf.noise_rms * u.prior[1]))
         for name, shift in zip(self.names, bem_shift(model, sf)):
             if np.isfinite(shift):
                 se = fitted[name]["se"]
