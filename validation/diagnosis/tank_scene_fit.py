@@ -163,9 +163,10 @@ def ring_state(scene, protocol) -> dict:
 #: what a description written by hand knows of each geometry unknown, one standard deviation in the unknown's
 #: unit: the scene fit's Gaussian priors about the stated values (:func:`description_tolerance`; a scene file's
 #: ``[tolerance]`` table overrides them). A length read off a ruler or a tape, 3 mm; a water mark, 5 mm; a
-#: wall's taper, 0.05; a ball placed by hand on a line or a grid, 5 mm each way; its height, where stated, 5 mm.
+#: wall's taper, 0.05; a ball placed by hand on a line or a grid, 5 mm each way. None for the balls' height: a
+#: phantom's description seldom states it (Ottawa's does not), and a scene file's value is then a guess.
 DESCRIPTION_TOLERANCE = {"ring_radius_m": 0.003, "wall_slope": 0.05, "water_depth_m": 0.005, "ring_z_m": 0.003,
-                         "ball_z_m": 0.005, "frame_dx_m": 0.005, "frame_dy_m": 0.005}
+                         "frame_dx_m": 0.005, "frame_dy_m": 0.005}
 #: ... and those relative to the stated value: a manufactured ball's radius, 2 %; a ring electrode's effective
 #: radius (a screw's or a tack's head is no flush disc), half of it
 DESCRIPTION_TOLERANCE_REL = {"ball_radius_m": 0.02, "electrode_radius_m": 0.5}
@@ -174,8 +175,8 @@ DESCRIPTION_TOLERANCE_REL = {"ball_radius_m": 0.02, "electrode_radius_m": 0.5}
 def description_tolerance(scene, protocol, overrides: dict | None = None, stated_keys=None) -> dict:
     """Each geometry unknown's prior standard deviation: :data:`DESCRIPTION_TOLERANCE`, the relative ones of
     :data:`DESCRIPTION_TOLERANCE_REL`, the frame's turn a quarter of the ring's spacing; none (``inf``) for what
-    the ``[protocol]`` did not state (``stated_keys``: its keys as the user wrote them; a ball's radius or height
-    taken by assumption); then ``overrides`` (a scene file's ``[tolerance]`` table: positive numbers, ``inf`` for
+    the ``[protocol]`` did not state (``stated_keys``: its keys as the user wrote them; a ball's radius taken by
+    assumption) and for the balls' height; then ``overrides`` (a scene file's ``[tolerance]`` table: positive numbers, ``inf`` for
     no prior), checked against the unknowns' names.
 
     >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
@@ -194,9 +195,8 @@ def description_tolerance(scene, protocol, overrides: dict | None = None, stated
     out.update({n: r * v[n] for n, r in DESCRIPTION_TOLERANCE_REL.items() if n in v})
     if "frame_rotation_rad" in v:
         out["frame_rotation_rad"] = 0.25 * 2 * np.pi / max(len(protocol.get("ring", [])), 1)
-    for key in ("ball_radius_m", "ball_z_m"):
-        if key in v and key not in stated_keys:
-            out[key] = np.inf
+    if "ball_radius_m" in v and "ball_radius_m" not in stated_keys:
+        out["ball_radius_m"] = np.inf
     out.update(checked_tolerance(overrides, out))
     return out
 
