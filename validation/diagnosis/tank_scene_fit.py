@@ -793,7 +793,8 @@ class _Fit:
     def chord(self, s_ref, s_ball, fixed, ref_block, max_iterations):
         """Gauss-Newton on the surrogates with a trust region (Levenberg-Marquardt's rule, Broyden's secant for the
         derivatives): fit within ``radius`` typical steps of the anchor, solve the scene there (shortened where it
-        would not be placeable), keep the step if the cost fell (the surrogate moved there), else learn from it and
+        would not be placeable), keep the step if the cost fell (:meth:`_Model.posterior_rows`: the data's rows and
+        the geometry's priors; the surrogate moved there), else learn from it and
         halve the radius; until the free geometry's step is below half its standard error. Returns (model, fit,
         surrogates, iterations, converged). Not converged: the geometry stays at the anchor (the last scene solved
         that lowered the cost), the rest fitted there."""
@@ -812,7 +813,8 @@ class _Fit:
             model, sf = self.once(s_ref, s_ball, fixed, ref_block, np.r_[s_ref.anchor, sf_anchor.x[nG:]], radius)
             step = np.where(free, sf.x[:nG] - s_ref.anchor, 0.0)
             se = np.where(np.isfinite(sf.se[:nG]), sf.se[:nG], np.inf)
-            cost_anchor, cost_predicted = float(sf_anchor.residual @ sf_anchor.residual), float(sf.residual @ sf.residual)
+            # the posterior's cost (the data's rows and the geometry's priors) at the anchor and at the fit's point
+            cost_anchor, cost_predicted = _cost(model, sf_anchor.x), _cost(model, sf.x)
             iterations.append({"geometry": {n: round(float(v), 6) for n, v, f in zip(gn, sf.x[:nG], free) if f},
                                "cost_at_anchor": cost_anchor, "cost_predicted": cost_predicted,
                                "trust_radius_steps": radius})
@@ -837,7 +839,7 @@ class _Fit:
                 Zb, Vb, Zgb = problem.solve(values, self.fit_setup)
                 new_ball = s_ball.moved(theta, np.log(np.abs(Zb)), np.sign(Zb), Vb, Zgb, scale)
             m_new, sf_new = at_anchor(new_ref, new_ball, sf.x[nG:])
-            cost_new = float(sf_new.residual @ sf_new.residual)
+            cost_new = _cost(m_new, sf_new.x)
             iterations[-1]["cost_solved"] = cost_new
             gain = (cost_anchor - cost_new) / max(cost_anchor - cost_predicted, 1e-300)
             if cost_new < cost_anchor:          # taken
@@ -933,6 +935,11 @@ class _Fit:
         return {"converged": converged, "scores": scores, "fitted": fitted,
                 "not_separable": sf.not_separable, "correlated": sf.correlated, "at_bound": sf.at_bound,
                 "noise_rms": sf.noise_rms, "iterations": iterations}
+
+
+def _cost(model: _Model, x) -> float:
+    r = model.posterior_rows(x)
+    return float(r @ r)
 
 
 def bem_shift(model: _Model, sf) -> np.ndarray:
