@@ -42,7 +42,7 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-__all__ = ["Unknown", "SceneFit", "fit_unknowns", "prior_rows", "uncertainty", "not_separable"]
+__all__ = ["Unknown", "SceneFit", "fit_unknowns", "prior_rows", "set_by_prior", "uncertainty", "not_separable"]
 
 #: singular values below this fraction of the largest: directions the data do not determine
 UNDETERMINED = 1e-3
@@ -105,9 +105,18 @@ class SceneFit:
         out = {n: {"value": float(v), "se": None if not np.isfinite(s) else float(s), "unit": units.get(n, "")}
                for n, v, s in zip(self.names, self.x, self.se)}
         for n, sd in self.prior_sd.items():
-            se = out[n]["se"]
-            out[n].update(prior_sd=float(sd), set_by_prior=bool(se is not None and se > 0.7 * self.noise_rms * sd))
+            out[n].update(prior_sd=float(sd), set_by_prior=set_by_prior(out[n]["se"], sd, self.noise_rms))
         return out
+
+
+def set_by_prior(se, prior_sd: float, noise_rms: float) -> bool:
+    """Whether an unknown's standard error is still above 0.7 of its prior's, both scaled by the fit's scatter as
+    every standard error is: the data narrow the prior by less than 30 %, and the prior, not the data, sets it.
+
+    >>> set_by_prior(0.9, 1.0, 1.0), set_by_prior(0.5, 1.0, 1.0), set_by_prior(None, 1.0, 1.0)
+    (True, False, False)
+    """
+    return bool(se is not None and np.isfinite(se) and se > 0.7 * noise_rms * prior_sd)
 
 
 def not_separable(J: np.ndarray, names: Sequence[str], scale: np.ndarray, rtol: float = UNDETERMINED) -> list:

@@ -91,7 +91,7 @@ from electrosense.validation.comparison.transfer import (
     stated_balls,
 )
 from electrosense.validation.diagnosis.common_mode import common_mode_rows, instrument_reference
-from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns, prior_rows
+from electrosense.validation.diagnosis.scene_fit import Unknown, fit_unknowns, prior_rows, set_by_prior
 
 __all__ = [
     "GEOMETRY_GROUPS",
@@ -176,8 +176,8 @@ def description_tolerance(scene, protocol, overrides: dict | None = None, stated
     """Each geometry unknown's prior standard deviation: :data:`DESCRIPTION_TOLERANCE`, the relative ones of
     :data:`DESCRIPTION_TOLERANCE_REL`, the frame's turn a quarter of the ring's spacing; none (``inf``) for what
     the ``[protocol]`` did not state (``stated_keys``: its keys as the user wrote them; a ball's radius taken by
-    assumption) and for the balls' height; then ``overrides`` (a scene file's ``[tolerance]`` table: positive numbers, ``inf`` for
-    no prior), checked against the unknowns' names.
+    assumption) and for the balls' height; then ``overrides`` (a scene file's ``[tolerance]`` table: positive
+    numbers, ``inf`` for no prior), checked against the unknowns' names.
 
     >>> from electrosense.meshes import Scene; from electrosense.meshes.cylinder_tank import CylinderTank
     >>> s = Scene(None, tank=CylinderTank(0.15, 0.3), electrodes=[DiscElectrode((0.15, 0.0, -0.05), 0.004)])
@@ -753,6 +753,9 @@ def fit_tank_scene(log, scene, sigma_S_per_m: float, bem_options: dict, protocol
             if np.isfinite(a[1].se[k]):
                 fits["staged"]["fitted"][n].update(se=float(a[1].se[k]), se_bem=float(shift[k]),
                                                    se_total=float(np.hypot(a[1].se[k], shift[k])))
+                if "prior_sd" in fits["staged"]["fitted"][n]:
+                    fits["staged"]["fitted"][n]["set_by_prior"] = set_by_prior(
+                        a[1].se[k], fits["staged"]["fitted"][n]["prior_sd"], a[1].noise_rms)
         fits["staged"]["iterations"] = a[4]
         fits["staged"]["converged"] = a[5]
     for name, f in fits.items():
@@ -864,8 +867,9 @@ class _Fit:
 
     def placed_chord(self, s_ref, s_ball, fixed, ref_block, max_iterations):
         """:meth:`chord` from the stated scene, and again with the geometry the data do not place (:func:`unplaced`)
-        held at its stated value; the fit of lower :func:`bic` (of :meth:`_Model.posterior_rows`) is kept (an unknown the data leave anywhere within
-        its bounds would otherwise stay where the search left it, and the set-ups the fit never saw pay for it;
+        held at its stated value; the fit of lower :func:`bic` (of :meth:`_Model.posterior_rows`) is kept (an
+        unknown the data leave anywhere within its bounds would otherwise stay where the search left it, and the
+        set-ups the fit never saw pay for it;
         a pair that trades off, each unplaced alone, may still be placed together, and then the free fit wins).
         Returns (the chord's result, the names held, what was compared)."""
         free = self.chord(s_ref, s_ball, fixed=list(fixed), ref_block=ref_block, max_iterations=max_iterations)
@@ -926,8 +930,7 @@ class _Fit:
         fitted = sf.table(units)
         for u, se in zip(self.unknowns, sf.se):      # a prior of geometry held in the fit's last stage, too
             if u.prior is not None and "prior_sd" not in fitted[u.name]:
-                fitted[u.name].update(prior_sd=u.prior[1],
-                                      set_by_prior=bool(np.isfinite(se) and se > 0.7 * sf.noise_rms * u.prior[1]))
+                fitted[u.name].update(prior_sd=u.prior[1], set_by_prior=set_by_prior(se, u.prior[1], sf.noise_rms))
         for name, shift in zip(self.names, bem_shift(model, sf)):
             if np.isfinite(shift):
                 se = fitted[name]["se"]
