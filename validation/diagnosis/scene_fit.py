@@ -110,13 +110,15 @@ class SceneFit:
 
 
 def set_by_prior(se, prior_sd: float, noise_rms: float) -> bool:
-    """Whether an unknown's standard error is still above 0.7 of its prior's, both scaled by the fit's scatter as
-    every standard error is: the data narrow the prior by less than 30 %, and the prior, not the data, sets it.
+    """Whether an unknown with a prior is set by it rather than by the data: its standard error still above 0.7 of
+    the prior's, both scaled by the fit's scatter as every standard error is (the data narrow the prior by less
+    than 30 %), or none at all (``None``/NaN: a direction the data do not determine, or the unknown held; the
+    prior's row is then what holds it).
 
     >>> set_by_prior(0.9, 1.0, 1.0), set_by_prior(0.5, 1.0, 1.0), set_by_prior(None, 1.0, 1.0)
-    (True, False, False)
+    (True, False, True)
     """
-    return bool(se is not None and np.isfinite(se) and se > 0.7 * noise_rms * prior_sd)
+    return bool(se is None or not np.isfinite(se) or se > 0.7 * noise_rms * prior_sd)
 
 
 def not_separable(J: np.ndarray, names: Sequence[str], scale: np.ndarray, rtol: float = UNDETERMINED) -> list:
