@@ -134,10 +134,13 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     iu = np.triu_indices(SENSOR.n_electrodes, 1)
     np.testing.assert_allclose(K[:, iu[0], iu[1]], pair_values(m.K_ref, SENSOR.emitter), rtol=1e-8, atol=0)
     # every node is the BEM as a user runs it at that pose (its tank mesh graded to that pose alone), on the
-    # reference sensor mesh and on the coarse one
+    # reference sensor and tank meshes (the map's BEM options) and on the coarse sensor mesh and the BEM's
+    # default tank mesh
     from electrosense.bem import PoseSweep
+    from electrosense.validation.simulation.tank_map import REFERENCE_TANK_GRADING
 
-    user = PoseSweep(SENSOR, TANK, (), 1.0, **OPTIONS).conductance(m.nodes[m.ref_index[:1]]).K_S
+    assert m.bem_options == {**OPTIONS, "tank_grading": REFERENCE_TANK_GRADING}
+    user = PoseSweep(SENSOR, TANK, (), 1.0, **m.bem_options).conductance(m.nodes[m.ref_index[:1]]).K_S
     np.testing.assert_allclose(m.K_ref[:1], user, rtol=1e-9, atol=1e-12 * np.abs(user).max())
     coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
     user = PoseSweep(SENSOR, TANK, (), 1.0, **coarse).conductance(m.nodes[-1:]).K_S
@@ -161,7 +164,7 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     m, _ = built
     coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
-    pool = _BemPool(SENSOR, TANK, (), {"coarse": coarse, "ref": OPTIONS}, workers=2)
+    pool = _BemPool(SENSOR, TANK, (), {"coarse": coarse, "ref": m.bem_options}, workers=2)
     try:
         assert pool._warming is not None
         K_coarse = pool.solve(m.nodes[:3], "coarse")

@@ -30,7 +30,9 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    function of the coarse K of the emitter's pairs plus a smooth remainder of
    the pose (the discretisation's error near a wall grows with the wall's
    effect), or of the pose alone, whichever its leave-one-out errors favour
-   (:meth:`TankMap._fit_correction`).
+   (:meth:`TankMap._fit_correction`). The reference is also the finer tank
+   mesh (:data:`REFERENCE_TANK_GRADING`): the correction carries the tank
+   mesh's error with the sensor mesh's.
 
 The map is one ``.npz`` file: the nodes, the BEM's K there, the interpolant's
 coefficients, the scene, the sensor, the BEM options and the code version;
@@ -565,6 +567,16 @@ def _refine_pays(rms_coarse: float, n_coarse: int, cpu_coarse_s: float | None, r
 #: CPU per pose, at fewer poses corrects them): 3 is the diagnosis anchors' factor
 COARSE_FACTOR = 3.0
 
+#: the tank mesh's growth of edge per metre from the sensor for the map's reference BEM (the coarse poses keep the
+#: BEM's default, :data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_GRADING`, 0.25). The default's far walls
+#: leave K 0.034 % RMS (0.073 % max) from a tank mesh graded at 0.1 (6 300 triangles) in the tank map study's
+#: seed-4 box (0.77 x 0.52 m, six random poses, the receivers' currents), twice the map's goal; at 0.15, 0.013 %
+#: (0.030 %) for 1.8x the tank's triangles, 1.36x a reference pose's CPU (its sensor block dominates); seed 2's
+#: box 0.014 % -> 0.005 %. A ladder of gradings 0.25 / 0.18 / 0.13 / 0.09 against 0.065 at two poses:
+#: 0.032 / 0.016 / 0.011 / 0.004 %. Limiting the far edge instead (a sixth or an eighth of the smaller side)
+#: took 0.038 % to 0.030 / 0.028 %: the error is the graded middle distance's, not the farthest panels'.
+REFERENCE_TANK_GRADING = 0.15
+
 
 def _worker_init(sensor, tank, objects, options, memory_share=1.0):
     _WORKER.update(args=(sensor, tank, objects), options=options, sweeps={}, memory_share=memory_share)
@@ -714,6 +726,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     stands, its estimated error with it (the last round is as many poses as the CPU budget still pays for);
     ``workers``: processes solving the BEM.
     """
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
     from electrosense.meshes.sensor_mesh import default_edge_length_m
     from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
@@ -728,8 +741,13 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     coarse_factor = float(coarse_factor)
     if not coarse_factor >= 1.0:
         raise ValueError(f"coarse_factor must be 1 or more, got {coarse_factor}")
-    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_factor * options["edge_length_m"]}}
     corrected = coarse_factor > 1.0
+    if options.get("tank_grading") is None and tank is not None:
+        options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
+    # the many poses on the BEM's default tank mesh (or the reference's, where that is the coarser)
+    coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
+    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_factor * options["edge_length_m"],
+                                            **({} if tank is None else {"tank_grading": coarse_grading})}}
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:

@@ -86,7 +86,9 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     ``other``: on one tank mesh graded towards all of ``P`` (a fresh BEM as a user would run it along a path);
     ``same``: each pose on a tank mesh graded to it alone, as the map's nodes were solved (the interpolation's
     error alone); ``bem_tank``: the BEM between the two; ``bem_sensor``: the BEM with its sensor mesh 0.7x the
-    reference's at the first ``n_sensor_check`` poses (the reference's own discretisation)."""
+    reference's at the first ``n_sensor_check`` poses, ``bem_tank_grading``: each of them on a tank mesh graded
+    0.6x the reference's (the reference's own discretisation), ``bem_default_tank``: on the BEM's default tank
+    mesh against the reference's (what a map on the default would be off by)."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
 
@@ -108,6 +110,17 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
         fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
         K_fine = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **fine).conductance(P[:n_sensor_check]).K_S
         out["bem_sensor"] = K_other[:n_sensor_check][:, r, e] / K_fine[:, r, e] - 1
+        if m.focus_m is None and "tank_grading" in m.bem_options:
+            from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
+
+            K_tank = {}
+            for name, grading in (("bem_tank_grading", 0.6 * m.bem_options["tank_grading"]),
+                                  ("bem_default_tank", DEFAULT_TANK_GRADING)):
+                sweep = PoseSweep(sensor, tank, (), 1.0, **{**m.bem_options, "tank_grading": grading})
+                K_tank[name] = np.concatenate([sweep.with_focus().conductance(p[None]).K_S
+                                               for p in P[:n_sensor_check]])
+            out["bem_tank_grading"] = K_same[:n_sensor_check][:, r, e] / K_tank["bem_tank_grading"][:, r, e] - 1
+            out["bem_default_tank"] = K_tank["bem_default_tank"][:, r, e] / K_same[:n_sensor_check][:, r, e] - 1
     return out
 
 
@@ -347,6 +360,10 @@ def main(argv=None):
     if "bem_sensor_rms" in a:
         print(f"  the reference BEM's own sensor-mesh error (against a 0.7x finer sensor mesh, {len(P[:4])} poses): "
               f"{a['bem_sensor_rms']:.3%} RMS, {a['bem_sensor_max']:.3%} max")
+    if "bem_tank_grading_rms" in a:
+        print(f"  its own tank-mesh error (each pose against a tank mesh graded 0.6x finer, {len(P[:4])} poses): "
+              f"{a['bem_tank_grading_rms']:.3%} RMS, {a['bem_tank_grading_max']:.3%} max; the BEM's default tank "
+              f"mesh against it: {a['bem_default_tank_rms']:.3%} RMS, {a['bem_default_tank_max']:.3%} max")
     print(f"  (the map's own estimate there: {a['estimated_rms']:.3%} RMS; at build end over all reachable poses "
           f"{b['estimated_rms']:.3%} RMS, {b['estimated_max']:.3%} max; {b['bem_poses']} BEM poses, "
           f"{b['reference_poses']} on the reference sensor mesh)")
