@@ -568,7 +568,7 @@ def _refine_pays(rms_coarse: float, n_coarse: int, cpu_coarse_s: float | None, r
 COARSE_FACTOR = 3.0
 
 #: the tank mesh's growth of edge per metre from the sensor for the map's reference BEM (the coarse poses keep the
-#: BEM's default, :data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_GRADING`, 0.25). The default's far walls
+#: BEM's default, :data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_GRADING`, 0.25). The default's graded panels
 #: leave K 0.034 % RMS (0.073 % max) from a tank mesh graded at 0.1 (6 300 triangles) in the tank map study's
 #: seed-4 box (0.77 x 0.52 m, six random poses, the receivers' currents), twice the map's goal; at 0.15, 0.013 %
 #: (0.030 %) for 1.8x the tank's triangles, 1.36x a reference pose's CPU (its sensor block dominates); seed 2's

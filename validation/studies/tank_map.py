@@ -81,6 +81,11 @@ def test_poses(sensor, tank, z, rng, n, band=None):
     return np.array(out)
 
 
+def each_on_its_own_tank_mesh(sweep, P) -> np.ndarray:
+    """K (P, n, n) of ``sweep`` at the poses ``P``, each on a tank mesh graded to it alone (as a map's nodes)."""
+    return np.concatenate([sweep.with_focus().conductance(p[None]).K_S for p in P])
+
+
 def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     """Receiver-current errors of the map against the reference BEM (the map's sensor mesh options) at ``P``:
     ``other``: on one tank mesh graded towards all of ``P`` (a fresh BEM as a user would run it along a path);
@@ -98,8 +103,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     K_other = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
     out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
     if m.focus_m is None:   # the map's nodes were each solved on a tank mesh of its own
-        sweep = PoseSweep(sensor, tank, (), 1.0, **m.bem_options)
-        K_same = np.concatenate([sweep.with_focus().conductance(p[None]).K_S for p in P])
+        K_same = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, (), 1.0, **m.bem_options), P)
     else:                   # on one tank mesh graded to the fundamental domain: at the folded poses
         K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, tank_near_ratio=None,
                            **m.bem_options).conductance(m.frame.folded(P)).K_S
@@ -116,9 +120,8 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
             K_tank = {}
             for name, grading in (("bem_tank_grading", 0.6 * m.bem_options["tank_grading"]),
                                   ("bem_default_tank", DEFAULT_TANK_GRADING)):
-                sweep = PoseSweep(sensor, tank, (), 1.0, **{**m.bem_options, "tank_grading": grading})
-                K_tank[name] = np.concatenate([sweep.with_focus().conductance(p[None]).K_S
-                                               for p in P[:n_sensor_check]])
+                K_tank[name] = each_on_its_own_tank_mesh(
+                    PoseSweep(sensor, tank, (), 1.0, **{**m.bem_options, "tank_grading": grading}), P[:n_sensor_check])
             out["bem_tank_grading"] = K_same[:n_sensor_check][:, r, e] / K_tank["bem_tank_grading"][:, r, e] - 1
             out["bem_default_tank"] = K_tank["bem_default_tank"][:, r, e] / K_same[:n_sensor_check][:, r, e] - 1
     return out
