@@ -23,7 +23,7 @@ class RecordingModel:
     def __call__(self, model, sensor, poses, tank, sigma_S_per_m, objects=(), psm_model=None,
                  contact_impedance_ohm_m2=None, **options):
         self.calls.append(dict(model=model, poses=np.array(poses), tank=tank, sigma=sigma_S_per_m, objects=objects,
-                               z_c=contact_impedance_ohm_m2))
+                               z_c=contact_impedance_ohm_m2, options=options))
         n = sensor.n_electrodes
         K = sigma_S_per_m * 0.03 * (n * np.eye(n) - np.ones((n, n)))
         return ConductanceMatrix(np.broadcast_to(K, (len(poses), n, n)).copy(), sensor.emitter, sigma_S_per_m)
@@ -200,3 +200,16 @@ def test_bem_physics_once_per_distinct_pose_and_the_robot_noise_carried_by_the_p
     I_nominal = 0.0354 * 0.03 * (1 + 0.5 * x_nominal**2)                # the 'bem' at the nominal pose ...
     expected = I_nominal * (1 + 0.2 * x_true) / (1 + 0.2 * x_nominal)  # ... moved by the 'psm' to the true pose
     np.testing.assert_allclose(run.currents_A[:, 0], expected, rtol=1e-12)
+
+
+def test_the_bem_physics_tank_grading_reaches_the_bem_and_the_log_says_it():
+    """``--tank-grading`` (the CLI's) goes to the BEM physics as the sweep's ``tank_grading`` and is named in
+    the log's source; without it the BEM's default is used and nothing is said."""
+    model = PoseDependentModel()
+    fine = VirtualBench(preset("angels-2"), Tank((1.0, 1.0, 1.0)), 0.0354, noise=BenchNoise(0.0, 0.0), seed=3,
+                        simulate=model, tank_grading=0.15)
+    fine.run(wall_to_wall(n=3))
+    assert [c["options"].get("tank_grading") for c in model.calls if c["model"] == "bem"] == [0.15]
+    assert "tank mesh grading 0.15" in fine.describe()
+    plain = VirtualBench(preset("angels-2"), Tank((1.0, 1.0, 1.0)), 0.0354, simulate=PoseDependentModel())
+    assert "grading" not in plain.describe()

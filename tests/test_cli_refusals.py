@@ -69,6 +69,8 @@ def test_a_mesh_whose_shells_intersect_is_refused(tmp_path):
 @pytest.mark.parametrize("args, option", [
     (("--tank", "1,1"), "--tank"),
     (("--tank", "none", "--depth", "0.5"), "--depth"),
+    (("--tank", "none", "--tank-grading", "0.15"), "--tank-grading"),
+    (("--tank-grading", "0"), "--tank-grading"),
     (("--depth", "2"), "--depth"),
     (("--emitter", "9"), "--emitter"),
     (("--sigma", "nan"), "--sigma"),

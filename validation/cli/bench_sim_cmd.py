@@ -26,6 +26,10 @@ from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 @click.option("--depth", type=finite_float(positive=True), default=None, help="Water depth in m (default: the tank's height).")
 @click.option("--sigma", type=finite_float(positive=True), default=NOMINAL_SIGMA_S_PER_M, show_default=True,
               help="Nominal water conductivity in S/m.")
+@click.option("--tank-grading", type=finite_float(positive=True), default=None,
+              help="BEM physics: the tank mesh's growth of edge per metre away from the sensor (default: the "
+                   "BEM's, 0.25); 0.15 brings K about 3x closer to the converged BEM in a box, for about twice the "
+                   "tank's triangles.")
 @click.option("--path", "path_spec", default="wall-to-wall", show_default=True,
               help="Trajectory: wall-to-wall[:N], line:X0,Y0,Z0,YAW0:X1,Y1,Z1,YAW1:N, grid:X0,X1,NX:Y0,Y1,NY[:Z[:YAW]].")
 @click.option("--passes", type=click.IntRange(min=1), default=1, show_default=True,
@@ -50,7 +54,7 @@ from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
                    "before the host said anything are 'unheard': opening a port may flush them).")
 @click.option("--exit-when-done", is_flag=True, help="Close the line when the run is over (default: wait for Ctrl-C).")
 def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, psm_model, tank, depth, sigma,
-              path_spec, passes, rate, voltage, temperature, effects, faults, disconnect_s, seed, truth, autostart,
+              tank_grading, path_spec, passes, rate, voltage, temperature, effects, faults, disconnect_s, seed, truth, autostart,
               exit_when_done):
     """A virtual bench for tests and demos (SIMULATED data, labelled so).
 
@@ -98,6 +102,8 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
     if tank.strip().lower() == "none":
         if depth is not None:
             raise click.UsageError("--depth needs a tank; --tank none is unbounded water")
+        if tank_grading is not None:
+            raise click.UsageError("--tank-grading needs a tank; --tank none is unbounded water")
         tank_obj = None
     else:
         tank_obj = parse_tank(tank)
@@ -129,7 +135,8 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
     say(f"bench-sim: computing {len(poses)} samples with the {model.upper()} ...")
     try:
         bench = VirtualBench(sens, tank_obj, sigma, model=model, psm_model=psm_model, effects=fx,
-                             temperature_C=temperature, seed=seed, **({"progress": True} if model == "bem" else {}))
+                             temperature_C=temperature, seed=seed, **({"progress": True} if model == "bem" else {}),
+                             **({"tank_grading": tank_grading} if tank_grading is not None else {}))
         run = bench.run(poses, rate_hz=rate, passes=pass_numbers, U_V=voltage)
     except ValueError as exc:
         raise click.ClickException(str(exc)) from None

@@ -190,10 +190,12 @@ def sweep_speed(map_path: Path, sensor, tank, z, folder: Path):
     return 1e4 / run_s, 1e4 / wall
 
 
-def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: float | None = None):
+def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: float | None = None,
+                     tank_grading: float | None = None, name: str | None = None):
     """A virtual-bench log (BEM physics, bench noise) along a wall at a 2 cm gap, heading along it; with
     ``ball_m`` (a radius), a conducting ball meshed in the BEM's scene at the log's depth, mid-pass, 3 cm of water
-    between it and the sensor on the tank's side. (log, the ball's centre or None)."""
+    between it and the sensor on the tank's side; ``tank_grading``: of the physics' tank mesh (default the
+    BEM's); ``name``: of the log file. (log, the ball's centre or None)."""
     from click.testing import CliRunner
 
     from electrosense.meshes.sensor import save_sensor
@@ -209,12 +211,14 @@ def localisation_log(sensor, tank, z, folder: Path, n: int, seed: int, ball_m: f
     tank_text = (f"{tank.size_m[0]},{tank.size_m[1]},{tank.size_m[2]}" if not hasattr(tank, "radius_m") else None)
     if tank_text is None:
         raise NotImplementedError("the virtual bench has box tanks only")
-    name = "wall.csv" if ball_m is None else "ball.csv"
+    name = name or ("wall.csv" if ball_m is None else "ball.csv")
     if ball_m is not None:   # the part of the pass that sees the ball (a BEM pose with the ball meshed: 15 s)
         xe, n = min(xe, sensor.length_m + 0.05), max(11, n // 2)
     args = ["bench-sim", "-o", name, "--overwrite", "--sensor", "sensor.json",
             "--tank", tank_text, "--depth", str(tank.water_depth_m), "--sigma", "0.0354",
             "--path", f"line:{-xe},{y},{z},0:{xe},{y},{z},0:{n}", "--seed", str(seed)]
+    if tank_grading is not None:
+        args += ["--tank-grading", str(tank_grading)]
     centre = None
     if ball_m is not None:
         centre = [0.0, round(float(y - sensor.radius_m - 0.03 - ball_m), 4), float(z)]
@@ -343,6 +347,14 @@ def main(argv=None):
         results["localise_motion_priors"] = motion_prior_table(log, m, BENCH_CURRENT_NOISE_REL)
         measured = localise_log(log, path, folder / "localise_measured_noise", figure=False)
         results["localise_measured_noise"] = {k: measured[k] for k in ("noise_rel", "map", "psm")}
+        if "tank_grading" in m.bem_options:   # the same pass, its physics on the map's reference tank mesh
+            grading = m.bem_options["tank_grading"]
+            print(f"the same pass with its BEM physics on the map's reference tank mesh (grading {grading:g})")
+            log_fine, _ = localisation_log(sensor, tank, z, folder, args.log_poses, args.seed, tank_grading=grading,
+                                           name="wall_fine.csv")
+            fine = localise_log(log_fine, path, folder / "localise_fine_physics", noise_rel=BENCH_CURRENT_NOISE_REL,
+                                figure=False, find_object=False)
+            results["localise_fine_physics"] = {"tank_grading": grading, **{k: fine[k] for k in ("map", "psm")}}
         save()
         print(f"virtual-bench log past a conducting ball of {1e3 * BALL_M:g} mm radius (BEM physics, the ball "
               "meshed), then esense localise --object-at")
@@ -401,6 +413,12 @@ def main(argv=None):
         print(f"  with the noise measured on the log ({lmm['noise_rel']:.3%}): map {mm(lmm['map']['position_rms_m'])}"
               f" (bound {mm(lmm['map']['crb_position_rms_m'])}), PSM {mm(lmm['psm']['position_rms_m'])} (bound "
               f"{mm(lmm['psm']['crb_position_rms_m'])})")
+        if "localise_fine_physics" in results:
+            lf = results["localise_fine_physics"]
+            print(f"  the pass's physics on the map's reference tank mesh (grading {lf['tank_grading']:g}): map "
+                  f"{mm(lf['map']['position_rms_m'])} (bound {mm(lf['map']['crb_position_rms_m'])}, "
+                  f"{lf['map']['position_rms_m'] / lf['map']['crb_position_rms_m']:.2f}x), PSM "
+                  f"{mm(lf['psm']['position_rms_m'])}")
     if "localise_object" in results:
         from electrosense.validation.localisation.object_position import describe
 

@@ -137,7 +137,9 @@ class VirtualBench:
     def describe(self) -> str:
         return (f"{SIMULATOR_LABEL}; model {self.model}; sensor {self.sensor.name} emitter {self.sensor.emitter}; "
                 f"noise {self.noise.current_rel:g} relative on currents, {self.noise.position_m:g} m on positions; "
-                f"effects: {self.effects.describe()}")
+                f"effects: {self.effects.describe()}"
+                + (f"; tank mesh grading {self.model_options['tank_grading']:g}"
+                   if "tank_grading" in self.model_options else ""))
 
     def _currents_A(self, nominal: np.ndarray, true: np.ndarray, tank, sigma_S_per_m: float, U: np.ndarray):
         """Receiver currents (P, n-1) at the true poses, in the true scene.
