@@ -188,6 +188,31 @@ def test_mirror_poses_have_one_K_and_the_jacobian_is_the_derivative(built):
     _assert_pose_jacobian(m, np.c_[rng.uniform(-0.05, 0.05, (6, 2)), np.zeros(6), rng.uniform(-3, 3, 6)])
 
 
+def test_the_images_powers_are_interpolated_differentiated_and_kept_in_the_file(built, tmp_path):
+    """A map whose coarse interpolant takes the walls' images to the third power (what a map of a few hundred BEM
+    poses chooses): the BEM at its nodes, its pose Jacobian the derivative, and the same after its file."""
+    import dataclasses
+
+    from electrosense.bem.conductance import pair_values
+    from electrosense.validation.simulation.tank_map import image_powers
+
+    m, _ = built
+    X = m.frame.features(m.nodes)
+    L = np.log(pair_values(m.mirrored(m.K_nodes, m.nodes), m._pair_emitter) / m._free_pairs)
+    f = RBFInterpolant(X, L, degree=2, regressors=image_powers(m.frame.wall_images(m.nodes), 3)[0])
+    m3 = dataclasses.replace(m, fitted={"X": X, "coef": f.coef, "loo": f.leave_one_out, "images": np.array(3)},
+                             ref_index=None, K_ref=None)
+    assert m3._images == 3 and m3._parts[0].n_regressors == 3 * m.frame.n_wall_images
+    iu = np.triu_indices(SENSOR.n_electrodes, 1)   # the map's pairs: the BEM's emitter column and pair means
+    np.testing.assert_allclose(m3.conductance(m.nodes)[:, iu[0], iu[1]], pair_values(m.K_nodes, SENSOR.emitter),
+                               rtol=1e-8, atol=0)
+    rng = np.random.default_rng(1)
+    _assert_pose_jacobian(m3, np.c_[rng.uniform(-0.05, 0.05, (6, 2)), np.zeros(6), rng.uniform(-3, 3, 6)])
+    again = load_tank_map(m3.save(tmp_path / "powers.map.npz"))
+    P = m.nodes[:5] + [0.003, -0.002, 0.0, 0.1]
+    assert again._images == 3 and np.allclose(again.conductance(P), m3.conductance(P), rtol=1e-12)
+
+
 def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses():
     """Where the reference mesh's K is the coarse one's raised by a linear function of its emitter pairs (as a
     discretisation's error near a wall scales with the wall's effect), the map's correction regresses on the coarse

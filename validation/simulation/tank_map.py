@@ -22,7 +22,7 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    warped coordinates (quintic radial basis functions with a quadratic trend,
    :class:`~electrosense.validation.diagnosis.anchored.RBFInterpolant`, and,
    where the leave-one-out errors favour them, the walls' mirror images of the
-   electrodes as linear regressors: :meth:`TankMap._fit_coarse`), its
+   electrodes and their powers as linear regressors: :meth:`TankMap._fit_coarse`), its
    leave-one-out error at every node, and the error estimated anywhere from
    the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`);
    the many poses are solved on a coarser sensor mesh, and the correction to
@@ -65,7 +65,7 @@ from electrosense.validation.simulation.workers import exit_with_parent, one_thr
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 6"
+MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
