@@ -643,8 +643,13 @@ def _worker_solve(poses, fidelity: str = "coarse"):
     sweep = _worker_sweep(fidelity)
     if sweep.tank is None and not sweep.objects:
         return sweep.conductance(poses).K_S, os.getpid(), time.process_time()
-    K = np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
-    return K, os.getpid(), time.process_time()
+    return each_on_its_own_tank_mesh(sweep, poses), os.getpid(), time.process_time()
+
+
+def each_on_its_own_tank_mesh(sweep, poses) -> np.ndarray:
+    """K (P, n, n) of a :class:`~electrosense.bem.PoseSweep` at ``poses`` (P, 4), each on a tank mesh graded to
+    it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared): as a map's nodes."""
+    return np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
 
 
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:

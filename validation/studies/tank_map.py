@@ -81,11 +81,6 @@ def test_poses(sensor, tank, z, rng, n, band=None):
     return np.array(out)
 
 
-def each_on_its_own_tank_mesh(sweep, P) -> np.ndarray:
-    """K (P, n, n) of ``sweep`` at the poses ``P``, each on a tank mesh graded to it alone (as a map's nodes)."""
-    return np.concatenate([sweep.with_focus().conductance(p[None]).K_S for p in P])
-
-
 def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     """Receiver-current errors of the map against the reference BEM (the map's sensor mesh options) at ``P``:
     ``other``: on one tank mesh graded towards all of ``P`` (a fresh BEM as a user would run it along a path);
@@ -96,6 +91,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     mesh against the reference's (what a map on the default would be off by)."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
+    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
 
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
