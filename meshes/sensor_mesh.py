@@ -54,12 +54,22 @@ import numpy as np
 from electrosense.meshes.labelled_mesh import LabelledMesh
 from electrosense.meshes.sensor import SensorDescription
 
-__all__ = ["mesh_sensor", "estimate_triangles", "MAX_SENSOR_TRIANGLES", "SensorProfile", "default_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
+__all__ = ["mesh_sensor", "estimate_triangles", "MAX_SENSOR_TRIANGLES", "SensorProfile", "default_edge_length_m", "coarsest_edge_length_m", "electrode_edge_arc_lengths", "graded_arc_lengths"]
 
 
 def default_edge_length_m(sensor: SensorDescription) -> float:
     """Default far-field edge length (m): 0.6 radius, at most length/30."""
     return float(min(0.6 * sensor.radius_m, sensor.length_m / 30.0))
+
+
+def coarsest_edge_length_m(sensor: SensorDescription) -> float:
+    """The coarsest far-field edge (m) the mesher accepts: the sensor's diameter (a coarser one cannot close a ring).
+
+    >>> from electrosense.meshes.sensor import preset
+    >>> coarsest_edge_length_m(preset("angels-2")) == 2 * preset("angels-2").radius_m
+    True
+    """
+    return 2.0 * float(sensor.radius_m)
 
 
 class SensorProfile:
@@ -231,7 +241,7 @@ def _ring_layout(sensor: SensorDescription, edge_length_m, grading, edge_refinem
         raise ValueError(f"mesh_sensor: azimuthal_refinement must be >= 1, got {azimuthal_refinement}")
     if not max_aspect >= 1.0:
         raise ValueError(f"mesh_sensor: max_aspect must be >= 1, got {max_aspect}")
-    if h_far > sensor.radius_m * 2:
+    if h_far > coarsest_edge_length_m(sensor):
         raise ValueError(
             f"mesh_sensor: edge_length_m {h_far} m is coarser than the sensor's diameter {2 * sensor.radius_m} m"
         )

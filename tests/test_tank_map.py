@@ -72,6 +72,30 @@ def test_a_build_its_workers_could_not_hold_is_refused_before_any_bem(tmp_path, 
     assert res.exit_code != 0 and "Traceback" not in res.output and "nearest a wall" in res.output, res.output
 
 
+def test_a_reference_edge_near_the_sensors_diameter_puts_the_coarse_poses_on_the_coarsest_mesh(monkeypatch):
+    """The coarse sensor mesh is ``coarse_factor`` times the reference's edge, at most the sensor's diameter (the
+    mesher's coarsest): a user's reference edge of 0.012 m on angels-4 (diameter 0.0244 m) had asked for 0.036 m
+    and the build stopped on the mesher's refusal of an edge the user never gave."""
+    import electrosense.validation.simulation.tank_map as tank_map
+
+    class Stop(Exception):
+        pass
+
+    seen = {}
+
+    def pool(sensor, tank, objects, options, workers, hardest=None):
+        seen.update(options)
+        raise Stop
+
+    monkeypatch.setattr(tank_map, "_BemPool", pool)
+    for edge, factor in ((0.012, 3.0), (0.005, 3.0)):
+        with pytest.raises(Stop):
+            build_tank_map(SENSOR, TANK, 0.0, max_seconds=3, **{**BUILD, "coarse_factor": factor,
+                                                                "bem_options": {**OPTIONS, "edge_length_m": edge}})
+        assert seen["ref"]["edge_length_m"] == edge
+        assert seen["coarse"]["edge_length_m"] == min(factor * edge, 2 * SENSOR.radius_m)
+
+
 def _rec(K):
     return -K[:, :3, 3]
 

@@ -749,7 +749,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``target`` / ``target_max``: the RMS and largest estimated relative error of a receiver current over the
     candidates at which the build stops; ``bem_options``: of the reference BEM, the one the map reproduces
     (its sensor mesh ``edge_length_m`` defaults to the mesher's, as everywhere else in the project);
-    ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser and corrected by the
+    ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser (at most as coarse as the
+    mesher makes it, :func:`~electrosense.meshes.sensor_mesh.coarsest_edge_length_m`) and corrected by the
     reference at fewer poses (``first_ref`` first, then a round of them where it removes more of the
     estimated error per CPU second than a round of coarse ones, :func:`_refine_pays`, at the nodes where the
     correction's estimated error is largest; 1: every pose on the reference mesh); ``max_cpu_seconds``: CPU
@@ -759,7 +760,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``workers``: processes solving the BEM.
     """
     from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
-    from electrosense.meshes.sensor_mesh import default_edge_length_m
+    from electrosense.meshes.sensor_mesh import coarsest_edge_length_m, default_edge_length_m
     from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
 
@@ -773,12 +774,18 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     coarse_factor = float(coarse_factor)
     if not coarse_factor >= 1.0:
         raise ValueError(f"coarse_factor must be 1 or more, got {coarse_factor}")
+    coarse_edge_m = min(coarse_factor * options["edge_length_m"], coarsest_edge_length_m(sensor))
+    if coarse_edge_m < coarse_factor * options["edge_length_m"]:   # a reference edge near the sensor's diameter
+        coarse_factor = max(1.0, coarse_edge_m / options["edge_length_m"])
+        say(f"the coarse sensor mesh at the sensor's diameter ({1e3 * coarse_edge_m:.2f} mm): "
+            f"{coarse_factor:.2f}x the reference's edge" if coarse_factor > 1.0
+            else "the reference's sensor mesh is as coarse as the mesher makes it: every pose on it")
     corrected = coarse_factor > 1.0
     if options.get("tank_grading") is None and tank is not None:
         options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
     # the many poses on the BEM's default tank mesh (or the reference's, where that is the coarser)
     coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
-    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_factor * options["edge_length_m"],
+    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_edge_m,
                                             **({} if tank is None else {"tank_grading": coarse_grading})}}
     code = code_version()
     band = np.ndim(z_m) > 0
