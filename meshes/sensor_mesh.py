@@ -243,7 +243,7 @@ def _ring_layout(sensor: SensorDescription, edge_length_m, grading, edge_refinem
         raise ValueError(f"mesh_sensor: max_aspect must be >= 1, got {max_aspect}")
     if h_far > coarsest_edge_length_m(sensor):
         raise ValueError(
-            f"mesh_sensor: edge_length_m {h_far} m is coarser than the sensor's diameter {2 * sensor.radius_m} m"
+            f"mesh_sensor: edge_length_m {h_far} m is coarser than the sensor's diameter {coarsest_edge_length_m(sensor)} m"
         )
     profile = SensorProfile(sensor)
     s_rings, size = graded_arc_lengths(sensor, h_far, h_far / edge_refinement, grading)

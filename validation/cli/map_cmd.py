@@ -79,8 +79,9 @@ def parse_depths(text: str):
 @click.option("--edge-length", "edge_length_m", type=finite_float(positive=True), default=None,
               help="Sensor mesh edge (m) of the reference BEM, the one the map reproduces; default: the mesher's.")
 @click.option("--coarse-factor", type=click.FloatRange(min=1.0), default=3.0, show_default=True,
-              help="Most BEM poses on a sensor mesh this much coarser (3.5x cheaper at 3), corrected by the reference "
-                   "mesh at fewer poses; 1: every pose on the reference mesh.")
+              help="Most BEM poses on a sensor mesh this much coarser (3.5x cheaper at 3; at most the sensor's "
+                   "diameter, the mesher's coarsest), corrected by the reference mesh at fewer poses; 1: every pose "
+                   "on the reference mesh.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True), default=None,
               help="Tank mesh edge near the sensor (m); default: the mesher's.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
