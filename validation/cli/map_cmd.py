@@ -147,7 +147,7 @@ def info(map_file):
     click.echo(f"sensor {m.sensor.name} ({m.sensor.n_electrodes} electrodes), tank {meta['tank']}, "
                f"{len(m.objects)} fixed object(s)")
     click.echo(f"z = {meta['z_m']} m, closest {1e3 * m.wall_gap_m:g} mm to a wall; {len(m.nodes)} BEM poses "
-               f"(sensor mesh {m.coarse_factor:g}x the reference's), {len(m.ref_index)} on the reference mesh; "
+               f"(sensor mesh {m.coarse_factor:.3g}x the reference's), {len(m.ref_index)} on the reference mesh; "
                f"sigma {m.sigma_S_per_m} S/m")
     if last:
         click.echo(f"estimated error RMS {100 * last['rms_error']:.4f} %, max {100 * last['max_error']:.4f} %; built in "

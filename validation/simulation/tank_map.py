@@ -873,7 +873,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         # least one chunk of coarse poses and MIN_REFERENCE_POSES on the reference mesh make a map with its error
         if len(nodes) < first:
             say(f"BEM at {first - len(nodes)} first poses on {pool.workers} process(es)"
-                + (f", sensor mesh {coarse_factor:g}x coarser than the reference" if corrected else ""))
+                + (f", sensor mesh {coarse_factor:.3g}x coarser than the reference" if corrected else ""))
             order = _farthest_points(F, first - len(nodes), frame.features(nodes) if len(nodes) else None)
             for chunk in np.array_split(order, int(np.ceil(len(order) / per_round))):
                 if len(nodes) and spent("coarse", len(chunk)):
