@@ -1,7 +1,8 @@
-"""The PSM against the BEM (slow; skipped while the BEM is not importable)."""
+"""The PSM against the BEM (slow: ``pytest -m slow``)."""
 import numpy as np
 import pytest
 
+from electrosense import bem
 from electrosense.meshes.objects import Sphere
 from electrosense.meshes.pose import Pose
 from electrosense.meshes.scene import Scene
@@ -9,10 +10,6 @@ from electrosense.meshes.sensor import preset
 from electrosense.meshes.tank import Tank
 from electrosense.psm import calibrate, conductance
 from electrosense.psm.paper import LENGTH_N2_M, RADIUS_N2_M
-
-bem = pytest.importorskip("bem")
-if not hasattr(bem, "conductance_matrix"):
-    pytest.skip("electrosense.bem.conductance_matrix is not available yet", allow_module_level=True)
 
 pytestmark = pytest.mark.slow
 SIGMA = 0.0354

@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from electrosense import psm
 from electrosense.validation.cli import main
-
-psm = pytest.importorskip("psm")
 
 
 @pytest.fixture(scope="module")
