@@ -153,6 +153,7 @@ def test_a_refused_sweep_leaves_nothing_and_a_different_rerun_is_never_blocked(t
     bad = _run("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--tank", "0.3,0.3,0.3",
                "--from", "-0.15,0", "--to", "0.15,0", "--steps", 5, "--quiet", "-o", out)
     assert bad.exit_code != 0 and not partial.exists() and not out.exists()
+    assert "beyond the wall" in bad.output and "esense map build" in bad.output   # and where to turn instead
     # a partial store of another run (an interrupted sweep) is replaced, with a word
     args = ("--model", "psm", "--psm", psm_file, "--sensor", "angels-4", "--unbounded", *LINE, "--quiet")
     r = _run(*args[:-1], "--sigma", 0.2, "--workers", 1, "--quiet", "-o", tmp_path / "other.zarr")
