@@ -70,4 +70,4 @@ def test_demo_quick_with_diagnosis(tmp_path):
     assert (out / "diagnosis" / "angels-2_line" / "diagnosis.json").exists()
     assert "diagnosis/angels-2_line/index.html" in html
     assert "diagnosis failed" not in html
-    assert "angels-2_line:   fitting conductivity" in r.output  # the diagnosis's steps shown as they come
+    assert "  angels-2_line: fitting conductivity" in r.output  # the diagnosis's steps shown as they come
