@@ -52,6 +52,9 @@ class PlacementError(ValueError):
         super().__init__(message)
         self.sphere_through_wall = sphere_through_wall
 
+    def __reduce__(self):   # the flag survives a worker process's pickling
+        return type(self), (str(self), self.sphere_through_wall)
+
 
 def sphere_centres_m(model: PolySphericalModel, poses: np.ndarray) -> np.ndarray:
     """Sphere centres (P, n, 3) in the tank frame; ``poses`` (P, 4) may be complex (complex step)."""
