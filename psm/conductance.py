@@ -43,17 +43,7 @@ MAX_IMAGE_SHELLS = 16
 
 
 class PlacementError(ValueError):
-    """A sensor sphere or an object outside the water, or an object touching an electrode.
-
-    ``sphere_through_wall``: a sensor sphere reaches beyond a boundary of the water (where the sensor itself may
-    be in the water: the PSM's images do not hold there)."""
-
-    def __init__(self, message: str, sphere_through_wall: bool = False):
-        super().__init__(message)
-        self.sphere_through_wall = sphere_through_wall
-
-    def __reduce__(self):   # the flag survives a worker process's pickling
-        return type(self), (str(self), self.sphere_through_wall)
+    """A sensor sphere or an object outside the water, or an object touching an electrode."""
 
 
 def sphere_centres_m(model: PolySphericalModel, poses: np.ndarray) -> np.ndarray:
@@ -77,7 +67,9 @@ def _check_placement(model, X, tank, obj_centres, obj_radii):
             raise PlacementError(
                 f"pose {ip} (x, y, z = {Xr[ip].mean(0).round(4).tolist()} m): sphere {k + 1} of the PSM "
                 f"(radius {model.radii_m[k] * 1e3:.2f} mm) reaches {-gap[ip, k, b] * 1e3:.2f} mm beyond the "
-                f"{TANK_REGIONS[b]} boundary of the water", sphere_through_wall=True
+                f"{TANK_REGIONS[b]} boundary of the water; the PSM's wall images do not hold where its spheres "
+                "cross a wall (the sensor itself may be in the water): a tank map (esense map build, then "
+                "--model map or --map FILE) reaches 5 mm from a wall"
             )
         if obj_centres.size:
             ogap = tank.distance_to_boundary_m(obj_centres) - obj_radii[:, None]

@@ -132,7 +132,6 @@ def sweep(**options):
     import importlib.util
     from types import SimpleNamespace
 
-    from electrosense.psm.conductance import PlacementError
     from electrosense.validation.simulation.sweep.grid import GridError
 
     missing = [m for m in ("dask", "distributed", "xarray", "zarr") if importlib.util.find_spec(m) is None]
@@ -148,10 +147,6 @@ def sweep(**options):
         raise SystemExit(130) from None
     except click.ClickException:
         raise
-    except PlacementError as exc:
-        hint = ("; the PSM's wall images do not hold where its spheres cross a wall: a tank map (esense map build, "
-                "then --model map --map FILE) reaches 5 mm from a wall") if exc.sphere_through_wall else ""
-        raise click.ClickException(f"{exc}{hint}") from None
     except (ValueError, GridError, FileExistsError) as exc:
         raise click.ClickException(str(exc)) from None
     except RuntimeError as exc:  # SchedulerError and the solvers' refusals
