@@ -11,8 +11,9 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    (:mod:`.map_coordinates`);
 2. the BEM as a user runs it at one pose (:class:`electrosense.bem.PoseSweep`,
    the sensor's block shared, each pose on a tank mesh graded to it alone,
-   its edge bounded by the distance from the sensor; on ``workers``
-   processes) at a first spread of them
+   its edge bounded by the distance from the sensor, the sensor-tank coupling
+   truncated at :data:`MAP_COUPLING_TOL`; on ``workers`` processes) at a
+   first spread of them
    (farthest-point sampling in the map's warped coordinates, which crowds
    them near the walls), then, round after round, at the candidates of
    largest estimated error (and a share of each round, :data:`EXPLORE_SHARE`,
@@ -594,6 +595,13 @@ def _refine_pays(rms_coarse: float, n_coarse: int, cpu_coarse_s: float | None, r
 #: CPU per pose, at fewer poses corrects them): 3 is the diagnosis anchors' factor
 COARSE_FACTOR = 3.0
 
+#: the relative truncation of the sensor-tank coupling in the map's BEM poses (:class:`~electrosense.bem.PoseSweep`'s
+#: ``tol``; the BEM's own default 1e-6): the poses the map crowds near the walls carry ranks of 170-590 at 1e-6 and
+#: 110-370 at 1e-5, and a pose costs 25 % less (a random 5-electrode sensor in a 0.77 x 0.52 m box, tips 5-14 mm
+#: from a wall: 3.6 s against 4.9 s of CPU) for K within 6e-6 of the untruncated coupling at the worst of four
+#: (1e-6: 1e-6; 3e-5: 5e-5), 4 % of the map's RMS target. The map's checks solve at the BEM's default.
+MAP_COUPLING_TOL = 1e-5
+
 #: the tank mesh's growth of edge per metre from the sensor for the map's reference BEM (the coarse poses keep the
 #: BEM's default, :data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_GRADING`, 0.25). The default's graded panels
 #: leave K 0.034 % RMS (0.073 % max) from a tank mesh graded at 0.1 (6 300 triangles) in the tank map study's
@@ -785,8 +793,9 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
     # the many poses on the BEM's default tank mesh (or the reference's, where that is the coarser)
     coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
-    fidelities = {"ref": options, "coarse": {**options, "edge_length_m": coarse_edge_m,
-                                            **({} if tank is None else {"tank_grading": coarse_grading})}}
+    fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL},
+                  "coarse": {**options, "tol": MAP_COUPLING_TOL, "edge_length_m": coarse_edge_m,
+                             **({} if tank is None else {"tank_grading": coarse_grading})}}
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:
@@ -829,7 +838,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
     # the memory checked at the poses nearest a wall (the finest tank meshes) before any BEM
     nearest = C[np.argsort(sensor_wall_gap_m(sensor, tank, C, objects))[:2]]
-    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": options}, workers, nearest)
+    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": fidelities["ref"]}, workers,
+                    nearest)
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
     per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)
