@@ -41,6 +41,10 @@ at O(k N_e^2) instead of O(N_e^3) (``angels``-sized sensors in a tank of a
 few thousand triangles: about three times faster per pose). Where ``A'`` is
 too ill-conditioned for this to be safe (``rcond`` below
 :data:`WOODBURY_MIN_RCOND`), the Schur complement is factorised per pose.
+``A'`` is factorised in float32 and each pose's solution refined on float64
+residuals of the Schur complement (``A_e y - (A_es W) V_k^T y``, one
+product with ``A_e`` a step), as the sensor's block: a tank mesh graded to
+one pose near a wall (4 400 triangles) factorised in 0.3 s against 0.6 s.
 
 The tank mesh is graded towards the whole trajectory (the sensor's axis at
 every pose of the first batch, or ``focus_m``), so that one tank mesh serves
@@ -81,7 +85,7 @@ from electrosense.bem.system import column_coefficients, contact_impedances
 from electrosense.meshes.pose import Pose, poses_array, rotation_z
 from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, DEFAULT_TANK_NEAR_RATIO
 
-__all__ = ["PoseSweep", "pose_bytes", "WOODBURY_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
+__all__ = ["PoseSweep", "pose_bytes", "WOODBURY_MIN_RCOND", "LOW_PRECISION_MIN_RCOND", "WALL_SPLIT_RADIUS_FACTOR"]
 
 #: wall derivatives: the tank's faces within this many sensor lengths of the sensor's axis take the sensor's part
 #: of their potential exactly (:mod:`electrosense.bem.shape_derivative`)
@@ -90,6 +94,13 @@ WALL_SPLIT_RADIUS_FACTOR = 0.6
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
 WOODBURY_MIN_RCOND = 1e-8
+
+#: smallest reciprocal condition number of the float32 factors of ``A'`` for which a pose is solved with them and
+#: refined (as :func:`electrosense.bem.linear_solve.solve_dense`); below it the factors are float64
+LOW_PRECISION_MIN_RCOND = 1e-6
+
+#: relative residual of a pose's environment solve at which its refinement stops, and the most refinements
+REFINEMENT_TOL, MAX_REFINEMENTS = 1e-12, 8
 
 
 def pose_bytes(n_sensor: int, n_environment: int) -> float:
@@ -103,6 +114,22 @@ def pose_bytes(n_sensor: int, n_environment: int) -> float:
     """
     Ns, Ne = float(n_sensor), float(n_environment)
     return 4.0 * Ns**2 + 8.0 * (2.5 * Ne**2 + 3.0 * Ns * Ne)
+
+
+def _refined(apply, rhs, x, approximate_inverse, pose):
+    """``x`` refined until ``apply(x) = rhs`` to :data:`REFINEMENT_TOL` (float64 residuals, the low-precision
+    ``approximate_inverse`` for each correction); refuses a pose whose refinement does not converge."""
+    norm_rhs = np.linalg.norm(rhs)
+    for _ in range(MAX_REFINEMENTS):
+        r = rhs - apply(x)
+        if np.linalg.norm(r) <= REFINEMENT_TOL * norm_rhs:
+            return x
+        x = x + approximate_inverse(r)
+    residual = np.linalg.norm(rhs - apply(x)) / norm_rhs
+    if residual > 1e3 * REFINEMENT_TOL:
+        raise SingularSystemError(f"the system at pose {pose.tolist()} did not converge under iterative refinement "
+                                  f"(residual {residual:.1e}); it is close to singular")
+    return x
 
 
 def _pose_velocities(op, normals: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -427,14 +454,24 @@ class PoseSweep:
         return np.full((N, 1), np.sqrt(c / N)), np.full((N, 1), np.sqrt(c / N))
 
     def _prepare_woodbury(self) -> float:
-        """LU factors of ``A' = A_e + c a b^T`` (module doc), or None where ``A'`` is too ill-conditioned; returns c."""
+        """LU factors of ``A' = A_e + c a b^T`` (module doc), or None where ``A'`` is too ill-conditioned; returns c.
+
+        The factors are float32 (half the time of float64; each pose's solve is refined on float64 residuals
+        of ``A_e``) where ``A'`` is conditioned well enough (:data:`LOW_PRECISION_MIN_RCOND`) and ``A_e`` is
+        kept, float64 where the factors go to the disk cache (``A_e`` itself is not kept there)."""
         N = len(self._A_e)
         c = float(np.abs(np.diag(self._A_e)).mean())   # the diagonal's scale: A' as well conditioned as A_e's range
         self._rank_one = self._rank_one_vectors(N, c)
         a, b = self._rank_one
+        self._woodbury = None
         try:
-            lu, piv, rcond = factorise(self._A_e + a @ b.T, "regularised tank block")
-            self._woodbury = (lu, piv) if rcond >= WOODBURY_MIN_RCOND else None
+            if not self.cache_environment:
+                lu, piv, rcond = factorise((self._A_e + a @ b.T).astype(np.float32), "regularised tank block")
+                if rcond >= max(LOW_PRECISION_MIN_RCOND, WOODBURY_MIN_RCOND):
+                    self._woodbury = (lu, piv)
+            if self._woodbury is None:
+                lu, piv, rcond = factorise(self._A_e + a @ b.T, "regularised tank block")
+                self._woodbury = (lu, piv) if rcond >= WOODBURY_MIN_RCOND else None
         except SingularSystemError:
             self._woodbury = None
         self.timings["woodbury"] = self._woodbury is not None
@@ -478,13 +515,25 @@ class PoseSweep:
         f = r_e - A_es @ self._y0
         if self._woodbury is not None:
             a, b = self._rank_one
-            U = np.hstack([a, A_es @ W])
+            AW = A_es @ W
+            U = np.hstack([a, AW])
             C = np.vstack([b.T, Vt])
-            GZ = scipy.linalg.lu_solve(self._woodbury, np.hstack([f, U]), check_finite=False)
-            g, Z = GZ[:, :f.shape[1]], GZ[:, f.shape[1]:]
+            low = self._woodbury[0].dtype
+
+            def inverse_of_A_prime(r):
+                return scipy.linalg.lu_solve(self._woodbury, r.astype(low), check_finite=False).astype(float)
+
+            Z = inverse_of_A_prime(U)
             capacitance = np.eye(k + 1) - C @ Z
             lu, piv, _ = factorise(capacitance, f"system at pose {pose.tolist()}")
-            y_e = g + Z @ scipy.linalg.lu_solve((lu, piv), C @ g, check_finite=False)
+
+            def woodbury(r):   # (A' - U C)^-1 r = (A_e - A_es W V_k^T)^-1 r, to the factors' precision
+                g = inverse_of_A_prime(r)
+                return g + Z @ scipy.linalg.lu_solve((lu, piv), C @ g, check_finite=False)
+
+            y_e = woodbury(f)
+            if low != np.float64:   # refined on float64 residuals of the Schur complement
+                y_e = _refined(lambda y: self._A_e @ y - AW @ (Vt @ y), f, y_e, woodbury, pose)
         else:
             schur = self._A_e - (A_es @ W) @ Vt
             lu, piv, _ = factorise(schur, f"system at pose {pose.tolist()}")

@@ -210,6 +210,29 @@ def test_woodbury_poses_equal_the_factorised_schur_complement(scene, monkeypatch
     np.testing.assert_allclose(K_woodbury, K_schur, rtol=1e-10, atol=1e-12 * np.abs(K_schur).max())
 
 
+def test_float32_woodbury_factors_refined_give_the_float64_poses(monkeypatch):
+    """The regularised tank block factorised in float32 and each pose refined on float64 residuals gives the K
+    of float64 factors; a sweep whose factors go to the disk cache keeps them float64."""
+    import electrosense.bem.sweep as sweep_module
+
+    tank, poses = Tank((0.4, 0.3, 0.3)), np.array([[0.03, 0.0, 0.0, 0.2], [-0.1, -0.02, 0.03, -0.5]])
+
+    def sweep(**options):
+        s = PoseSweep(preset("angels-2"), tank, (), sigma_S_per_m=1.0, edge_length_m=H, tank_edge_length_m=0.05,
+                      **options)
+        return s, s.conductance(poses).K_S
+
+    low, K_low = sweep()
+    assert low._woodbury[0].dtype == np.float32
+    monkeypatch.setattr(sweep_module, "LOW_PRECISION_MIN_RCOND", np.inf)
+    double, K_double = sweep()
+    assert double._woodbury[0].dtype == np.float64
+    np.testing.assert_allclose(K_low, K_double, rtol=1e-10, atol=1e-12 * np.abs(K_double).max())
+    monkeypatch.setattr(sweep_module, "LOW_PRECISION_MIN_RCOND", 0.0)
+    cached, _ = sweep(cache_environment=True)
+    assert cached._woodbury[0].dtype == np.float64
+
+
 def test_axisymmetric_reduction_matches_the_full_collocation(free_solution):
     from electrosense.bem.axisymmetric import solve_axisymmetric
 
