@@ -17,7 +17,7 @@ import scipy.linalg
 
 from electrosense.bem.boundary_conditions import BoundaryError
 
-__all__ = ["SingularSystemError", "factorise", "solve_dense", "solve_refined"]
+__all__ = ["SingularSystemError", "factorise", "solve_dense", "solve_refined", "refine"]
 
 
 class SingularSystemError(BoundaryError):
@@ -73,15 +73,35 @@ def solve_refined(matrix: np.ndarray, rhs: np.ndarray, factors, what: str = "BEM
     refinement on float64 residuals; returns ``(X, refinements)``."""
     lu, piv = factors
     full = np.result_type(matrix.dtype, rhs.dtype, np.float64)   # float64, or complex128 for a complex system
-    X = scipy.linalg.lu_solve((lu, piv), rhs.astype(lu.dtype), check_finite=False).astype(full)
+
+    def low_precision_solve(R):
+        return scipy.linalg.lu_solve((lu, piv), R.astype(lu.dtype), check_finite=False).astype(full)
+
+    return refine(lambda X: matrix @ X, rhs, low_precision_solve(rhs), low_precision_solve, what, refinement_tol,
+                  max_refinements)
+
+
+def refine(apply, rhs: np.ndarray, X: np.ndarray, approximate_inverse, what: str = "BEM system",
+           refinement_tol: float = 1e-12, max_refinements: int = 6):
+    """Iterative refinement of ``X`` towards ``apply(X) = rhs``: float64 residuals, each correction by the
+    low-precision ``approximate_inverse`` (a factorisation in float32, or a Woodbury formula on one), until the
+    relative residual is below ``refinement_tol``; returns ``(X, refinements)``. Refuses (:class:`SingularSystemError`)
+    a system whose refinement does not converge: it is close to singular.
+
+    >>> A = np.array([[4.0, 1.0], [1.0, 3.0]]); b = np.array([1.0, 2.0])
+    >>> rough = lambda r: np.linalg.solve(A + 0.01, r)     # an inverse good to about 1e-2
+    >>> X, k = refine(lambda x: A @ x, b, rough(b), rough)
+    >>> bool(np.allclose(A @ X, b, rtol=0, atol=1e-12)), k
+    (True, 5)
+    """
     norm_rhs = np.linalg.norm(rhs)
     for k in range(1, max_refinements + 1):
-        R = rhs - matrix @ X
+        R = rhs - apply(X)
         if np.linalg.norm(R) <= refinement_tol * norm_rhs:
             return X, k - 1
-        X += scipy.linalg.lu_solve((lu, piv), R.astype(lu.dtype), check_finite=False)
-    R = rhs - matrix @ X
-    if np.linalg.norm(R) > 1e3 * refinement_tol * norm_rhs:
+        X = X + approximate_inverse(R)
+    residual = np.linalg.norm(rhs - apply(X)) / norm_rhs
+    if residual > 1e3 * refinement_tol:
         raise SingularSystemError(f"the {what} did not converge under iterative refinement "
-                                  f"(residual {np.linalg.norm(R) / norm_rhs:.1e}); it is close to singular")
+                                  f"(residual {residual:.1e}); it is close to singular")
     return X, max_refinements

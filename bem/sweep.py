@@ -74,7 +74,7 @@ from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axi
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
 from electrosense.bem.edge_correction import free_space_correction
-from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_refined
+from electrosense.bem.linear_solve import SingularSystemError, factorise, refine, solve_refined
 from electrosense.bem.low_rank import right_singular_vectors
 from electrosense.bem.memory import check_bytes, check_memory
 from electrosense.bem.operators import TriangleSet, mixed_system
@@ -114,22 +114,6 @@ def pose_bytes(n_sensor: int, n_environment: int) -> float:
     """
     Ns, Ne = float(n_sensor), float(n_environment)
     return 4.0 * Ns**2 + 8.0 * (2.5 * Ne**2 + 3.0 * Ns * Ne)
-
-
-def _refined(apply, rhs, x, approximate_inverse, pose):
-    """``x`` refined until ``apply(x) = rhs`` to :data:`REFINEMENT_TOL` (float64 residuals, the low-precision
-    ``approximate_inverse`` for each correction); refuses a pose whose refinement does not converge."""
-    norm_rhs = np.linalg.norm(rhs)
-    for _ in range(MAX_REFINEMENTS):
-        r = rhs - apply(x)
-        if np.linalg.norm(r) <= REFINEMENT_TOL * norm_rhs:
-            return x
-        x = x + approximate_inverse(r)
-    residual = np.linalg.norm(rhs - apply(x)) / norm_rhs
-    if residual > 1e3 * REFINEMENT_TOL:
-        raise SingularSystemError(f"the system at pose {pose.tolist()} did not converge under iterative refinement "
-                                  f"(residual {residual:.1e}); it is close to singular")
-    return x
 
 
 def _pose_velocities(op, normals: np.ndarray, pose: np.ndarray) -> np.ndarray:
@@ -533,7 +517,8 @@ class PoseSweep:
 
             y_e = woodbury(f)
             if low != np.float64:   # refined on float64 residuals of the Schur complement
-                y_e = _refined(lambda y: self._A_e @ y - AW @ (Vt @ y), f, y_e, woodbury, pose)
+                y_e, _ = refine(lambda y: self._A_e @ y - AW @ (Vt @ y), f, y_e, woodbury,
+                                f"system at pose {pose.tolist()}", REFINEMENT_TOL, MAX_REFINEMENTS)
         else:
             schur = self._A_e - (A_es @ W) @ Vt
             lu, piv, _ = factorise(schur, f"system at pose {pose.tolist()}")
