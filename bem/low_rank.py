@@ -95,8 +95,7 @@ def right_singular_vectors(A: np.ndarray, tol: float, block: int = 64, oversampl
         if tol >= GRAM_RESOLUTION:                   # squared singular values of B from its Gram matrix, grown
             cross = B[:l] @ Bb.T
             G = np.block([[G, cross], [cross.T, Bb @ Bb.T]])
-            lam, X = np.linalg.eigh(G)
-            s = np.sqrt(np.maximum(lam[::-1], 0.0))
+            s = np.sqrt(np.maximum(np.linalg.eigvalsh(G)[::-1], 0.0))
         else:                                        # below its resolution: the SVD of B itself
             s = np.linalg.svd(B[:l + b], compute_uv=False)
         l += b
@@ -108,7 +107,7 @@ def right_singular_vectors(A: np.ndarray, tol: float, block: int = 64, oversampl
         # B = Y S X^T with G = X S^2 X^T: the right singular vectors are X^T B / s, without B's own SVD (a third
         # of the cost at rank 600); one QR makes them orthonormal to rounding (the kept ones carry the Gram
         # matrix's error, about 1e-16 s_max^2 / s_k^2 <= 1e-4 relative, only within the kept span)
-        X = X[:, ::-1][:, :k]
+        X = np.linalg.eigh(G)[1][:, ::-1][:, :k]     # the eigenvectors once, of the last Gram matrix
         Vt = np.linalg.qr(((X / s[:k]).T @ B[:l]).T)[0].T
         return Vt, s[:k]
     _, s, Vt = np.linalg.svd(B[:l], full_matrices=False)
