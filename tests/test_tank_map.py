@@ -123,36 +123,6 @@ def _synthetic_nodes(seed, n_poses, spacing_m, n_headings):
     return rng, P, MapFrame(SENSOR, TANK), iu, K_free
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_the_wall_ladder_puts_random_sensors_at_every_gap_near_every_wall(seed):
-    """The candidates near a wall are moved to the ladder's gaps (a grid's poses skip the gaps between its rows:
-    a sensor parallel to a wall had none from 5 to 12.8 mm): in a random box, a cylinder and a box with a sphere,
-    every ladder pose sits at one of the gaps and no nearer anything, and a parallel sensor gets the smallest."""
-    from electrosense.validation.diagnosis.unseen import random_sensor
-    from electrosense.validation.simulation.tank_map import (
-        WALL_LADDER_RATIO,
-        sensor_wall_gap_m,
-        wall_ladder_poses,
-    )
-
-    rng = np.random.default_rng(seed)
-    sensor = random_sensor(rng, int(rng.integers(3, 6)))
-    lx, ly = rng.uniform(0.4, 0.7, 2)
-    scenes = [(Tank((lx, ly, 0.3)), ()), (CylinderTank(0.5 * ly, 0.3), ()),
-              (Tank((lx, ly, 0.3)), (Sphere((0.1 * lx, 0.0, 0.0), 0.02),))]
-    gap, spacing = 0.005, 0.02
-    ladder = gap * WALL_LADDER_RATIO ** np.arange(6)   # 5 mm to 38 mm, within twice the spacing
-    for tank, objects in scenes:
-        grid = reachable_poses(sensor, tank, 0.0, gap, spacing, 12, objects)
-        L = wall_ladder_poses(sensor, tank, grid, gap, 2 * spacing, np.pi / 6, objects)
-        g = sensor_wall_gap_m(sensor, tank, L, objects)
-        assert len(L) > len(grid) / 10
-        off = np.abs(g[:, None] - ladder)
-        assert np.all(off.min(axis=1) < 1e-6) and set(off.argmin(axis=1)) == set(range(len(ladder)))
-        parallel = L[np.isclose(np.cos(L[:, 3]), 0.0, atol=1e-9)]   # along y: its gap set by the sensor's side
-        assert np.isclose(sensor_wall_gap_m(sensor, tank, parallel, objects).min(), gap, atol=1e-6)
-
-
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):
@@ -229,11 +199,10 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
         K_ref = pool.solve(m.nodes[m.ref_index[:2]], "ref")
     finally:
         pool.close()
-    # to the sweep's own tolerance: another process's BLAS sums in another order, which may move the coupling's
-    # rank, cut at the map's 1e-5, by one (K within 6e-6 of the untruncated coupling's; a node near a wall of
-    # this build differed by 1.5e-6)
-    np.testing.assert_allclose(K_coarse, m.K_nodes[:3], rtol=1e-5, atol=1e-9 * np.abs(K_coarse).max())
-    np.testing.assert_allclose(K_ref, m.K_ref[:2], rtol=1e-5, atol=1e-9 * np.abs(K_ref).max())
+    # to the sweep's own tolerance (its coupling's rank is cut at the map's 1e-5): another process's BLAS sums in
+    # another order
+    np.testing.assert_allclose(K_coarse, m.K_nodes[:3], rtol=1e-6, atol=1e-9 * np.abs(K_coarse).max())
+    np.testing.assert_allclose(K_ref, m.K_ref[:2], rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
     assert pool.cpu_s > 0
 
 

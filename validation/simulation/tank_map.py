@@ -63,7 +63,7 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "wall_ladder_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
@@ -116,15 +116,10 @@ def sensor_wall_gap_m(sensor, tank, poses: np.ndarray, objects=()) -> np.ndarray
     return gap - sensor.radius_m
 
 
-#: the ratio of the gaps of :func:`wall_ladder_poses` (5, 7.5, 11, 17 mm from a 5 mm wall gap on a 1 cm grid)
-WALL_LADDER_RATIO = 1.5
-
-
 def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: float = 0.01, n_headings: int = 48,
                     objects=()) -> np.ndarray:
     """(C, 4) poses (x, y, z, yaw) on a grid of ``spacing_m``, ``n_headings`` headings over the full turn and the
-    depths ``z_m`` (one or several), with the sensor's surface at least ``wall_gap_m`` from every boundary (a map's
-    build adds :func:`wall_ladder_poses` to them)."""
+    depths ``z_m`` (one or several), with the sensor's surface at least ``wall_gap_m`` from every boundary."""
     lo, hi = tank.water_bounds_m
     xs = np.arange(lo[0] + wall_gap_m, hi[0] - wall_gap_m + 1e-12, spacing_m)
     ys = np.arange(lo[1] + wall_gap_m, hi[1] - wall_gap_m + 1e-12, spacing_m)
@@ -133,59 +128,6 @@ def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: flo
     X, Y, Z, W = np.meshgrid(xs, ys, zs, yaws, indexing="ij")
     P = np.c_[X.ravel(), Y.ravel(), Z.ravel(), W.ravel()]
     return P[sensor_wall_gap_m(sensor, tank, P, objects) >= wall_gap_m]
-
-
-#: the ratio of the gaps of :func:`wall_ladder_poses` (5, 7.5, 11, 17 mm from a 5 mm wall gap on a 1 cm grid)
-WALL_LADDER_RATIO = 1.5
-#: the headings :func:`wall_ladder_poses` adds, in steps of the grid's heading step
-WALL_LADDER_TURNS = (-0.5, -0.25, 0.0, 0.25)
-
-
-def wall_ladder_poses(sensor, tank, poses: np.ndarray, wall_gap_m: float, up_to_m: float, heading_step_rad: float = 0.0,
-                      objects=()) -> np.ndarray:
-    """The ``poses`` within 1.5 ``up_to_m`` of a wall or object, turned by :data:`WALL_LADDER_TURNS` of
-    ``heading_step_rad`` and each moved in (x, y) along its gap's gradient to the gaps ``wall_gap_m`` x
-    :data:`WALL_LADDER_RATIO`^k up to ``up_to_m`` (duplicates removed).
-
-    A grid of poses does not sample the gap: a sensor of radius 12.2 mm lying parallel to a wall on a 1 cm grid
-    offset 5 mm from it has gaps of 2.8 mm (out) and 12.8 mm, and none between, where K changes fastest; and a
-    grid's heading step of 7.5 degrees turns a 20 cm sensor's far cap 26 mm off the wall. A tank map built on
-    the grid alone was 0.3 % off the BEM at a sensor 5 mm from a wall and 3 degrees off parallel (40 fresh
-    poses with gaps 5-30 mm: 0.087 % RMS against 0.0065 % further out), and its error estimate, from nodes it
-    never had there, said 0.006-0.06 %. The moves are Newton steps on the gap (piecewise linear in the position
-    for planar walls), so a tank of any shape and fixed objects get their ladders alike; the depth is not
-    moved (a band's floor and free surface are sampled by its depths).
-
-    >>> from electrosense.meshes import preset
-    >>> from electrosense.meshes.tank import Tank
-    >>> s, t = preset("angels-4"), Tank((1.0, 1.0, 1.0))
-    >>> L = wall_ladder_poses(s, t, np.array([[0.47, 0.0, 0.0, np.pi / 2]]), 0.005, 0.02)
-    >>> sorted(np.round(1e3 * sensor_wall_gap_m(s, t, L), 3).tolist())
-    [5.0, 7.5, 11.25, 16.875]
-    """
-    poses = np.asarray(poses, float).reshape(-1, 4)
-    n_gaps = int(np.floor(np.log(up_to_m / wall_gap_m) / np.log(WALL_LADDER_RATIO) + 1e-9)) + 1
-    gaps = wall_gap_m * WALL_LADDER_RATIO ** np.arange(max(n_gaps, 0))
-    near = poses[sensor_wall_gap_m(sensor, tank, poses, objects) < 1.5 * up_to_m]
-    turns = np.unique(np.asarray(WALL_LADDER_TURNS) * heading_step_rad)
-    if not len(near) or not len(gaps):
-        return np.zeros((0, 4))
-    Q = np.repeat(near, len(turns) * len(gaps), axis=0)
-    Q[:, 3] += np.tile(np.repeat(turns, len(gaps)), len(near))
-    target = np.tile(gaps, len(near) * len(turns))
-    h = 1e-5
-    for _ in range(4):   # Newton on the gap along its (x, y) gradient
-        g = sensor_wall_gap_m(sensor, tank, Q, objects)
-        if np.abs(g - target).max() < 1e-7:
-            break
-        grad = np.stack([(sensor_wall_gap_m(sensor, tank, Q + np.eye(4)[k] * h, objects) - g) / h for k in (0, 1)], -1)
-        norm2 = (grad**2).sum(axis=1)
-        ok = norm2 > 0.25   # the nearest boundary a wall or object, not the floor or the free surface
-        Q, target, g, grad, norm2 = Q[ok], target[ok], g[ok], grad[ok], norm2[ok]
-        Q[:, :2] += ((target - g) / norm2)[:, None] * grad
-    g = sensor_wall_gap_m(sensor, tank, Q, objects)
-    Q = Q[np.abs(g - target) < 1e-6]
-    return np.unique(np.round(Q, 9), axis=0)
 
 
 def _farthest_points(F: np.ndarray, k: int, start: np.ndarray | None = None) -> np.ndarray:
@@ -868,22 +810,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
     frame = MapFrame(sensor, tank, objects, band, warp_m)
     F = frame.features(C)
-
-    def one_per_orbit(C, F):
-        """One candidate per orbit, at its folded pose: the BEM's poses all lie in the fundamental domain
-        (MapFrame.folded), where every pose is evaluated."""
-        if not frame.symmetric:
-            return C, F
+    if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses all lie in the
+        # fundamental domain (MapFrame.folded), where every pose is evaluated
         _, keep = np.unique(np.round(F / 1e-6).astype(np.int64), axis=0, return_index=True)
-        return frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
-
-    C, F = one_per_orbit(C, F)
-    F_grid = F
-    # the gaps and headings near the walls the grid misses (wall_ladder_poses), from the folded grid: candidates
-    # of the rounds, not of the first spread (which would crowd the costliest poses, a few mm from a wall)
-    C = np.vstack([C, wall_ladder_poses(sensor, tank, C, wall_gap_m, 2.0 * spacing_m, 2 * np.pi / n_headings,
-                                        objects)])
-    C, F = one_per_orbit(C, frame.features(C))   # keeps the first of each orbit: the grid's, in their order
+        C, F = frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
     T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls{', folded by the tank symmetry' if frame.symmetric else ''})")
@@ -954,7 +884,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         if len(nodes) < first:
             say(f"BEM at {first - len(nodes)} first poses on {pool.workers} process(es)"
                 + (f", sensor mesh {coarse_factor:.3g}x coarser than the reference" if corrected else ""))
-            order = _farthest_points(F_grid, first - len(nodes), frame.features(nodes) if len(nodes) else None)
+            order = _farthest_points(F, first - len(nodes), frame.features(nodes) if len(nodes) else None)
             for chunk in np.array_split(order, int(np.ceil(len(order) / per_round))):
                 if len(nodes) and spent("coarse", len(chunk)):
                     say(f"time budget spent after {len(nodes)} first poses")
