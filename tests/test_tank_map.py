@@ -354,6 +354,23 @@ def test_the_estimated_error_is_the_size_of_the_true_one(built):
     assert np.sqrt(np.mean(true**2)) < 3 * np.sqrt(np.mean(est**2)) + 1e-3   # another tank mesh adds ~5e-4
 
 
+def test_the_studys_near_wall_check_draws_poses_at_its_gaps_and_compares_them_with_the_bem(built, monkeypatch):
+    """The tank-map study's near-wall check (its gaps widened to this map's 2 cm wall gap): the poses lie at
+    those gaps, from a seed of their own, and its errors are the map's against the BEM at the size
+    of the map's own estimate."""
+    import electrosense.validation.studies.tank_map as study
+
+    m, _ = built
+    monkeypatch.setattr(study, "NEAR_WALL_GAP_M", (0.02, 0.03))
+    res = study.check_near_wall(m, SENSOR, TANK, 0.0, seed=7, n=2)
+    assert np.all((np.array(res["gaps_m"]) >= 0.02) & (np.array(res["gaps_m"]) <= 0.03))
+    again = study.test_poses(SENSOR, TANK, 0.0, np.random.default_rng([7, 1]), 2, None, (0.02, 0.03))
+    assert np.array_equal(res["poses"], again)   # a draw of its own: the study's other draws do not move
+    err = np.array(res["errors"])
+    assert err.shape == (2, SENSOR.n_electrodes - 1) and np.isclose(res["rms"], np.sqrt(np.mean(err**2)))
+    assert 0 < res["rms"] < 3 * res["estimated_rms"] + 1e-3   # another tank mesh adds ~5e-4 (the test above)
+
+
 def test_the_map_error_covariance_holds_its_estimate_and_is_smooth_along_a_pass(built):
     """The covariance's diagonal is the estimated error's square, it is a covariance (positive semi-definite), and
     the error of two poses a millimetre apart is nearly one error while that of poses across the tank is not."""

@@ -4,7 +4,8 @@ Goals (issue 23), printed beside every figure:
 
 * the map within a third of the bench noise of the BEM at random poses it was not built on (0.017 % RMS,
   0.05 % at most), sensor tips 5 mm to 20 cm from a wall, the BEM solved on another tank mesh (graded towards the
-  test poses);
+  test poses); besides, ``--near-wall-poses`` poses 5-15 mm from a wall (:func:`check_near_wall`), where a
+  20-pose draw puts two or three and the map is hardest;
 * built in under 5 minutes on 2 cores from an empty cache (wall and CPU time);
 * 10 000 poses/s or more with the pose Jacobian on one core, and through ``esense sweep --model map``;
 * on a virtual-bench log (BEM physics, 0.05 % noise) passing 2 cm from a wall: the map's position error within
@@ -14,7 +15,7 @@ Goals (issue 23), printed beside every figure:
 Also written: ``map_vs_psm.png``, the map's and the PSM's error against the BEM on a line from wall to wall
 (the README's figure), and ``localise.png``.
 
-Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [-o DIR]``.
+Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [--near-wall-poses N] [-o DIR]``.
 """
 from __future__ import annotations
 
