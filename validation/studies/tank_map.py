@@ -88,19 +88,33 @@ NEAR_WALL_GAP_M = (0.005, 0.015)
 
 def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
     """The map against the BEM at ``n`` random poses with gaps in :data:`NEAR_WALL_GAP_M`, each on a tank mesh graded
-    to it alone (as the map's nodes: the interpolation's error), drawn from their own seed (the study's other draws
-    unchanged by ``n``)."""
-    from electrosense.bem import PoseSweep
-    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh, sensor_wall_gap_m
+    to it alone (as the map's nodes: the interpolation's error, :func:`errors_on_own_tank_meshes`), drawn from
+    their own seed (the study's other draws unchanged by ``n``)."""
+    from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M)
-    e = sensor.emitter - 1
-    r = [k for k in range(sensor.n_electrodes) if k != e]
-    K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, (), 1.0, **m.bem_options), P)
-    err = m.conductance(P)[:, r, e] / K[:, r, e] - 1
+    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P)
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
             "gaps_m": sensor_wall_gap_m(sensor, tank, P).tolist(), "errors": err.tolist()}
+
+
+def errors_on_own_tank_meshes(m, sensor, tank, P):
+    """The map's relative error of the receiver currents (P, m) against the reference BEM solved as its nodes were,
+    and that BEM's K (P, n, n): each pose on a tank mesh graded to it alone (a map of an earlier version, whose
+    nodes share one tank mesh graded to the fundamental domain: on that mesh, at the folded poses)."""
+    from electrosense.bem import PoseSweep
+    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
+
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    if m.focus_m is None:
+        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, (), 1.0, **m.bem_options), P)
+    else:
+        K = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, tank_near_ratio=None,
+                      **m.bem_options).conductance(m.frame.folded(P)).K_S
+        K = m.mirrored(K, P)     # back to the poses' own frame (a sector sensor's permutation)
+    return m.conductance(P)[:, r, e] / K[:, r, e] - 1, K
 
 
 def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
@@ -120,13 +134,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     focus = trajectory_focus_m(sensor, P)
     K_other = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
     out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
-    if m.focus_m is None:   # the map's nodes were each solved on a tank mesh of its own
-        K_same = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, (), 1.0, **m.bem_options), P)
-    else:                   # on one tank mesh graded to the fundamental domain: at the folded poses
-        K_same = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, tank_near_ratio=None,
-                           **m.bem_options).conductance(m.frame.folded(P)).K_S
-        K_same = m.mirrored(K_same, P)     # back to the poses' own frame (a sector sensor's permutation)
-    out["same"] = m.conductance(P)[:, r, e] / K_same[:, r, e] - 1
+    out["same"], K_same = errors_on_own_tank_meshes(m, sensor, tank, P)
     out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
     if n_sensor_check:
         fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
