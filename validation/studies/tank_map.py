@@ -82,7 +82,8 @@ def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2)):
     return np.array(out)
 
 
-#: the gaps (m) of the study's near-wall check: where the map is hardest and a 20-pose draw puts two or three
+#: the gaps (m) of the study's near-wall check (from the nearest wall, or, in a band, floor or free surface):
+#: where the map is hardest and a 20-pose draw puts two or three
 NEAR_WALL_GAP_M = (0.005, 0.015)
 
 
@@ -284,7 +285,8 @@ def main(argv=None):
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--test-poses", type=int, default=20)
     ap.add_argument("--near-wall-poses", type=int, default=8,
-                    help="poses 5-15 mm from a wall checked besides the test poses (0: none)")
+                    help=f"poses {1e3 * NEAR_WALL_GAP_M[0]:g}-{1e3 * NEAR_WALL_GAP_M[1]:g} mm from a wall, floor or "
+                         "surface checked besides the test poses (0: none)")
     ap.add_argument("--log-poses", type=int, default=31)
     ap.add_argument("--cylinder", action="store_true", help="a cylindrical tank (no localisation: box bench only)")
     ap.add_argument("--band", type=float, default=0.0, help="a band of depths of this height (m) around z")
