@@ -33,6 +33,15 @@ BUILD = dict(wall_gap_m=0.02, spacing_m=0.04, n_headings=8, first=12, first_ref=
              coarse_factor=2.0, workers=1)
 
 
+def coarse_options() -> dict:
+    """The BEM options of BUILD's many poses: its sensor mesh coarse_factor x coarser, the BEM's default tank
+    grading, the tank's edge near the sensor bounded at COARSE_TANK_NEAR_RATIO."""
+    from electrosense.validation.simulation.tank_map import COARSE_TANK_NEAR_RATIO
+
+    return {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"],
+            "tank_near_ratio": COARSE_TANK_NEAR_RATIO}
+
+
 @pytest.fixture(scope="module")
 def built(tmp_path_factory):
     path = tmp_path_factory.mktemp("map") / "m.npz"
@@ -159,7 +168,7 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(K[:, iu[0], iu[1]], pair_values(m.K_ref, SENSOR.emitter), rtol=1e-8, atol=0)
     # every node is the BEM as a user runs it at that pose (its tank mesh graded to that pose alone), on the
     # reference sensor and tank meshes (the map's BEM options) and on the coarse sensor mesh and the BEM's
-    # default tank mesh, with the map's truncation of the sensor-tank coupling; the BEM's own truncation a few
+    # default tank mesh (coarse_options), with the map's truncation of the sensor-tank coupling; the BEM's own truncation a few
     # parts in a million away
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import MAP_COUPLING_TOL, REFERENCE_TANK_GRADING
@@ -170,8 +179,7 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(m.K_ref[:1], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
     K_default = PoseSweep(SENSOR, TANK, (), 1.0, **m.bem_options).conductance(m.nodes[m.ref_index[:1]]).K_S
     np.testing.assert_allclose(m.K_ref[:1], K_default, rtol=2e-5, atol=0)
-    coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"]}
-    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, **coarse).conductance(m.nodes[-1:]).K_S
+    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, **coarse_options()).conductance(m.nodes[-1:]).K_S
     np.testing.assert_allclose(m.K_nodes[-1:], user, rtol=1e-9, atol=1e-12 * np.abs(user).max())
     other = np.setdiff1d(np.arange(len(m.nodes)), m.ref_index)
     ratio = m.conductance(m.nodes[other])[:, iu[0], iu[1]] / m.K_nodes[other][:, iu[0], iu[1]]
@@ -191,18 +199,17 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
 
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     m, _ = built
-    coarse = {**OPTIONS, "edge_length_m": BUILD["coarse_factor"] * OPTIONS["edge_length_m"], "tol": MAP_COUPLING_TOL}
-    pool = _BemPool(SENSOR, TANK, (), {"coarse": coarse, "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}, workers=2)
+    pool = _BemPool(SENSOR, TANK, (), {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL}, "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}, workers=2)
     try:
         assert pool._warming is not None
         K_coarse = pool.solve(m.nodes[:3], "coarse")
         K_ref = pool.solve(m.nodes[m.ref_index[:2]], "ref")
     finally:
         pool.close()
-    # to the sweep's own tolerance (its coupling's rank is cut at the map's 1e-5): another process's BLAS sums in
-    # another order
-    np.testing.assert_allclose(K_coarse, m.K_nodes[:3], rtol=1e-6, atol=1e-9 * np.abs(K_coarse).max())
-    np.testing.assert_allclose(K_ref, m.K_ref[:2], rtol=1e-6, atol=1e-9 * np.abs(K_ref).max())
+    # to the sweep's own tolerance (its coupling's rank is cut at the map's 1e-5, and another process's BLAS sums in
+    # another order, which may move the cut by a singular value: 1.6e-6 seen)
+    np.testing.assert_allclose(K_coarse, m.K_nodes[:3], rtol=MAP_COUPLING_TOL, atol=1e-9 * np.abs(K_coarse).max())
+    np.testing.assert_allclose(K_ref, m.K_ref[:2], rtol=MAP_COUPLING_TOL, atol=1e-9 * np.abs(K_ref).max())
     assert pool.cpu_s > 0
 
 

@@ -612,6 +612,17 @@ MAP_COUPLING_TOL = 1e-5
 #: took 0.038 % to 0.030 / 0.028 %: the error is the graded middle distance's, not the farthest panels'.
 REFERENCE_TANK_GRADING = 0.15
 
+#: the tank's edge near the sensor at most this times its distance from the sensor on the many coarse poses (the
+#: reference keeps the BEM's :data:`~electrosense.meshes.scene_mesh.DEFAULT_TANK_NEAR_RATIO`, 0.35). A pose near a
+#: wall is the tank mesh's cost: angels-4 on the coarse sensor mesh, 3 degrees off parallel to the 1 m tank's wall,
+#: 5 / 7.5 / 11 mm from it, costs 17.4 / 5.5 / 3.1 s of CPU at 0.35 (6 800 tank triangles at 5 mm, 680 mid-tank),
+#: 3.7 / 2.1 / 1.3 s at 0.7, for K 0.10 / 0.10 / 0.08 % from a mesh at 0.25 (0.35: 0.017 %): an error of the
+#: wall's effect, smooth in the pose, which the correction to the reference (linear in the coarse K) takes out.
+#: Measured on whole builds (the same budget): the seed-4 study's map 305 -> 380 BEM poses, 0.020 -> 0.019 % RMS,
+#: 0.087 -> 0.071 % max at its 20 test poses and 0.149 -> 0.119 % RMS, 0.40 -> 0.34 % max at its 8 near-wall ones;
+#: angels-4 in the 1 m tank at 80 fresh poses (20 within 15 mm of a wall) 0.049 -> 0.037 % RMS, 0.36 -> 0.26 % max.
+COARSE_TANK_NEAR_RATIO = 0.7
+
 
 def _worker_init(sensor, tank, objects, options, memory_share=1.0):
     _WORKER.update(args=(sensor, tank, objects), options=options, sweeps={}, memory_share=memory_share)
@@ -657,7 +668,8 @@ def _worker_solve(poses, fidelity: str = "coarse"):
 def each_on_its_own_tank_mesh(sweep, poses) -> np.ndarray:
     """K (P, n, n) of a :class:`~electrosense.bem.PoseSweep` at ``poses`` (P, 4), each on a tank mesh graded to
     it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared): as a map's nodes."""
-    return np.concatenate([sweep.with_focus().conductance(pose[None]).K_S for pose in poses])
+    return np.concatenate([sweep.with_focus(tank_near_ratio=sweep.tank_near_ratio).conductance(pose[None]).K_S
+                           for pose in poses])
 
 
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
@@ -670,13 +682,19 @@ def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, m
     from electrosense.meshes.object_mesh import mesh_object
     from electrosense.meshes.pose import Pose
     from electrosense.meshes.scene import Scene
-    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, mesh_tank_around, sensor_axis_points_m
+    from electrosense.meshes.scene_mesh import (
+        DEFAULT_TANK_GRADING,
+        DEFAULT_TANK_NEAR_RATIO,
+        mesh_tank_around,
+        sensor_axis_points_m,
+    )
     from electrosense.meshes.sensor_mesh import estimate_triangles
 
     n_objects = sum(mesh_object(o, None).n_triangles for o in objects)
     n_tank = {}
     for name, opts in options.items():
-        how = (opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING)
+        how = (opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING,
+               opts.get("tank_near_ratio", DEFAULT_TANK_NEAR_RATIO))
         if how not in n_tank:
             n_tank[how] = 0 if tank is None else max(
                 mesh_tank_around(sensor, tank, sensor_axis_points_m(Scene(sensor, Pose.from_array(p), tank), 9),
@@ -795,7 +813,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
     fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL},
                   "coarse": {**options, "tol": MAP_COUPLING_TOL, "edge_length_m": coarse_edge_m,
-                             **({} if tank is None else {"tank_grading": coarse_grading})}}
+                             **({} if tank is None else {"tank_grading": coarse_grading,
+                                                         "tank_near_ratio": COARSE_TANK_NEAR_RATIO})}}
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:
