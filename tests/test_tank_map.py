@@ -168,8 +168,8 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(K[:, iu[0], iu[1]], pair_values(m.K_ref, SENSOR.emitter), rtol=1e-8, atol=0)
     # every node is the BEM as a user runs it at that pose (its tank mesh graded to that pose alone), on the
     # reference sensor and tank meshes (the map's BEM options) and on the coarse sensor mesh and the BEM's
-    # default tank mesh (coarse_options), with the map's truncation of the sensor-tank coupling; the BEM's own truncation a few
-    # parts in a million away
+    # default tank mesh (coarse_options), with the map's truncation of the sensor-tank coupling; the BEM's own
+    # truncation a few parts in a million away
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import MAP_COUPLING_TOL, REFERENCE_TANK_GRADING
 
@@ -199,7 +199,8 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
 
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     m, _ = built
-    pool = _BemPool(SENSOR, TANK, (), {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL}, "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}, workers=2)
+    options = {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL}, "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}
+    pool = _BemPool(SENSOR, TANK, (), options, workers=2)
     try:
         assert pool._warming is not None
         K_coarse = pool.solve(m.nodes[:3], "coarse")

@@ -32,8 +32,10 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    the pose (the discretisation's error near a wall grows with the wall's
    effect), or of the pose alone, whichever its leave-one-out errors favour
    (:meth:`TankMap._fit_correction`). The reference is also the finer tank
-   mesh (:data:`REFERENCE_TANK_GRADING`): the correction carries the tank
-   mesh's error with the sensor mesh's.
+   mesh (:data:`REFERENCE_TANK_GRADING`), and the coarse poses' tank mesh is
+   coarser near a wall (:data:`COARSE_TANK_NEAR_RATIO`: such a pose costs its
+   tank mesh): the correction carries the tank mesh's error with the sensor
+   mesh's.
 
 The map is one ``.npz`` file: the nodes, the BEM's K there, the interpolant's
 coefficients, the scene, the sensor, the BEM options and the code version;
