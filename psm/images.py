@@ -133,6 +133,18 @@ def paper8_images(tank: Tank) -> ImageSet:
     return ImageSet(imgs.signs, imgs.offsets_m, imgs.weights, "paper8", 1)
 
 
+def has_images(tank) -> bool:
+    """Whether the PSM can model ``tank``: unbounded water (None) or a box, whose walls are mirrors.
+
+    A cylindrical tank's curved wall has no image: the BEM (or a tank map of it) simulates it.
+
+    >>> from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> has_images(Tank((1.0, 1.0, 1.0))), has_images(None), has_images(CylinderTank(0.2, 0.3))
+    (True, True, False)
+    """
+    return tank is None or isinstance(tank, Tank)
+
+
 def image_sources(tank: Tank | None, kind: str = "complete", shells: int = 4) -> ImageSet:
     """Image set of ``kind`` ("complete", "paper8", "none") for ``tank`` (None: no images).
 
@@ -143,6 +155,9 @@ def image_sources(tank: Tank | None, kind: str = "complete", shells: int = 4) ->
         raise ValueError(f"images={kind!r}: expected one of {', '.join(IMAGE_KINDS)}")
     if tank is None or kind == "none":
         return ImageSet(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), "none", 0)
+    if not has_images(tank):
+        raise ValueError(f"the PSM's images are a box tank's mirror images; a {type(tank).__name__} has none (its "
+                         "curved wall is no mirror): simulate it with the BEM, or a tank map of it (esense map build)")
     if kind == "paper8":
         return paper8_images(tank)
     return box_images(tank, shells, extrapolate=True)

@@ -82,6 +82,9 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
         raise click.ClickException(str(exc)) from None
     for name in ("map", "psm"):
         m = s[name]
+        if "left_out" in m:
+            click.echo(f"{name.upper()}: left out ({m['left_out']})")
+            continue
         crb = "no bound" if m["crb_position_rms_m"] is None else f"bound {1e3 * m['crb_position_rms_m']:.3f} mm"
         if m.get("expected_position_rms_m") is not None:
             crb += f", this estimator's expected error on the logged track {1e3 * m['expected_position_rms_m']:.3f} mm"
@@ -91,7 +94,7 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
     from electrosense.validation.localisation.object_position import describe
 
     for name in ("map", "psm"):
-        if "object" in s:
+        if "object" in s and name in s["object"]:
             click.echo(f"{name.upper()} object: {describe(s['object'][name])}")
     click.echo(f"wrote {outdir}/localise.json")
 

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import click
 
+from electrosense.validation.bench.log.header import describe_tank, tank_meta
 from electrosense.validation.cli._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
 from electrosense.validation.defaults import NOMINAL_TANK_M
 
@@ -222,8 +223,8 @@ def _sweep(o):
         "model": model,
         "sensor_name": sensor.name,
         "sensor": sensor.to_dict(),
-        "tank_m": None if tank is None else _tank_extent_m(tank),
-        "water_depth_m": None if tank is None else tank.water_depth_m,
+        "water_depth_m": None,
+        **tank_meta(tank),                      # a cylinder's radii beside its bounding box
         "objects": _objects_description(objects),
         "sigma_S_per_m": float(sigma),
         "model_options": model_options,
@@ -249,7 +250,7 @@ def _sweep(o):
         n_left = sum(b - a for a, b in pending)
         if n_left < len(poses):
             click.echo(f"resuming {store_path}: {len(poses) - n_left} of {len(poses)} poses already computed")
-        where = 'unbounded water' if tank is None else f'tank {_tank_extent_m(tank)} m'
+        where = describe_tank(tank)
         click.echo(f"{model.upper()}: {sensor.name}, {where}, "
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
         result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
@@ -268,7 +269,7 @@ def _sweep(o):
         meta = {
             "sensor": _sensor_spec_for_log(sensor, out),
             "emitter": sensor.emitter,
-            "tank_m": None if tank is None else _tank_extent_m(tank),
+            **tank_meta(tank),
             "sigma_S_per_m": float(sigma),
             "voltage_V": 1.0,
             "source": source,
@@ -276,8 +277,6 @@ def _sweep(o):
                      "R<k>_ohm = U/I of receiver k",
             "model_options": model_options,
         }
-        if tank is not None:
-            meta["water_depth_m"] = tank.water_depth_m
         if objects:
             meta["objects"] = _objects_description(objects)
             for obj in meta["objects"]:  # JSON has no infinity: write a conducting object by name
@@ -295,7 +294,3 @@ def _sweep(o):
         remove_store(store_path)
     click.echo(f"wrote {out}")
 
-
-def _tank_extent_m(tank) -> list:
-    """A box tank's size, or a cylindrical tank's bounding box (diameter, diameter, height), in m."""
-    return list(getattr(tank, "size_m", (2 * getattr(tank, "radius_m", 0.0),) * 2 + (getattr(tank, "height_m", 0.0),)))

@@ -151,6 +151,7 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
     import sys
 
     from electrosense.meshes.render import offscreen_backend
+    from electrosense.psm.images import has_images
     from electrosense.validation.bench.log import BenchLogError, read_bench_log
 
     model_names = _parse_models(models or ("map,psm" if map_file else "bem,psm"))
@@ -168,6 +169,14 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
     for log in read:
         for w in log.warnings:
             click.echo(f"warning: {log.path.name}: {w}", err=True)
+    curved = [log.path.name for log in read if not has_images(log.tank)]
+    if curved and "psm" in model_names:
+        if models is not None:
+            raise click.BadParameter(f"the PSM's images are a box's, and {', '.join(curved)} logged a cylindrical "
+                                     "tank: leave psm out of --models", param_hint="--models")
+        model_names = tuple(m for m in model_names if m != "psm")
+        click.echo(f"note: {', '.join(curved)}: a cylindrical tank, which the PSM (a box's images) cannot "
+                   f"simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} only", err=True)
     objects = ()
     if scene_file is not None:
         from electrosense.meshes.scene_file import load_scene

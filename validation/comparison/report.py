@@ -21,6 +21,7 @@ from typing import Sequence
 
 import numpy as np
 
+from electrosense.validation.bench.log.header import describe_tank
 from electrosense.validation.report.html import Figure, Section, Table, write_html
 
 __all__ = ["validation_sections", "write_metrics_json", "write_validation_report", "metrics_dict", "log_figures"]
@@ -274,8 +275,7 @@ def validation_sections(results: Sequence, folder, potential: bool = True, poten
         if progress is not None:
             progress.update(1)
         log = r.log
-        tank = "unbounded water" if log.tank is None else (
-            f"tank {' x '.join(f'{v:g}' for v in log.tank.size_m)} m, water depth {log.tank.water_depth_m:g} m")
+        tank = describe_tank(log.tank)
         text = [f"Sensor {log.sensor.name} (emitter {log.emitter}, receivers {', '.join(map(str, r.receivers))}), "
                 f"{tank}, nominal conductivity {log.sigma_S_per_m:g} S/m; {len(log.poses)} poses in "
                 f"{len(log.pass_numbers)} pass(es). Simulation time: "

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from electrosense.validation.bench.log.header import tank_meta
 from electrosense.validation.comparison.correction import fit_conductivity_scale
 from electrosense.validation.comparison.metrics import Comparison, compare_currents
 from electrosense.validation.comparison.regions import NEAR_OBJECT_M, NEAR_WALL_M, path_regions
@@ -99,8 +100,8 @@ class LogValidation:
             "sensor": log.sensor.name,
             "emitter": log.emitter,
             "receivers": list(self.receivers),
-            "tank_m": None if log.tank is None else list(log.tank.size_m),
-            "water_depth_m": None if log.tank is None else log.tank.water_depth_m,
+            "water_depth_m": None,
+            **tank_meta(log.tank),
             "sigma_S_per_m": log.sigma_S_per_m,
             "n_poses": int(len(log.poses)),
             "n_passes": int(len(log.pass_numbers)),

@@ -304,11 +304,15 @@ def pose_features(sensor, poses: np.ndarray) -> np.ndarray:
 
 
 def psm_usable(model, poses: np.ndarray, tank) -> np.ndarray:
-    """(P,) bool: poses where every sphere of the PSM ``model`` lies inside the water (the PSM refuses the others)."""
+    """(P,) bool: poses where every sphere of the PSM ``model`` lies inside the water (the PSM refuses the others);
+    none in a tank the PSM has no images of (a cylinder)."""
     from electrosense.psm.conductance import sphere_centres_m
+    from electrosense.psm.images import has_images
 
     if tank is None:
         return np.ones(len(poses), bool)
+    if not has_images(tank):
+        return np.zeros(len(poses), bool)
     X = sphere_centres_m(model, np.asarray(poses, float))
     gap = tank.distance_to_boundary_m(X) - np.asarray(model.radii_m)[None, :, None]
     return np.all(gap > 1e-4, axis=(1, 2))

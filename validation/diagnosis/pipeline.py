@@ -61,7 +61,7 @@ from electrosense.meshes.tank import Tank
 from electrosense.validation.diagnosis.effects import EFFECT_NAMES, Problem, library, model_trust_weights
 from electrosense.validation.diagnosis.fitting import make_folds, noise_level
 from electrosense.validation.diagnosis.forward import ModelSimulator, PointElectrodeSimulator, PSMEffectModel
-from electrosense.validation.diagnosis.observations import Observations
+from electrosense.validation.diagnosis.observations import DiagnosisInputError, Observations
 from electrosense.validation.diagnosis.select import (
     CandidateScore,
     Selection,
@@ -266,6 +266,12 @@ def diagnose(
         A baseline computed elsewhere with its estimated error, used as the anchored one (a tank map's:
         :func:`electrosense.validation.diagnosis.map_baseline.map_baseline`).
     """
+    if obs.tank is not None and not isinstance(obs.tank, Tank):
+        raise DiagnosisInputError(
+            f"{obs.source or 'observations'}: the diagnosis knows box tanks (its wall candidates move walls, floor "
+            f"and free surface of a box; its effect model, the PSM, images in a box's walls), not a "
+            f"{type(obs.tank).__name__}; compare such a log with the BEM or its tank map instead (esense validate "
+            f"--models bem, or --map FILE), or fit a scene to a tank with electrodes of its own (the real-tank studies, esense study real_tank)")
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     notes = []

@@ -28,6 +28,8 @@ def track_figure(obs, res: dict, png_path):
     ax.plot(obs.poses[:, 0], obs.poses[:, 1], color="k", lw=2.5, label="logged", zorder=1)
     i = np.arange(obs.n_poses)
     for k, name in enumerate(("map", "psm")):
+        if name not in res["tracks"]:    # no PSM in a cylindrical tank
+            continue
         est = res["tracks"][name]
         s = res[name]
         c = colour_of(name, k)

@@ -157,6 +157,7 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     (``with_psm``) the PSM, under ``motion`` (``None``: each sample alone); a dict of summaries, estimated tracks
     and the noise used; with ``find_object``, an object the run passes (:func:`object_summary`) under
     ``"object"``."""
+    from electrosense.psm.images import has_images as psm_has_images
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.simulation.models import calibrated_psm
     from electrosense.validation.simulation.tank_map import same_scene, scene_record
@@ -183,10 +184,14 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
         + ("" if motion is None else f"; motion prior: acceleration {motion.acceleration_psd_m2_per_s3:g} m^2/s^3, "
                                      f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
     models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
+    result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
+    if with_psm and not psm_has_images(obs.tank):
+        with_psm = False
+        result["psm_left_out"] = (f"the PSM's images are a box's: it has no model of a {type(obs.tank).__name__}")
+        say(result["psm_left_out"])
     if with_psm:
         psm = calibrated_psm(obs.sensor) if psm is None else psm
         models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
-    result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
     for name, model in models.items():
         say(f"tracking with the {name}")
         error = None
@@ -267,7 +272,8 @@ def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, moti
     outdir.mkdir(parents=True, exist_ok=True)
     summary = {"log": Path(log_path).name, "map_file": Path(map_path).name, "noise_rel": res["noise_rel"],
                "map": {k: v for k, v in res["map"].items() if not k.startswith("_")},
-               "psm": {k: v for k, v in res["psm"].items() if not k.startswith("_")},
+               "psm": ({k: v for k, v in res["psm"].items() if not k.startswith("_")} if "psm" in res
+                       else {"left_out": res["psm_left_out"]}),
                "noise_measured": noise_rel is None,
                "method": METHOD_PER_SAMPLE if motion is None else METHOD_SMOOTHER,
                "motion_model": None if motion is None else motion.record(),
@@ -275,7 +281,7 @@ def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, moti
     if "object" in res:
         summary["object"] = res["object"]
     (outdir / "localise.json").write_text(json.dumps(summary, indent=2))
-    np.savez(outdir / "localise_tracks.npz", logged=obs.poses, map=res["tracks"]["map"], psm=res["tracks"]["psm"])
+    np.savez(outdir / "localise_tracks.npz", logged=obs.poses, **res["tracks"])
     if figure:
         from electrosense.validation.localisation.figure import track_figure
 

@@ -549,8 +549,7 @@ class EvaluatorCache:
         self._evaluators = {}
 
     def _key(self, model, sensor, tank, sigma, objects):
-        tank_key = None if tank is None else (tank.size_m, tank.water_depth_m)
-        return (model, json.dumps(sensor.to_dict(), sort_keys=True), tank_key, float(sigma), repr(tuple(objects)))
+        return (model, json.dumps(sensor.to_dict(), sort_keys=True), repr(tank), float(sigma), repr(tuple(objects)))
 
     def get(self, model: str, sensor, tank, sigma_S_per_m: float, objects=()):
         key = self._key(model, sensor, tank, sigma_S_per_m, objects)

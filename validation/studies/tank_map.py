@@ -155,7 +155,8 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
 
 
 def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
-    """The map's and the PSM's error against the BEM on a line from wall to wall (tips 5 mm from each), heading 0."""
+    """The map's and the PSM's error against the BEM on a line from wall to wall (tips 5 mm from each), heading 0
+    (the PSM only in a box: it has no images of a cylinder's wall)."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import psm_usable
@@ -181,7 +182,8 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
     ax = axes[0, 0]
     gap = np.minimum(x - half - lo[0], hi[0] - half - x) * 1e3
     ax.semilogy(x, 100 * err_map, "o-", ms=3, color=colour_of("map", 0), label="tank map")
-    ax.semilogy(x, 100 * err_psm, "s-", ms=3, color=colour_of("psm", 1), label="PSM (complete images)")
+    if ok.any():   # the PSM has no images of a cylinder's wall
+        ax.semilogy(x, 100 * err_psm, "s-", ms=3, color=colour_of("psm", 1), label="PSM (complete images)")
     ax.axhline(100 * GOALS["rms"], color="0.5", ls="--", lw=1, label="a third of the bench noise")
     ax.axhline(0.05, color="0.3", ls=":", lw=1, label="bench noise")
     ax.set_xlabel("x of the sensor centre (m); heading along x")

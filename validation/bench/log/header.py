@@ -22,6 +22,9 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.meshes.sensor import SensorDescription, load_sensor
 from electrosense.meshes.tank import Tank
 from electrosense.validation.bench.log.errors import BenchLogError
@@ -29,7 +32,7 @@ from electrosense.validation.bench.log.errors import BenchLogError
 __all__ = [
     "FORMAT_LINE", "META_PREFIX", "REQUIRED_META_KEYS", "BASE_COLUMNS", "OPTIONAL_NUMERIC_COLUMNS",
     "PASS_COLUMN", "Header", "receiver_columns", "standard_columns", "parse_format_line", "parse_meta_line",
-    "interpret_meta", "check_columns", "format_meta_line", "META_LINE", "same_run",
+    "interpret_meta", "check_columns", "format_meta_line", "META_LINE", "same_run", "tank_meta", "describe_tank",
 ]
 
 FORMAT_VERSION = 1
@@ -38,6 +41,11 @@ META_PREFIX = "# meta: "
 META_LINE = 2
 REQUIRED_META_KEYS = ("sensor", "emitter", "tank_m", "sigma_S_per_m")
 NUMERIC_META_KEYS = ("water_depth_m", "temperature_C", "voltage_V")
+#: the optional meta key of a vertical cylindrical tank (``tank_m`` is then its bounding box)
+CYLINDER_META_KEY = "tank_cylinder"
+CYLINDER_KEYS = ("radius_m", "floor_radius_m")
+#: relative tolerance of the check that ``tank_m`` is a cylinder's bounding box (a logger's rounding passes)
+BOUNDING_BOX_REL_TOL = 1e-6
 BASE_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "yaw_rad", "U_V")
 OPTIONAL_NUMERIC_COLUMNS = ("temp_C", "sigma_S_per_m")
 PASS_COLUMN = "pass"
@@ -54,7 +62,7 @@ class Header:
 
     meta: dict
     sensor: SensorDescription
-    tank: Tank | None
+    tank: Tank | CylinderTank | None
     sigma_S_per_m: float
     emitter: int
 
@@ -159,25 +167,95 @@ def interpret_meta(meta: dict, file, folder: str | Path | None = None, line: int
         if key in meta and not _number(meta[key]):
             raise BenchLogError(file, line, f"meta {key!r} must be a finite number, found {meta[key]!r}")
 
-    tank_m = meta["tank_m"]
-    if tank_m is None:
-        if "water_depth_m" in meta:
-            raise BenchLogError(file, line, "meta 'water_depth_m' is given but 'tank_m' is null (unbounded water)")
-        tank = None
-    else:
-        if not (isinstance(tank_m, list) and len(tank_m) == 3 and all(_number(v) and v > 0 for v in tank_m)):
-            raise BenchLogError(
-                file, line, f"meta 'tank_m' must be [Lx, Ly, Lz] (three positive lengths in m) or null, found {tank_m!r}"
-            )
-        try:
-            tank = Tank(tuple(float(v) for v in tank_m), meta.get("water_depth_m"))
-        except ValueError as exc:
-            raise BenchLogError(file, line, f"meta: {exc}") from None
+    tank = _interpret_tank(meta, file, line)
 
     sigma = meta["sigma_S_per_m"]
     if not (_number(sigma) and sigma > 0):
         raise BenchLogError(file, line, f"meta 'sigma_S_per_m' must be a positive number (S/m), found {sigma!r}")
     return Header(meta=meta, sensor=sensor, tank=tank, sigma_S_per_m=float(sigma), emitter=emitter)
+
+
+def _interpret_tank(meta: dict, file, line: int) -> Tank | CylinderTank | None:
+    """The tank of the meta line: a box ``tank_m``, a cylinder ``tank_cylinder`` in its bounding box, or None."""
+    tank_m = meta["tank_m"]
+    cylinder = meta.get(CYLINDER_META_KEY)
+    if tank_m is None:
+        if "water_depth_m" in meta:
+            raise BenchLogError(file, line, "meta 'water_depth_m' is given but 'tank_m' is null (unbounded water)")
+        if cylinder is not None:
+            raise BenchLogError(file, line, f"meta {CYLINDER_META_KEY!r} is given but 'tank_m' is null (unbounded "
+                                            "water); give the cylinder's bounding box [2R, 2R, height] as 'tank_m'")
+        return None
+    if not (isinstance(tank_m, list) and len(tank_m) == 3 and all(_number(v) and v > 0 for v in tank_m)):
+        raise BenchLogError(
+            file, line, f"meta 'tank_m' must be [Lx, Ly, Lz] (three positive lengths in m) or null, found {tank_m!r}"
+        )
+    size = tuple(float(v) for v in tank_m)
+    if cylinder is None:
+        try:
+            return Tank(size, meta.get("water_depth_m"))
+        except ValueError as exc:
+            raise BenchLogError(file, line, f"meta: {exc}") from None
+    where = f"meta {CYLINDER_META_KEY!r}"
+    if not isinstance(cylinder, dict):
+        raise BenchLogError(file, line, f"{where} must be an object {{\"radius_m\": R, \"floor_radius_m\": Rf}} "
+                                        f"(Rf optional), found {cylinder!r}")
+    unknown = [k for k in cylinder if k not in CYLINDER_KEYS]
+    if unknown or "radius_m" not in cylinder:
+        what = f"has unknown key(s) {', '.join(map(repr, unknown))}" if unknown else "lacks 'radius_m'"
+        raise BenchLogError(file, line, f"{where} {what} (keys: radius_m, the inner radius at the top, and "
+                                        "optionally floor_radius_m, in m)")
+    for k, v in cylinder.items():
+        if not (_number(v) and v > 0):
+            raise BenchLogError(file, line, f"{where}: {k!r} must be a positive length in m, found {v!r}")
+    r_top = float(cylinder["radius_m"])
+    r_floor = float(cylinder.get("floor_radius_m", r_top))
+    box = (2 * max(r_top, r_floor),) * 2
+    if not np.allclose(size[:2], box, rtol=BOUNDING_BOX_REL_TOL, atol=0):
+        raise BenchLogError(file, line, f"meta 'tank_m' {list(size)} is not the bounding box of the cylinder of "
+                                        f"{where} ([{box[0]:g}, {box[1]:g}, height]): the two disagree on the "
+                                        "tank's size")
+    try:
+        return CylinderTank(r_top, size[2], meta.get("water_depth_m"), r_floor)
+    except ValueError as exc:
+        raise BenchLogError(file, line, f"meta: {exc}") from None
+
+
+def tank_meta(tank: Tank | CylinderTank | None) -> dict:
+    """The meta keys that describe ``tank`` (the inverse of the reader's interpretation).
+
+    A cylinder is written as its bounding box ``tank_m`` and its radii in ``tank_cylinder``, so that a reader
+    that knows only boxes still sees its extent.
+
+    >>> tank_meta(CylinderTank(0.22, 0.3, 0.25))
+    {'tank_m': [0.44, 0.44, 0.3], 'water_depth_m': 0.25, 'tank_cylinder': {'radius_m': 0.22}}
+    >>> tank_meta(None)
+    {'tank_m': None}
+    """
+    if tank is None:
+        return {"tank_m": None}
+    if isinstance(tank, CylinderTank):
+        radii = {"radius_m": tank.radius_m}
+        if tank.floor_radius_m != tank.radius_m:
+            radii["floor_radius_m"] = tank.floor_radius_m
+        d = 2 * max(tank.radius_m, tank.floor_radius_m)
+        return {"tank_m": [d, d, tank.height_m], "water_depth_m": tank.water_depth_m, CYLINDER_META_KEY: radii}
+    return {"tank_m": [float(v) for v in tank.size_m], "water_depth_m": tank.water_depth_m}
+
+
+def describe_tank(tank: Tank | CylinderTank | None) -> str:
+    """The tank in words, for a report.
+
+    >>> describe_tank(CylinderTank(0.22, 0.3, 0.25))
+    'cylindrical tank of radius 0.22 m and height 0.3 m, water depth 0.25 m'
+    """
+    if tank is None:
+        return "unbounded water"
+    if isinstance(tank, CylinderTank):
+        radius = (f"radius {tank.radius_m:g} m" if tank.floor_radius_m == tank.radius_m else
+                  f"radius {tank.radius_m:g} m at the top and {tank.floor_radius_m:g} m at the floor")
+        return f"cylindrical tank of {radius} and height {tank.height_m:g} m, water depth {tank.water_depth_m:g} m"
+    return f"tank {' x '.join(f'{v:g}' for v in tank.size_m)} m, water depth {tank.water_depth_m:g} m"
 
 
 def check_columns(columns: list[str] | tuple[str, ...], header: Header, file, line: int) -> None:
@@ -220,7 +298,7 @@ def format_meta_line(meta: dict) -> str:
 
 def same_run(a: Header, b: Header) -> list[str]:
     """Meta keys on which two headers disagree (those that fix the physics of a run)."""
-    keys = ("sensor", "emitter", "tank_m", "sigma_S_per_m")
+    keys = ("sensor", "emitter", "tank_m", CYLINDER_META_KEY, "sigma_S_per_m")
     differ = [k for k in keys if a.meta.get(k) != b.meta.get(k)]
     if (a.tank and a.tank.water_depth_m) != (b.tank and b.tank.water_depth_m):
         differ.append("water_depth_m")
