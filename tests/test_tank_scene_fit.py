@@ -187,6 +187,9 @@ def test_a_variant_phantom_the_tank_ball_and_multiplexer_found_within_their_stan
     assert "Fit `joint`" in md and "Fit `staged`" in md and "ring_radius_m" in md
 
 
+# 25 s on 2 cores: in the slow run, so that the default one stays under 10 minutes (579 s measured with it); the
+# crosstalk is named by the default run in tests/test_real_tank.py (on a file that names its arrays otherwise)
+@pytest.mark.slow
 def test_a_multiplexer_crosstalk_enters_the_scene_fit_where_the_fitted_scene_needs_it(tmp_path):
     """The variant phantom with a fixed reading added per parity class (up to 6 % of the median reading, so
     relative to the far side's readings several times that): at the scene fitted without it the crosstalk lowers
