@@ -55,6 +55,56 @@ def test_the_track_error_is_its_posterior_bound_and_far_below_the_per_sample_one
     assert bound < 0.1 * np.sqrt(np.mean(per_sample[:, 0, 0] + per_sample[:, 1, 1]))   # the prior carries the ends
 
 
+def round_tank_model(q):
+    """Three currents of a round tank of radius 0.3 m: the wall's distance (seen within a few cm) and the heading
+    against the radius; the same at every rotation of the pose about the axis."""
+    q = np.atleast_2d(q)
+    x, y, a = q[:, 0], q[:, 1], q[:, 2]
+    r = np.hypot(x, y)
+    psi = a - np.arctan2(y, x)
+    e = np.exp((r - 0.3) / 0.04)
+    I = np.stack([1 + e, 1 + 0.5 * e * np.cos(psi) ** 2, 1 + 0.3 * e * np.sin(psi)], axis=1)
+    dr = np.stack([x / r, y / r, np.zeros_like(r)], axis=1)          # d r / d(x, y, a)
+    dpsi = np.stack([y / r**2, -x / r**2, np.ones_like(r)], axis=1)  # d psi / d(x, y, a)
+    de = e / 0.04
+    J = np.stack([de[:, None] * dr,
+                  0.5 * (de * np.cos(psi) ** 2)[:, None] * dr - (e * np.sin(2 * psi) * 0.5)[:, None] * dpsi,
+                  0.3 * (de * np.sin(psi))[:, None] * dr + (0.3 * e * np.cos(psi))[:, None] * dpsi], axis=1)
+    return I, J
+
+
+def test_a_round_tanks_track_takes_its_angle_about_the_axis_from_the_start_and_stays_within_its_bound():
+    """In a round tank the currents fix the distance from the axis and the heading against the radius, never the
+    angle about the axis: with the start's angle (first_state_prior) the track follows a chord near the wall
+    within its posterior bound, and the bound counts that the currents leave the rotation open."""
+    from electrosense.validation.localisation.smoother import first_state_prior
+
+    I_, J_ = round_tank_model(np.array([[0.2, 0.1, 0.4]]))
+    g = np.array([-0.1, 0.2, 1.0])                 # a rotation about the axis changes no current
+    assert np.abs(J_[0] @ g).max() < 1e-12
+    n = 61
+    t = np.arange(n) / 10.0
+    truth = np.c_[np.linspace(-0.15, 0.15, n), np.full(n, 0.24), np.full(n, 0.2)]
+    I0, J0 = round_tank_model(truth)
+    motion = MotionModel(1e-6, 1e-5)
+    crb = posterior_crb(J0, I0, t, motion, NOISE, round_tank_poses=truth)
+    bound = np.sqrt(np.mean(crb[:, 0, 0] + crb[:, 1, 1]))
+    rng = np.random.default_rng(4)
+    err2 = []
+    for _ in range(6):
+        I = I0 * (1 + NOISE * rng.standard_normal(I0.shape))
+        est = smooth_track(round_tank_model, I, t, truth[0], motion, NOISE, round_tank=True)
+        assert np.isfinite(est.poses).all()
+        err2.append(np.sum((est.poses[:, :2] - truth[:, :2]) ** 2, axis=1))
+        assert np.abs(np.hypot(*est.poses[:, :2].T) - np.hypot(*truth[:, :2].T)).max() < 2e-3   # the radius fixed
+    assert np.sqrt(np.mean(err2)) < 1.5 * bound
+    m0, P0 = first_state_prior(truth[0], round_tank=True)
+    r0 = np.hypot(*truth[0, :2])
+    along, radial = np.array([-truth[0, 1], truth[0, 0]]) / r0, truth[0, :2] / r0
+    assert np.sqrt(along @ P0[:2, :2] @ along) < 1.5e-3 * r0   # the start's angle about the axis, to 1 mrad ...
+    assert np.sqrt(radial @ P0[:2, :2] @ radial) > 0.5         # ... its distance from the axis left to the currents
+
+
 def test_without_a_prior_the_bound_is_the_per_sample_one():
     t, truth = pass_along_the_wall(11)
     truth[:, 0] = np.linspace(0.38, 0.42, 11)   # near an end wall: each sample fixes its pose alone

@@ -91,6 +91,9 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
         click.echo(f"{name.upper()}: position {1e3 * m['position_rms_m']:.3f} mm RMS ({crb}), heading "
                    f"{1e3 * m['heading_rms_rad']:.2f} mrad RMS, {m['estimated']} of {m['samples']} samples"
                    + (f"; {m['note']}" if m.get("note") else ""))
+        if "distance_from_axis_rms_m" in m:
+            click.echo(f"  round tank: distance from the axis {1e3 * m['distance_from_axis_rms_m']:.3f} mm RMS, heading "
+                       f"against the radius {1e3 * m['heading_against_radius_rms_rad']:.2f} mrad RMS ({m['round_tank']})")
     from electrosense.validation.localisation.object_position import describe
 
     for name in ("map", "psm"):

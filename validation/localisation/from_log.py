@@ -72,8 +72,12 @@ def _position_rms(C) -> float:
     return float(np.sqrt(np.nanmean(C[:, 0, 0] + C[:, 1, 1])))
 
 
+#: in a round tank the heading against the radius is scored where the sensor's centre is this far from the axis
+OFF_AXIS_M = 0.02
+
+
 def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: MotionModel | None = None,
-                  passes=None, model_error=None) -> tuple[dict, np.ndarray]:
+                  passes=None, model_error=None, round_tank: bool = False) -> tuple[dict, np.ndarray]:
     """Track ``currents`` (P, m, per volt) with ``model`` from the first logged pose: under ``motion`` over the
     whole log (:func:`smooth_track`, ``t_s`` (P,) s and ``passes`` index arrays), or each sample alone
     (``motion=None``, :func:`track`); errors against ``poses`` (P, 4) and the Cramer-Rao bounds at them;
@@ -83,7 +87,11 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
     then solved twice: with the noise alone, then with each current weighted by the noise and the model's error at
     the first track's poses in quadrature (weighted least squares: a receiver the model knows less well counts
     less). The bounds stay those of the noise alone (``crb_position_rms_m``, what the currents can tell with a
-    perfect model); ``crb_position_rms_m_model_error`` is the bound under the weighted noise model."""
+    perfect model); ``crb_position_rms_m_model_error`` is the bound under the weighted noise model.
+
+    ``round_tank``: the model is the same at every rotation about the tank's axis (a round tank without objects):
+    the first logged pose gives the angle about it (:func:`~.smoother.first_state_prior`), and the errors of what
+    the currents do fix, the distance from the axis and the heading against the radius, are reported beside."""
     t0 = time.perf_counter()
     q_true = poses[:, [0, 1, 3]]
     t_s = np.arange(len(poses), dtype=float) if t_s is None else np.asarray(t_s, float)
@@ -92,7 +100,7 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
         if motion is None:
             t = track(model, currents, q_true[0], spread)
             return t.poses, int(t.converged.sum()), {"chi2": t.chi2}
-        t = smooth_track(model, currents, t_s, q_true[0], motion, spread, passes)
+        t = smooth_track(model, currents, t_s, q_true[0], motion, spread, passes, round_tank=round_tank)
         return t.poses, int(len(poses) if t.converged else 0), {"chi2": t.chi2}
 
     est, n_conv, fit = solve(noise_rel)
@@ -108,9 +116,11 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
     crb = None
     if at is not None:
         C1 = cramer_rao(at[1], currents, noise_rel)
-        C = C1 if motion is None else posterior_crb(at[1], currents, t_s, motion, noise_rel, passes)
+        gauge = q_true if round_tank else None
+        C = C1 if motion is None else posterior_crb(at[1], currents, t_s, motion, noise_rel, passes, gauge)
         if motion is not None:
-            bias, scatter = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes)
+            bias, scatter = expected_error(at[1], currents, t_s, motion, noise_rel, q_true, passes,
+                                           round_tank=round_tank)
             expected = float(np.sqrt(np.nanmean(np.sum(bias[:, :2] ** 2 + scatter[:, :2] ** 2, axis=1))))
         crb = {"crb_position_rms_m": _position_rms(C), "crb_position_median_m": float(np.median(
                np.sqrt(C[:, 0, 0] + C[:, 1, 1]))), "crb_heading_rms_rad": float(np.sqrt(np.mean(C[:, 2, 2]))),
@@ -118,7 +128,7 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
                "crb_per_sample_position_m": np.sqrt(C1[:, 0, 0] + C1[:, 1, 1])}
         if np.ndim(spread):
             Cw = (cramer_rao(at[1], currents, spread) if motion is None
-                  else posterior_crb(at[1], currents, t_s, motion, spread, passes))
+                  else posterior_crb(at[1], currents, t_s, motion, spread, passes, gauge))
             crb["crb_position_rms_m_model_error"] = _position_rms(Cw)
     chi2 = fit["chi2"][np.isfinite(fit["chi2"])]
     out = {"model": name, "samples": int(len(poses)), "estimated": int(ok.sum()), "converged": n_conv,
@@ -127,6 +137,16 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
            "position_median_m": float(np.median(d_pos)) if len(d_pos) else float("nan"),
            "heading_rms_rad": _rms(d_yaw), "seconds": seconds,
            "chi2_per_current": float(chi2.sum() / (chi2.size * currents.shape[1])) if chi2.size else None}
+    if round_tank:   # what the currents fix in a round tank, whatever the angle about the axis
+        radius = lambda q: np.hypot(q[:, 0], q[:, 1])  # noqa: E731
+        against_radius = lambda q: q[:, 2] - np.arctan2(q[:, 1], q[:, 0])  # noqa: E731
+        out["distance_from_axis_rms_m"] = _rms(radius(est[ok]) - radius(q_true[ok]))
+        off_axis = ok & (radius(q_true) > OFF_AXIS_M)    # the radius has a direction
+        out["heading_against_radius_rms_rad"] = _rms(heading_error(against_radius(est[off_axis]),
+                                                                   against_radius(q_true[off_axis])))
+        out["round_tank"] = ("the currents are the same at every rotation about the tank's axis: the first logged "
+                             "pose gives the angle about it" + (", the motion prior carries it" if motion else
+                                                                 "; each sample alone leaves it open"))
     for k in ("crb_position_rms_m", "crb_heading_rms_rad", "crb_position_median_m", "crb_per_sample_position_rms_m"):
         out[k] = None if crb is None else crb[k]
     out["position_error_over_crb"] = None if crb is None else out["position_rms_m"] / crb["crb_position_rms_m"]
@@ -199,7 +219,8 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
             def error(q):
                 return tank_map.estimated_error(np.c_[q[:, :2], np.full(len(q), z_m), q[:, 2]])
         summary, est = model_summary(name, model, currents, obs.poses, noise_rel, obs.t_s, motion,
-                                     obs.pass_indices(), model_error=error)
+                                     obs.pass_indices(), model_error=error,
+                                     round_tank=name == "map" and tank_map.frame.cylinder and tank_map.frame.symmetric)
         result[name] = summary
         result["tracks"][name] = est
     if find_object:

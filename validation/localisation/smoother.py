@@ -66,10 +66,46 @@ import numpy as np
 from electrosense.validation.localisation.track import track
 
 __all__ = ["MotionModel", "DEFAULT_MOTION", "SmoothedTrack", "smooth_track", "posterior_crb", "expected_error",
-           "rts_smoother"]
+           "rts_smoother", "first_state_prior", "ROTATION_GAUGE_SIGMA_RAD"]
 
 #: the diffuse prior on the first state of a pass: 1 m, 1 m, 10 rad; 1 m/s, 1 m/s, 10 rad/s (1 sigma)
 DIFFUSE_SIGMA = np.array([1.0, 1.0, 10.0, 1.0, 1.0, 10.0])
+
+#: in a round tank the currents are the same at every rotation of the pose about the tank's axis: nothing in them
+#: fixes that angle, so the first pose of a log gives it, to this spread (1 sigma, rad; 0.2 mm at 20 cm from the axis)
+ROTATION_GAUGE_SIGMA_RAD = 1e-3
+
+#: ... and the first velocity is a bench robot's, 0.1 m/s and 1 rad/s (1 sigma), not the diffuse prior: a rotation
+#: about the axis at a steady rate leaves the currents as they are too, and with a diffuse first velocity the first
+#: samples' linearisation turned the track that way and out of the tank (a chord of a 0.25 m tank with 0.05 % noise:
+#: metres off; with this prior 16 mm at most, its bound 48 mm RMS)
+ROUND_TANK_FIRST_VELOCITY_SIGMA = np.array([0.1, 0.1, 1.0])
+
+
+def first_state_prior(start, round_tank: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """(m0 (6,), P0 (6, 6)): the prior on the first state of a pass, started at the pose ``start`` (x, y, yaw).
+
+    Diffuse (:data:`DIFFUSE_SIGMA`): the start only picks among the poses a box's mirror planes exchange. In a
+    round tank (``round_tank``) the currents leave a whole circle of poses open, every rotation about the axis;
+    the prior then holds the start's angle about the axis, ``atan2(y, x)``, to :data:`ROTATION_GAUGE_SIGMA_RAD`
+    (its gradient ``(-y, x, 0) / r^2`` gets that information; at the axis itself, the heading), and leaves the
+    distance from the axis and the heading against it to the currents; its first velocity is a bench robot's
+    (:data:`ROUND_TANK_FIRST_VELOCITY_SIGMA`).
+
+    >>> m0, P0 = first_state_prior((0.1, 0.0, 0.3), round_tank=True)
+    >>> round(float(np.sqrt(P0[1, 1])) * 1e3, 3), round(float(np.sqrt(P0[0, 0])), 3)   # along the circle, radial
+    (0.1, 1.0)
+    """
+    q = np.asarray(start, float)[:3]
+    m0 = np.r_[q, np.zeros(3)]
+    if not round_tank:
+        return m0, np.diag(DIFFUSE_SIGMA**2)
+    r2 = q[0] ** 2 + q[1] ** 2
+    g = np.r_[-q[1] / r2, q[0] / r2, 0.0, np.zeros(3)] if r2 > 1e-6 else np.r_[0.0, 0.0, 1.0, np.zeros(3)]
+    sigma = np.r_[DIFFUSE_SIGMA[:3], ROUND_TANK_FIRST_VELOCITY_SIGMA]
+    information = np.diag(sigma**-2.0) + np.outer(g, g) / ROTATION_GAUGE_SIGMA_RAD**2
+    P0 = np.linalg.inv(information)
+    return m0, 0.5 * (P0 + P0.T)
 
 
 @dataclass(frozen=True)
@@ -167,30 +203,36 @@ def _whiten(currents, noise_rel):
 
 
 def posterior_crb(jacobian: np.ndarray, currents: np.ndarray, t_s: np.ndarray, motion: MotionModel,
-                  noise_rel: float, passes=None) -> np.ndarray:
+                  noise_rel: float, passes=None, round_tank_poses=None) -> np.ndarray:
     """(P, 3, 3) posterior Cramer-Rao bound of (x, y, heading) for the track whose Jacobians are ``jacobian``
     (P, m, 3), the measurement noise ``noise_rel`` relative to ``currents`` (P, m) and the motion prior
-    (module doc); ``passes``: index arrays of the passes (default: one). NaN Jacobians: no measurement there."""
+    (module doc); ``passes``: index arrays of the passes (default: one). NaN Jacobians: no measurement there.
+    ``round_tank_poses`` (P, 3): in a round tank, the track, whose first pose gives the angle about the axis
+    (:func:`first_state_prior`)."""
     jacobian, currents = np.asarray(jacobian, float), np.asarray(currents, float)
     w = _whiten(currents, noise_rel)
     out = np.full((len(currents), 3, 3), np.nan)
     for idx in passes or [np.arange(len(currents))]:
         H = [None if not np.isfinite(jacobian[i]).all() else w[i][:, None] * jacobian[i] for i in idx]
         y = [None if h is None else np.zeros(len(h)) for h in H]
-        _, Ps = rts_smoother(H, y, np.asarray(t_s, float)[idx], motion, np.zeros(6), np.diag(DIFFUSE_SIGMA**2))
+        start = np.zeros(3) if round_tank_poses is None else np.asarray(round_tank_poses, float)[idx[0]]
+        m0, P0 = first_state_prior(start, round_tank_poses is not None)
+        _, Ps = rts_smoother(H, y, np.asarray(t_s, float)[idx], motion, m0, P0)
         out[idx] = Ps[:, :3, :3]
     return out
 
 
 def expected_error(jacobian: np.ndarray, currents: np.ndarray, t_s: np.ndarray, motion: MotionModel,
-                   noise_rel: float, truth: np.ndarray, passes=None, draws: int = 64, seed: int = 0):
+                   noise_rel: float, truth: np.ndarray, passes=None, draws: int = 64, seed: int = 0,
+                   round_tank: bool = False):
     """This estimator's own error on the track ``truth`` (P, 3), linearised there: its bias (what the motion prior
     takes off a track it does not expect: zero on a straight pass at constant speed) (P, 3), and the RMS of its
     noise error (P, 3), from ``draws`` noise draws through the linear smoother (whose gains they share).
 
     The posterior bound (:func:`posterior_crb`) averages over every track the prior allows; on one given track
     the estimator does better than it where the track costs the prior little, and worse where the prior's bias
-    is large. Beside the bound this says which: an error above this one is the model's."""
+    is large. Beside the bound this says which: an error above this one is the model's. ``round_tank``: the first
+    pose of each pass gives the angle about the axis (:func:`first_state_prior`)."""
     jacobian, currents, truth = (np.asarray(a, float) for a in (jacobian, currents, truth))
     w = _whiten(currents, noise_rel)
     rng = np.random.default_rng(seed)
@@ -206,8 +248,9 @@ def expected_error(jacobian: np.ndarray, currents: np.ndarray, t_s: np.ndarray, 
             H.append(A)
             exact = A @ truth[i]
             y.append(np.c_[exact, exact[:, None] + rng.standard_normal((len(exact), draws))])
-        m0 = np.zeros((6, draws + 1))
-        ms, _ = rts_smoother(H, y, np.asarray(t_s, float)[idx], motion, m0, np.diag(DIFFUSE_SIGMA**2))
+        m0, P0 = first_state_prior(truth[idx[0]], round_tank)
+        m0 = np.repeat(m0[:, None] if round_tank else np.zeros((6, 1)), draws + 1, axis=1)
+        ms, _ = rts_smoother(H, y, np.asarray(t_s, float)[idx], motion, m0, P0)
         bias[idx] = ms[:, :3, 0] - truth[idx]
         spread[idx] = np.sqrt(np.mean((ms[:, :3, 1:] - ms[:, :3, :1]) ** 2, axis=2))
     return bias, spread
@@ -264,14 +307,14 @@ def _cost(model, s, currents, w, t_s, motion, m0, P0inv):
     return total, chi2, I, J
 
 
-def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2):
+def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2, round_tank: bool = False):
     """The first iterate: an iterated extended Kalman filter forward pass (each update Gauss-Newton on the
     sample's currents and the predicted state, up to ``inner`` times), from the per-sample maximum likelihood
     of the first sample started at ``start``, then the linear smoother of its last linearisations; (P, 6)."""
     w = _whiten(currents, noise_rel)
     first = track(model, currents[:1], start, noise_rel if np.ndim(noise_rel) == 0 else noise_rel[:1]).poses[0]
-    q0 = np.asarray(start, float) if not np.isfinite(first).all() else first
-    m, C = np.r_[q0, np.zeros(3)], np.diag(DIFFUSE_SIGMA**2)
+    q0 = np.asarray(start, float) if not np.isfinite(first).all() or round_tank else first
+    m, C = first_state_prior(q0, round_tank)
     H, y = [], []
     for t in range(len(currents)):
         if t:
@@ -301,7 +344,7 @@ def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2)
             C = A_ @ C_pred @ A_.T + K @ K.T
         H.append(Ht)
         y.append(yt)
-    ms, _ = rts_smoother(H, y, t_s, motion, np.r_[q0, np.zeros(3)], np.diag(DIFFUSE_SIGMA**2))
+    ms, _ = rts_smoother(H, y, t_s, motion, *first_state_prior(q0, round_tank))
     return ms
 
 
@@ -319,10 +362,11 @@ def _linearised(I, J, s, currents, w):
     return H, y
 
 
-def _gauss_newton(model, s, currents, w, t_s, motion, max_iter, tol):
+def _gauss_newton(model, s, currents, w, t_s, motion, max_iter, tol, prior=None):
     """Gauss-Newton with a backtracking line search on -2 log posterior from the states ``s``; (s, chi2, cost,
-    iterations, converged)."""
-    m0, P0, P0inv = s[0].copy(), np.diag(DIFFUSE_SIGMA**2), np.diag(DIFFUSE_SIGMA**-2.0)
+    iterations, converged). ``prior``: (m0, P0) of the first state (default: diffuse about ``s[0]``)."""
+    m0, P0 = (s[0].copy(), np.diag(DIFFUSE_SIGMA**2)) if prior is None else prior
+    P0inv = np.linalg.inv(P0)
     cost, chi2, I, J = _cost(model, s, currents, w, t_s, motion, m0, P0inv)
     converged, it = False, 0
     while it < max_iter:
@@ -354,21 +398,25 @@ def _gauss_newton(model, s, currents, w, t_s, motion, max_iter, tol):
 CONTINUATION = (1e-4, 1e-2, 1.0)
 
 
-def _smooth_pass(model, currents, t_s, start, motion, noise_rel, max_iter, tol):
+def _smooth_pass(model, currents, t_s, start, motion, noise_rel, max_iter, tol, round_tank=False):
     w = _whiten(currents, noise_rel)
     its, s = 0, None
+    prior = first_state_prior(start, True) if round_tank else None
     for f in CONTINUATION:
         stage = MotionModel(f * motion.acceleration_psd_m2_per_s3, f * motion.turn_psd_rad2_per_s3)
-        s = _filter_init(model, currents, noise_rel, t_s, start, stage) if s is None else s
-        s, chi2, cost, it, converged, (I, J) = _gauss_newton(model, s, currents, w, t_s, stage, max_iter, tol)
+        s = _filter_init(model, currents, noise_rel, t_s, start, stage, round_tank=round_tank) if s is None else s
+        s, chi2, cost, it, converged, (I, J) = _gauss_newton(model, s, currents, w, t_s, stage, max_iter, tol,
+                                                             prior)
         its += it
     # the posterior covariance at the estimate
-    _, Ps = rts_smoother(*_linearised(I, J, s, currents, w), t_s, motion, s[0], np.diag(DIFFUSE_SIGMA**2))
+    _, Ps = rts_smoother(*_linearised(I, J, s, currents, w), t_s, motion,
+                         *(prior or (s[0], np.diag(DIFFUSE_SIGMA**2))))
     return s, Ps[:, :3, :3], chi2, its, converged, cost
 
 
 def smooth_track(model, currents: np.ndarray, t_s: np.ndarray, start, motion: MotionModel | None = None,
-                 noise_rel: float = 5e-4, passes=None, max_iter: int = 30, tol: float = 1e-3) -> SmoothedTrack:
+                 noise_rel: float = 5e-4, passes=None, max_iter: int = 30, tol: float = 1e-3,
+                 round_tank: bool = False) -> SmoothedTrack:
     """The maximum a posteriori track of a log under ``motion`` (module doc).
 
     Parameters
@@ -389,6 +437,9 @@ def smooth_track(model, currents: np.ndarray, t_s: np.ndarray, start, motion: Mo
         previous pass's last estimate.
     tol : float
         Converged when a full Gauss-Newton step moves every state by less than this many of its posterior sigmas.
+    round_tank : bool
+        The model is the same at every rotation of the pose about the tank's axis (a round tank's): ``start``
+        then gives the angle about it (:func:`first_state_prior`), which the currents cannot.
     """
     motion = motion or MotionModel()
     currents = np.asarray(currents, float)
@@ -401,7 +452,8 @@ def smooth_track(model, currents: np.ndarray, t_s: np.ndarray, start, motion: Mo
     for idx in passes or [np.arange(P_n)]:
         idx = np.asarray(idx)
         spread = noise_rel if np.ndim(noise_rel) == 0 else np.asarray(noise_rel, float)[idx]
-        s, C, c2, it, ok, c = _smooth_pass(model, currents[idx], t_s[idx], q_start, motion, spread, max_iter, tol)
+        s, C, c2, it, ok, c = _smooth_pass(model, currents[idx], t_s[idx], q_start, motion, spread, max_iter, tol,
+                                           round_tank)
         poses[idx], vel[idx], cov[idx], chi2[idx] = s[:, :3], s[:, 3:], C, c2
         its, conv, cost = max(its, it), conv and ok, cost + c
         q_start = s[-1, :3]
