@@ -42,6 +42,11 @@ class Tank:
         object.__setattr__(self, "water_depth_m", depth)
 
     @property
+    def region_names(self) -> tuple[str, ...]:
+        """The boundary regions, in the order of :meth:`distance_to_boundary_m`'s columns."""
+        return TANK_REGIONS
+
+    @property
     def floor_z_m(self) -> float:
         return -0.5 * self.size_m[2]
 

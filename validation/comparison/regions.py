@@ -6,7 +6,8 @@ electrodes and the boundaries of the scene:
 * ``"near object_k"`` (or ``"near <name>"``) when an electrode centre is
   within ``near_object_m`` of an object's bounding sphere surface;
 * otherwise ``"near wall_x-"``, ..., ``"near floor"``, ``"near free_surface"``
-  (the boundary names of :data:`electrosense.meshes.tank.TANK_REGIONS`) for the nearest
+  (the boundary names of the tank's ``region_names``: :data:`electrosense.meshes.tank.TANK_REGIONS` of a box, a
+  cylinder's wall, floor and free surface) for the nearest
   tank boundary when an electrode centre is within ``near_wall_m`` of it;
 * otherwise ``"mid-tank"`` (``"open water"`` when there is no tank).
 
@@ -28,7 +29,6 @@ from __future__ import annotations
 import numpy as np
 
 from electrosense.meshes.pose import poses_array, sensor_to_tank
-from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["path_regions", "NEAR_WALL_M", "NEAR_OBJECT_M", "MID_TANK", "OPEN_WATER"]
 
@@ -81,7 +81,7 @@ def path_regions(
         d = tank.distance_to_boundary_m(pts).min(axis=1)  # (P, 6): closest electrode per boundary
         nearest = d.argmin(axis=1)
         near = d[np.arange(len(poses)), nearest] <= near_wall_m
-        names = np.array([f"near {r}" for r in TANK_REGIONS], dtype=object)
+        names = np.array([f"near {r}" for r in tank.region_names], dtype=object)
         labels[near] = names[nearest[near]]
     for k, obj in enumerate(objects, start=1):
         centre = np.asarray(obj.centre_m, dtype=float)

@@ -30,6 +30,7 @@ Example
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -312,7 +313,8 @@ def bar_figure(categories: Sequence[str], values: dict, png_path, title: str, y_
             ax.set_yscale("log")
         elif cut:
             ax.set_ylim(0, 1.12 * y_max)
-    ax.set_title(title)
+    # a title wider than a narrow panel (few bars) is broken into lines, not cut at the figure's edge
+    ax.set_title("\n".join(textwrap.wrap(title, max(24, int(8 * fig.get_size_inches()[0])))))
     _shared_legend(fig, [(ax, Panel(title, "", y_label))])
     return save(fig, png_path, vector)
 
@@ -608,7 +610,19 @@ def scene_figure(
     plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
     plotter.set_background("white")
     legend = []
-    if tank is not None:
+    if tank is not None and hasattr(tank, "radius_at"):   # a round tank: its water's rims and four generatrices
+        z0, z1 = tank.floor_z_m, tank.free_surface_z_m
+        r0, r1 = float(tank.radius_at(z0)), float(tank.radius_at(z1))
+        turn = np.linspace(0.0, 2 * np.pi, 121)
+        rims = [np.c_[r * np.cos(turn), r * np.sin(turn), np.full_like(turn, z)] for r, z in ((r0, z0), (r1, z1))]
+        sides = [np.array([[r0 * np.cos(a), r0 * np.sin(a), z0], [r1 * np.cos(a), r1 * np.sin(a), z1]])
+                 for a in np.arange(4) * np.pi / 2]
+        for line in rims + sides:
+            plotter.add_mesh(pv.lines_from_points(line), color="#305080", line_width=3)
+        plotter.add_mesh(pv.Disc(center=(0.0, 0.0, z0), inner=0.0, outer=r0, c_res=120), color="#9fb8d8",
+                         opacity=0.35)
+        legend.append(["tank (water)", "#305080"])
+    elif tank is not None:
         lo, hi = tank.water_bounds_m
         box = pv.Box(bounds=(lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]))
         plotter.add_mesh(box.extract_feature_edges(), color="#305080", line_width=3)
@@ -635,8 +649,9 @@ def scene_figure(
             tube = path.tube(radius=0.006) if cells else path
             v = path.point_data[value_label]
             top = max(float(np.nanmax(v)) if np.isfinite(v).any() else 0.0, float(value_floor)) or 1.0
+            decimals = max(2, int(np.ceil(-np.log10(top / 4))) + 1)   # five labels that differ
             plotter.add_mesh(tube, scalars=value_label, cmap="viridis", clim=(0.0, top),
-                             scalar_bar_args=_scalar_bar(value_label))
+                             scalar_bar_args=_scalar_bar(value_label, f"%.{decimals}f"))
         else:
             plotter.add_mesh(path, color="black", line_width=4)
             legend.append(["sensor path", "black"])
