@@ -132,27 +132,6 @@ def _synthetic_nodes(seed, n_poses, spacing_m, n_headings):
     return rng, P, MapFrame(SENSOR, TANK), iu, K_free
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_candidates_alongside_a_wall_are_moved_to_the_closest_gap(seed):
-    """A grid leaves a sensor parallel to a wall 5-15 mm from it: the poses within a grid step of the closest gap
-    are moved across the tank to it, heading and depth kept, in a random box, a tapered cylinder and beside an
-    object, for a random sensor."""
-    from electrosense.validation.diagnosis.unseen import random_sensor
-    from electrosense.validation.simulation.tank_map import poses_at_the_wall_gap, sensor_wall_gap_m
-
-    rng = np.random.default_rng(seed)
-    sensor = random_sensor(rng, int(rng.integers(3, 7)))
-    L = sensor.length_m
-    for tank, objects in [(Tank((rng.uniform(2.2, 3.0) * L, rng.uniform(1.6, 2.2) * L, 0.6 * L)), ()),
-                          (CylinderTank(rng.uniform(1.2, 1.6) * L, 0.6 * L, floor_radius_m=1.1 * L), ()),
-                          (Tank((3 * L, 2 * L, 0.6 * L)), (Sphere((0.4 * L, 0.3 * L, 0.0), radius_m=0.1 * L),))]:
-        P = reachable_poses(sensor, tank, 0.0, 0.005, 0.02, 8, objects)
-        Q = poses_at_the_wall_gap(sensor, tank, P, 0.005, 0.02, objects)
-        assert len(Q) > 0.05 * len(P)
-        np.testing.assert_allclose(sensor_wall_gap_m(sensor, tank, Q, objects), 0.005, atol=2e-4)
-        assert set(np.round(Q[:, 3], 9)) <= set(np.round(P[:, 3], 9)) and np.all(Q[:, 2] == 0.0)
-
-
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):

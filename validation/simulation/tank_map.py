@@ -7,8 +7,7 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
 1. the candidate poses: (x, y, heading) on a grid at depth ``z_m`` (or
    several depths of a band) with the sensor's surface at least
    ``wall_gap_m`` from every wall, floor, surface and object
-   (:func:`reachable_poses`), and those within a grid step of the closest gap
-   moved to it (:func:`poses_at_the_wall_gap`), folded into the tank's fundamental domain
+   (:func:`reachable_poses`), folded into the tank's fundamental domain
    (:mod:`.map_coordinates`);
 2. the BEM as a user runs it at one pose (:class:`electrosense.bem.PoseSweep`,
    the sensor's block shared, each pose on a tank mesh graded to it alone,
@@ -66,8 +65,8 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "poses_at_the_wall_gap", "sensor_wall_gap_m", "build_tank_map",
-           "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
+           "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
 
@@ -131,39 +130,6 @@ def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: flo
     X, Y, Z, W = np.meshgrid(xs, ys, zs, yaws, indexing="ij")
     P = np.c_[X.ravel(), Y.ravel(), Z.ravel(), W.ravel()]
     return P[sensor_wall_gap_m(sensor, tank, P, objects) >= wall_gap_m]
-
-
-def poses_at_the_wall_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, band_m: float, objects=(),
-                          newton_steps: int = 4) -> np.ndarray:
-    """The ``poses`` whose sensor lies within ``band_m`` beyond ``wall_gap_m`` of a wall, moved across the tank
-    (x, y: heading and depth kept) until it lies at ``wall_gap_m`` (Newton steps on the gap, any tank or object).
-
-    On a grid a sensor parallel to a wall sits wherever the grid puts it, 5 to 15 mm from it on a 1 cm grid: the
-    candidates had no sensor alongside a wall at the closest gap, where K turns fastest and the map was furthest
-    from the BEM (at 80 fresh poses of angels-4 in the 1 m tank: 0.26 % at worst, 0.037 % RMS; with these
-    candidates 0.091 %, 0.025 %). Moved poses whose gap depends on the floor or the free surface (no move across
-    the tank changes it) are left out.
-
-    >>> from electrosense.meshes import preset
-    >>> from electrosense.meshes.tank import Tank
-    >>> s, t = preset("angels-4"), Tank((1.0, 1.0, 1.0))
-    >>> Q = poses_at_the_wall_gap(s, t, np.array([[0.475, 0.0, 0.0, np.pi / 2]]), 0.005, 0.01)
-    >>> round(float(sensor_wall_gap_m(s, t, Q)[0]) * 1e3, 3)
-    5.0
-    """
-    gap = lambda Q: sensor_wall_gap_m(sensor, tank, Q, objects)  # noqa: E731
-    g = gap(poses)
-    Q = np.array(poses[(g > wall_gap_m + 2e-4) & (g < wall_gap_m + band_m)], float)
-    h = 1e-5
-    for _ in range(newton_steps):
-        g = gap(Q)
-        gx, gy = (gap(Q + [h, 0, 0, 0]) - g) / h, (gap(Q + [0, h, 0, 0]) - g) / h
-        across = gx**2 + gy**2 > 0.25          # a wall's, not the floor's or the surface's gap
-        Q, g, gx, gy = Q[across], g[across], gx[across], gy[across]
-        step = (g - wall_gap_m) / (gx**2 + gy**2)
-        Q[:, 0] -= step * gx
-        Q[:, 1] -= step * gy
-    return Q[np.abs(gap(Q) - wall_gap_m) < 2e-4]
 
 
 def _farthest_points(F: np.ndarray, k: int, start: np.ndarray | None = None) -> np.ndarray:
@@ -861,7 +827,6 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         z_m = float(z_m)
         depths = np.array([z_m])
     C = reachable_poses(sensor, tank, depths, wall_gap_m, spacing_m, n_headings, objects)
-    C = np.vstack([C, poses_at_the_wall_gap(sensor, tank, C, wall_gap_m, spacing_m, objects)])
     if not len(C):
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
     frame = MapFrame(sensor, tank, objects, band, warp_m)
