@@ -271,7 +271,8 @@ def diagnose(
             f"{obs.source or 'observations'}: the diagnosis knows box tanks (its wall candidates move walls, floor "
             f"and free surface of a box; its effect model, the PSM, images in a box's walls), not a "
             f"{type(obs.tank).__name__}; compare such a log with the BEM or its tank map instead (esense validate "
-            f"--models bem, or --map FILE), or fit a scene to a tank with electrodes of its own (the real-tank studies, esense study real_tank)")
+            f"--models bem, or --map FILE), or fit a scene to a tank with electrodes of its own (the real-tank "
+            f"studies, esense study real_tank)")
     t0 = time.perf_counter()
     say = progress or (lambda s: None)
     notes = []

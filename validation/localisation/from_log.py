@@ -28,6 +28,8 @@ import numpy as np
 
 from electrosense.validation.localisation.smoother import (
     DEFAULT_MOTION,
+    ROTATION_GAUGE_SIGMA_RAD,
+    ROUND_TANK_FIRST_VELOCITY_SIGMA,
     MotionModel,
     expected_error,
     posterior_crb,
@@ -145,8 +147,10 @@ def model_summary(name, model, currents, poses, noise_rel, t_s=None, motion: Mot
         out["heading_against_radius_rms_rad"] = _rms(heading_error(against_radius(est[off_axis]),
                                                                    against_radius(q_true[off_axis])))
         out["round_tank"] = ("the currents are the same at every rotation about the tank's axis: the first logged "
-                             "pose gives the angle about it" + (", the motion prior carries it" if motion else
-                                                                 "; each sample alone leaves it open"))
+                             f"pose gives the angle about it (to {1e3 * ROTATION_GAUGE_SIGMA_RAD:g} mrad; the first "
+                             f"velocity's prior {ROUND_TANK_FIRST_VELOCITY_SIGMA[0]:g} m/s, "
+                             f"{ROUND_TANK_FIRST_VELOCITY_SIGMA[2]:g} rad/s)"
+                             + (", the motion prior carries it" if motion else "; each sample alone leaves it open"))
     for k in ("crb_position_rms_m", "crb_heading_rms_rad", "crb_position_median_m", "crb_per_sample_position_rms_m"):
         out[k] = None if crb is None else crb[k]
     out["position_error_over_crb"] = None if crb is None else out["position_rms_m"] / crb["crb_position_rms_m"]
@@ -207,7 +211,7 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
     if with_psm and not psm_has_images(obs.tank):
         with_psm = False
-        result["psm_left_out"] = (f"the PSM's images are a box's: it has no model of a {type(obs.tank).__name__}")
+        result["psm_left_out"] = f"the PSM's images are a box's: it has no model of a {type(obs.tank).__name__}"
         say(result["psm_left_out"])
     if with_psm:
         psm = calibrated_psm(obs.sensor) if psm is None else psm

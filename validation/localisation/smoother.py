@@ -66,7 +66,7 @@ import numpy as np
 from electrosense.validation.localisation.track import track
 
 __all__ = ["MotionModel", "DEFAULT_MOTION", "SmoothedTrack", "smooth_track", "posterior_crb", "expected_error",
-           "rts_smoother", "first_state_prior", "ROTATION_GAUGE_SIGMA_RAD"]
+           "rts_smoother", "first_state_prior", "ROTATION_GAUGE_SIGMA_RAD", "ROUND_TANK_FIRST_VELOCITY_SIGMA"]
 
 #: the diffuse prior on the first state of a pass: 1 m, 1 m, 10 rad; 1 m/s, 1 m/s, 10 rad/s (1 sigma)
 DIFFUSE_SIGMA = np.array([1.0, 1.0, 10.0, 1.0, 1.0, 10.0])
