@@ -10,7 +10,8 @@ constant velocity model of tracking; Bar-Shalom, Li & Kirubarajan 2001, 6.2.2):
 Over a time T the velocity so wanders by sqrt(q T) and the position by sqrt(q T^3 / 3): ``q_xy`` is the square of
 the speed change (m/s) a robot makes in one second that is not planned. The prior on the first state of each pass is
 diffuse (1 m, 1 m/s, 10 rad, 10 rad/s: a pass is not told where it starts), and each pass of a log is its own chain
-(a bench reverses at the end of a pass).
+(a bench reverses at the end of a pass). In a round tank, whose currents are the same at every rotation about its
+axis, the start gives that angle and a bench robot's first velocity (:func:`first_state_prior`).
 
 **Measurement model.** As in :mod:`.track`: each receiver current with independent Gaussian noise of relative spread
 ``noise_rel``, the model's currents I(q) and their Jacobian dI/dq.
