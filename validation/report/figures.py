@@ -37,6 +37,7 @@ from typing import Sequence
 
 import numpy as np
 
+from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.validation.report.style import (
     COLOURS,
     CYCLE,
@@ -610,7 +611,7 @@ def scene_figure(
     plotter = pv.Plotter(off_screen=True, window_size=window_size, shape=(1, 2) if has_closeup else (1, 1), border=False)
     plotter.set_background("white")
     legend = []
-    if tank is not None and hasattr(tank, "radius_at"):   # a round tank: its water's rims and four generatrices
+    if isinstance(tank, CylinderTank):   # a round tank: its water's rims and four generatrices
         z0, z1 = tank.floor_z_m, tank.free_surface_z_m
         r0, r1 = float(tank.radius_at(z0)), float(tank.radius_at(z1))
         turn = np.linspace(0.0, 2 * np.pi, 121)
