@@ -74,6 +74,7 @@ from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axi
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
 from electrosense.bem.edge_correction import free_space_correction
+from electrosense.bem.image_plane import split_image_face
 from electrosense.bem.linear_solve import SingularSystemError, factorise, refine, solve_refined
 from electrosense.bem.low_rank import right_singular_vectors
 from electrosense.bem.memory import check_bytes, check_memory
@@ -90,6 +91,11 @@ __all__ = ["PoseSweep", "pose_bytes", "WOODBURY_MIN_RCOND", "LOW_PRECISION_MIN_R
 #: wall derivatives: the tank's faces within this many sensor lengths of the sensor's axis take the sensor's part
 #: of their potential exactly (:mod:`electrosense.bem.shape_derivative`)
 WALL_SPLIT_RADIUS_FACTOR = 0.6
+
+#: the sensor's own image (:meth:`PoseSweep._sensor_block_at`) is truncated at this times ``tol``: at ``tol``
+#: itself it moved K by 1.8e-5 where the coupling's truncation moves it by 6e-6 (angels-4 parallel to the 1 m
+#: tank's wall 5 mm from it, ``tol = 1e-5``)
+IMAGE_TOL_FACTOR = 0.1
 
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
@@ -178,6 +184,11 @@ class PoseSweep:
         The fraction of this machine's available memory the sweep's blocks may take before it refuses the scene
         (:class:`~electrosense.bem.memory.MemoryRefusal`, naming its size): 1 alone, ``1 / k`` where ``k``
         sweeps hold their blocks at once (a tank map's workers).
+    image_face : str, optional
+        A flat face of the tank (a box's ``"wall_x-"`` ... ``"free_surface"``, a cylinder's ``"floor"`` or
+        ``"free_surface"``) taken into the Green's function by its image instead of a mesh
+        (:mod:`electrosense.bem.image_plane`): the same K, exactly so in the continuum, for a pose a few
+        millimetres from that face at a mid-tank pose's cost. Not with ``wall_derivatives``.
 
     Example
     -------
@@ -188,7 +199,8 @@ class PoseSweep:
                  edge_length_m=None, tank_edge_length_m=None, focus_m=None, tol: float = 1e-6, block_cache=None,
                  edge_correction: bool = True, tank_grading: float | None = None, tank_mesh=None,
                  cache_environment: bool = False, memory_share: float = 1.0,
-                 tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO, **sensor_mesh_options):
+                 tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO, image_face: str | None = None,
+                 **sensor_mesh_options):
         from electrosense.meshes.sensor_mesh import mesh_sensor
 
         sigma_S_per_m = check_conductivity(sigma_S_per_m)
@@ -203,6 +215,10 @@ class PoseSweep:
         self._given_tank_mesh = tank_mesh
         self.tank_grading = DEFAULT_TANK_GRADING if tank_grading is None else float(tank_grading)
         self.tank_near_ratio = tank_near_ratio
+        if image_face is not None and tank is None:
+            raise ValueError(f"image_face {image_face!r}: unbounded water has no faces")
+        self.image_face = image_face
+        self.image_plane = None
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         self.tol = float(tol)
         if not 0.0 < memory_share <= 1.0:
@@ -273,12 +289,14 @@ class PoseSweep:
         new._prepare_edge_correction()
         return new
 
-    def with_focus(self, focus_m=None, tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO) -> "PoseSweep":
+    def with_focus(self, focus_m=None, tank_near_ratio: float | None = DEFAULT_TANK_NEAR_RATIO,
+                   image_face: str | None = None) -> "PoseSweep":
         """This sweep with the tank meshed anew, graded towards ``focus_m`` (None: the poses of the copy's first
-        call), sharing this sweep's sensor block and edge correction.
+        call), its face ``image_face`` (if any) an image plane, sharing this sweep's sensor block and edge
+        correction.
 
         For poses each on a tank mesh of its own, the sensor factorised once (a tank map's poses): the result is
-        the sweep that the same arguments with ``focus_m`` and ``tank_near_ratio`` would build.
+        the sweep that the same arguments with ``focus_m``, ``tank_near_ratio`` and ``image_face`` would build.
 
         >>> from electrosense.meshes import Tank, preset
         >>> sweep = PoseSweep(preset("angels-2"), Tank((0.4, 0.3, 0.3)), edge_length_m=0.01)
@@ -293,6 +311,9 @@ class PoseSweep:
         new = copy.copy(self)
         new.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         new.tank_near_ratio = tank_near_ratio
+        if image_face is not None and self.tank is None:
+            raise ValueError(f"image_face {image_face!r}: unbounded water has no faces")
+        new.image_face, new.image_plane = image_face, None
         new.timings = dict(self.timings)
         if self.tank is not None or self.objects:
             new._env_ready, new._woodbury, new._A_e = False, None, None
@@ -389,10 +410,16 @@ class PoseSweep:
                                        allow_touching=self._touching)
         Ns = self.sensor_boundary.n_triangles
         self.env_boundary = wb
-        self.env_tris = TriangleSet(wb.triangles_m[Ns:])
+        meshed = np.ones(wb.n_triangles - Ns, bool)   # the environment's triangles in the system: all but an image's
+        if self.image_face is not None:
+            n_tank = tank_mesh.n_triangles
+            meshed[:n_tank] = ~tank_mesh.region_mask(self.image_face)
+            tank_mesh, self.image_plane = split_image_face(tank_mesh, self.image_face)
+        self.env_tris = TriangleSet(wb.triangles_m[Ns:][meshed])
         self.n_conductors = wb.n_conductors
         cs, cd, grp = column_coefficients(wb, self.sigma_S_per_m, self.z_c, self.scale_m)
-        self._cs_e, self._cd_e, self._grp_e = cs[Ns:], cd[Ns:], grp[Ns:]
+        self._cs_e, self._cd_e, self._grp_e = cs[Ns:][meshed], cd[Ns:][meshed], grp[Ns:][meshed]
+        conductor = wb.conductor[Ns:][meshed]
         Ne = len(self.env_tris)
         check_bytes(pose_bytes(Ns, Ne),
                     f"the tank ({Ne} triangles) and the sensor ({Ns}) blocks", 0.8 * self.memory_share)
@@ -401,8 +428,9 @@ class PoseSweep:
         # are kept on disk like the sensor's (a later process's sweep in the same tank mesh reads them back)
         cache = self._disk_cache(Ne) if self.cache_environment else None
         if cache is not None:
+            plane = () if self.image_plane is None else (self.image_plane.point_m, self.image_plane.normal)
             key = cache.key(np.frombuffer(b"environment-block", np.uint8), self.env_tris.triangles, self._cs_e,
-                            self._cd_e, self._grp_e, wb.conductor[Ns:], np.array([self.n, self.n_conductors]))
+                            self._cd_e, self._grp_e, conductor, np.array([self.n, self.n_conductors]), *plane)
             found = cache.load(key, ("lu", "piv", "c"))
             if found is not None:
                 lu, piv, c = found
@@ -415,12 +443,17 @@ class PoseSweep:
         ng = self.n + self.n_conductors
         A, B = mixed_system(self.env_tris.centroids, self.env_tris, np.arange(Ne), self._cs_e, self._cd_e,
                             self._grp_e, ng, far=np.inf)  # exact solid angles: A_ee z = 0 exactly
+        if self.image_plane is not None:   # the image's term, exact solid angles too
+            A_image, B_image = mixed_system(self.image_plane.reflect(self.env_tris.centroids), self.env_tris, None,
+                                            self._cs_e, self._cd_e, self._grp_e, ng, far=np.inf)
+            A += A_image
+            B += B_image
+            del A_image
         nc = self.n_conductors
         if nc:
             M = np.zeros((Ne + nc, Ne + nc))
             M[:Ne, :Ne] = A
             M[:Ne, Ne:] = B[:, self.n:]
-            conductor = wb.conductor[Ns:]
             mean_area = float(np.mean(self.env_tris.areas))
             for c in range(nc):
                 M[Ne + c, :Ne] = np.where(conductor == c, self.env_tris.areas / mean_area, 0.0)
@@ -471,6 +504,15 @@ class PoseSweep:
         ng = self.n + self.n_conductors
         A_se, B_se = mixed_system(tris_s.centroids, e, None, self._cs_e, self._cd_e, self._grp_e, ng)
         A_es, B_es = mixed_system(e.centroids, tris_s, None, self._cs_s, self._cd_s, self._grp_s, self.n)
+        if self.image_plane is not None:
+            reflect = self.image_plane.reflect
+            A_image, B_image = mixed_system(reflect(tris_s.centroids), e, None, self._cs_e, self._cd_e, self._grp_e, ng)
+            A_se += A_image
+            B_se += B_image
+            A_image, B_image = mixed_system(reflect(e.centroids), tris_s, None, self._cs_s, self._cd_s, self._grp_s,
+                                            self.n)
+            A_es += A_image
+            B_es += B_image
         nc = self.n_conductors
         if nc:
             A_se = np.hstack([A_se, B_se[:, self.n:]])
@@ -494,9 +536,9 @@ class PoseSweep:
         # A_se V_k = U_k s_k, so W V_k^T = A_ss^-1 A_se V_k V_k^T
         Vt, _ = right_singular_vectors(A_se, self.tol)
         k = len(Vt)
-        W = scipy.linalg.lu_solve((self._lu, self._piv), (A_se @ Vt.T).astype(self._lu.dtype),
-                                  check_finite=False).astype(float)
-        f = r_e - A_es @ self._y0
+        y0, sensor_solve = self._sensor_block_at(pose)
+        W = sensor_solve(A_se @ Vt.T)
+        f = r_e - A_es @ y0
         if self._woodbury is not None:
             a, b = self._rank_one
             AW = A_es @ W
@@ -523,7 +565,35 @@ class PoseSweep:
             schur = self._A_e - (A_es @ W) @ Vt
             lu, piv, _ = factorise(schur, f"system at pose {pose.tolist()}")
             y_e = scipy.linalg.lu_solve((lu, piv), f, check_finite=False)
-        return self._y0 - W @ (Vt @ y_e), k, y_e
+        return y0 - W @ (Vt @ y_e), k, y_e
+
+    def _sensor_block_at(self, pose):
+        """(``y0``, ``solve``): the sensor block's solution for the electrodes' potentials and its solver at
+        ``pose``. Without an image plane the block is the pose's invariant ``A_ss`` (stored factors). With one it
+        is ``A_ss + M``, ``M`` the sensor's own image (its collocation points reflected, a smooth kernel twice
+        the gap away), of low rank: ``M ~ P Q^T`` with ``Q^T`` its right singular vectors to ``tol``, solved by
+        the Woodbury formula on the stored factors, ``(A + P Q^T)^-1 = A^-1 - A^-1 P (I + Q^T A^-1 P)^-1 Q^T A^-1``."""
+        def stored(r):
+            return scipy.linalg.lu_solve((self._lu, self._piv), r.astype(self._lu.dtype), check_finite=False
+                                         ).astype(float)
+
+        if self.image_plane is None:
+            return self._y0, stored
+        R, t = rotation_z(pose[3]), pose[:3]
+        s = TriangleSet(self.sensor_tris.triangles @ R.T + t)
+        M, B_image = mixed_system(self.image_plane.reflect(s.centroids), s, None, self._cs_s, self._cd_s,
+                                  self._grp_s, self.n)
+        Qt, _ = right_singular_vectors(M, IMAGE_TOL_FACTOR * self.tol)
+        AinvP = stored(M @ Qt.T)
+        capacitance = scipy.linalg.lu_factor(np.eye(len(Qt)) + Qt @ AinvP, check_finite=False)
+
+        def solve(r):
+            g = stored(r)
+            return g - AinvP @ scipy.linalg.lu_solve(capacitance, Qt @ g, check_finite=False)
+
+        z = self._y0 - stored(B_image)          # A^-1 (r_s + r_image), r = -B
+        y0 = z - AinvP @ scipy.linalg.lu_solve(capacitance, Qt @ z, check_finite=False)
+        return y0, solve
 
     def conductance(self, poses, progress: bool = False, check: bool = True,
                     wall_derivatives: bool = False) -> ConductanceMatrix:
@@ -536,6 +606,9 @@ class PoseSweep:
         (:mod:`electrosense.bem.shape_derivative`).
         """
         poses = poses_array(poses)
+        if wall_derivatives and self.image_face is not None:
+            raise ValueError(f"wall_derivatives: the face {self.image_face!r} is an image plane, not a mesh; "
+                             "make the sweep without image_face")
         t0 = time.perf_counter()
         if check:
             for p in poses:

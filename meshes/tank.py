@@ -47,6 +47,11 @@ class Tank:
         return TANK_REGIONS
 
     @property
+    def flat_regions(self) -> tuple[str, ...]:
+        """The regions that are planes with all the water on one side (every face of a box)."""
+        return TANK_REGIONS
+
+    @property
     def floor_z_m(self) -> float:
         return -0.5 * self.size_m[2]
 
