@@ -12,6 +12,11 @@ constant densities on flat triangles the image term of triangle ``T_j`` at ``x_i
 of the collocation system gets the same matrices at the reflected collocation points, none of them singular: the
 water is on one side of ``P``, so ``x_i*`` is never on the water's boundary but on ``P`` itself.
 
+Several faces at once, where they are mutually perpendicular (a box's corner: a wall, the next wall and the
+floor): the reflections in them commute and generate a group of ``2^k`` isometries, and the Green's function
+sums ``G(g x, y)`` over all of them (:class:`ImageGroup`); two parallel faces would need an infinite series
+and are refused.
+
 What this buys: a sensor a few millimetres from a wall needs a tank mesh graded to the gap on that wall, ten
 times a mid-tank pose's triangles; with the wall as an image plane the rest of the tank is as coarse as in
 mid-tank.
@@ -27,6 +32,9 @@ Example
 [[-0.21, 0.0, 0.0]]
 >>> rest.n_triangles < mesh.n_triangles, "wall_x-" in rest.region_names
 (True, True)
+>>> rest, group = split_image_faces(mesh, ("wall_x-", "floor"))      # a corner: three images
+>>> [g.round(3).tolist() for g in group.images(np.array([[-0.19, 0.0, -0.14]]))]
+[[[-0.21, 0.0, -0.14]], [[-0.19, 0.0, -0.16]], [[-0.21, 0.0, -0.16]]]
 """
 from __future__ import annotations
 
@@ -34,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImagePlane", "split_image_face", "ImageFaceError"]
+__all__ = ["ImagePlane", "ImageGroup", "split_image_face", "split_image_faces", "ImageFaceError"]
 
 #: the face's vertices off its plane, relative to the mesh's extent, above which it is not a plane
 PLANE_TOL = 1e-9
@@ -59,6 +67,41 @@ class ImagePlane:
     def distance_m(self, points_m: np.ndarray) -> np.ndarray:
         """(N,) distance of ``points_m`` from the plane, positive on the water's side."""
         return (self.point_m - np.asarray(points_m, float)) @ self.normal
+
+
+@dataclass(frozen=True)
+class ImageGroup:
+    """The reflections in mutually perpendicular :class:`ImagePlane` s and all their products (``2^k - 1``
+    images besides the identity)."""
+
+    planes: tuple
+
+    def images(self, points_m: np.ndarray) -> list:
+        """The images of ``points_m`` (N, 3), one (N, 3) array per element of the group but the identity, in the
+        order of the subsets' binary numbers (plane 0, plane 1, planes 0 and 1, ...)."""
+        out = []
+        for subset in range(1, 2 ** len(self.planes)):
+            p = np.asarray(points_m, float)
+            for k, plane in enumerate(self.planes):
+                if subset >> k & 1:
+                    p = plane.reflect(p)
+            out.append(p)
+        return out
+
+
+def split_image_faces(mesh, region_names):
+    """(the mesh without the regions ``region_names``, their :class:`ImageGroup`): each face as
+    :func:`split_image_face` takes it; faces that are not mutually perpendicular refused."""
+    planes, rest = [], mesh
+    for name in region_names:
+        _, plane = split_image_face(mesh, name)
+        rest = rest.select(~rest.region_mask(name))
+        for other_name, other in zip(region_names, planes):
+            if abs(float(plane.normal @ other.normal)) > 1e-9:
+                raise ImageFaceError(f"image planes: the faces {other_name!r} and {name!r} are not perpendicular "
+                                     "(parallel faces would need an infinite series of images)")
+        planes.append(plane)
+    return rest, ImageGroup(tuple(planes))
 
 
 def split_image_face(mesh, region_name: str):

@@ -80,9 +80,10 @@ class CylinderTank:
         return CYLINDER_TANK_REGIONS
 
     @property
-    def flat_regions(self) -> tuple[str, ...]:
-        """The regions that are planes with all the water on one side (the floor and the free surface)."""
-        return CYLINDER_TANK_REGIONS[1:]
+    def flat_region_pairs(self) -> tuple[tuple[str, str], ...]:
+        """The regions that are planes with all the water on one side (the floor and the free surface), in
+        pairs of opposite faces (parallel planes)."""
+        return (CYLINDER_TANK_REGIONS[1:],)
 
     @property
     def floor_z_m(self) -> float:
