@@ -624,8 +624,8 @@ class PoseSweep:
         """
         poses = poses_array(poses)
         if wall_derivatives and self.image_faces:
-            raise ValueError(f"wall_derivatives: the faces {', '.join(self.image_faces)} are image planes, not a "
-                             "mesh; make the sweep without image_face")
+            raise ValueError(f"wall_derivatives: {', '.join(self.image_faces)}: an image plane, not a mesh, has no "
+                             "panels to move; make the sweep without image_face")
         t0 = time.perf_counter()
         if check:
             for p in poses:

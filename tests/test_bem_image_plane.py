@@ -70,6 +70,7 @@ def test_a_cylinders_floor_is_an_image_plane_and_its_wall_is_not():
         _K(tank, [0.0, 0.0, 0.0, 0.0], image_face="wall")
 
 
+@pytest.mark.slow
 def test_a_corner_takes_both_walls_and_their_product_as_images():
     rng = np.random.default_rng(7)
     tank = _random_box(rng)

@@ -11,10 +11,8 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    (:mod:`.map_coordinates`);
 2. the BEM as a user runs it at one pose (:class:`electrosense.bem.PoseSweep`,
    the sensor's block shared, each pose on a tank mesh graded to it alone,
-   its edge bounded by the distance from the sensor, the tank's flat faces
-   near the sensor image planes instead of a mesh (:func:`image_faces_near`),
-   the sensor-tank coupling truncated at :data:`MAP_COUPLING_TOL`; on ``workers``
-   processes) at a
+   its edge bounded by the distance from the sensor, the sensor-tank coupling
+   truncated at :data:`MAP_COUPLING_TOL`; on ``workers`` processes) at a
    first spread of them
    (farthest-point sampling in the map's warped coordinates, which crowds
    them near the walls), then, round after round, at the candidates of
@@ -67,7 +65,7 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "image_faces_near", "build_tank_map", "load_tank_map",
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
            "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
@@ -671,49 +669,9 @@ def _worker_solve(poses, fidelity: str = "coarse"):
 
 def each_on_its_own_tank_mesh(sweep, poses) -> np.ndarray:
     """K (P, n, n) of a :class:`~electrosense.bem.PoseSweep` at ``poses`` (P, 4), each on a tank mesh graded to
-    it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared), the flat faces near
-    the sensor image planes (:func:`image_faces_near`): as a map's nodes."""
-    faces = [()] * len(poses) if sweep.tank is None else image_faces_near(sweep.sensor, sweep.tank, poses)
-    return np.concatenate([sweep.with_focus(tank_near_ratio=sweep.tank_near_ratio, image_face=f or None)
-                           .conductance(pose[None]).K_S for pose, f in zip(poses, faces)])
-
-
-#: a flat face of the tank within this distance (m) of the sensor's surface is an image plane in a map's BEM poses
-#: (:func:`image_faces_near`); beyond it the BEM's default tank mesh is within 0.005 % of the image (angels-4
-#: parallel to the 1 m tank's wall: 0.030 / 0.028 / 0.020 / 0.012 / 0.005 % at 5 / 10 / 20 / 40 / 80 mm), so a
-#: face that enters the images as the pose moves changes K by no more than that
-IMAGE_FACES_WITHIN_M = 0.08
-
-
-def image_faces_near(sensor, tank, poses: np.ndarray, within_m: float = IMAGE_FACES_WITHIN_M) -> list:
-    """The tank's flat faces within ``within_m`` of the sensor's surface at each of ``poses`` (P, 4), at most one
-    of each pair of opposite faces (the nearer): a tuple of names per pose, empty where none is that near.
-
-    A map's BEM poses take them as image planes (:mod:`electrosense.bem.image_plane`; mutually perpendicular: a
-    box's wall, the next wall and the floor at a corner): in the continuum the same K as their mesh, without the
-    mesh's error, which is largest next to the sensor (angels-4 parallel to the 1 m tank's wall, the BEM's
-    default tank mesh against the image: 0.030 / 0.028 / 0.020 / 0.012 / 0.005 % at 5 / 10 / 20 / 40 / 80 mm;
-    the default's mesh graded twice as finely, 0.011 % at 5 mm), at 11 / 6.3 / 5.6 / 5.9 / 4.8 s of CPU against
-    32 / 9.8 / 4.0 / 3.3 / 1.9 s (the reference sensor mesh; the coarse one 2.3 / 1.5 / 1.0 / 1.0 / 0.9 s
-    against 4.4 / 2.0 / 1.6 / 1.0 / 0.9 s). Every face that near, not only the nearest: the nearest alone
-    switched from one wall to the next across a corner, where the other's mesh error (0.1 % on the coarse
-    poses' mesh) made a step in the K a map interpolates.
-
-    >>> from electrosense.meshes import Tank, preset
-    >>> image_faces_near(preset("angels-4"), Tank((1.0, 1.0, 1.0)), np.array([[0.2, 0.4, 0.0, 0.0], [0, 0, 0, 0]]))
-    [('wall_y+',), ()]
-    """
-    gap = tank.distance_to_boundary_m(_axis_points(sensor, poses)).min(axis=1) - sensor.radius_m   # (P, regions)
-    column = {name: k for k, name in enumerate(tank.region_names)}
-    out = []
-    for g in gap:
-        faces = []
-        for a, b in tank.flat_region_pairs:
-            nearer = a if g[column[a]] <= g[column[b]] else b
-            if g[column[nearer]] < within_m:
-                faces.append(nearer)
-        out.append(tuple(faces))
-    return out
+    it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared): as a map's nodes."""
+    return np.concatenate([sweep.with_focus(tank_near_ratio=sweep.tank_near_ratio).conductance(pose[None]).K_S
+                           for pose in poses])
 
 
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
