@@ -37,8 +37,7 @@ def test_far_from_the_face_the_image_is_the_mesh():
     assert g.info["triangles"] < _K(tank, pose)[1].info["triangles"]      # one face fewer
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [pytest.param(0, marks=pytest.mark.slow), 1])     # 7-10 s each
 def test_next_to_the_face_the_meshed_bem_converges_to_the_image(seed):
     rng = np.random.default_rng(seed)
     tank = _random_box(rng)
@@ -70,7 +69,7 @@ def test_a_cylinders_floor_is_an_image_plane_and_its_wall_is_not():
         _K(tank, [0.0, 0.0, 0.0, 0.0], image_face="wall")
 
 
-@pytest.mark.slow
+@pytest.mark.slow      # 10 s: out of the default run, which must stay under 10 min (-m slow)
 def test_a_corner_takes_both_walls_and_their_product_as_images():
     rng = np.random.default_rng(7)
     tank = _random_box(rng)
