@@ -579,10 +579,11 @@ class PoseSweep:
 
     def _sensor_block_at(self, pose):
         """(``y0``, ``solve``): the sensor block's solution for the electrodes' potentials and its solver at
-        ``pose``. Without an image plane the block is the pose's invariant ``A_ss`` (stored factors). With one it
-        is ``A_ss + M``, ``M`` the sensor's own image (its collocation points reflected, a smooth kernel twice
-        the gap away), of low rank: ``M ~ P Q^T`` with ``Q^T`` its right singular vectors to ``tol``, solved by
-        the Woodbury formula on the stored factors, ``(A + P Q^T)^-1 = A^-1 - A^-1 P (I + Q^T A^-1 P)^-1 Q^T A^-1``."""
+        ``pose``. Without image planes the block is the pose's invariant ``A_ss`` (stored factors). With them it
+        is ``A_ss + M``, ``M`` the sum of the sensor's own images (its collocation points reflected: smooth
+        kernels at least twice the gap away), of low rank: ``M ~ P Q^T`` with ``Q^T`` its right singular vectors
+        to :data:`IMAGE_TOL_FACTOR` x ``tol``, solved by the Woodbury formula on the stored factors,
+        ``(A + P Q^T)^-1 = A^-1 - A^-1 P (I + Q^T A^-1 P)^-1 Q^T A^-1``."""
         def stored(r):
             return scipy.linalg.lu_solve((self._lu, self._piv), r.astype(self._lu.dtype), check_finite=False
                                          ).astype(float)
