@@ -99,7 +99,7 @@ def main(argv=None):
         sensor, tank, _ = random_scene(np.random.default_rng(args.seed), cylinder=False)
     else:
         sensor, tank = preset(args.sensor), Tank((1.0, 1.0, 1.0))
-    print(f"== image_plane\n{sensor.name}: {sensor.n_electrodes} electrodes, length {sensor.length_m:.3f} m, lying "
+    print(f"{sensor.name}: {sensor.n_electrodes} electrodes, length {sensor.length_m:.3f} m, lying "
           f"along the +y wall of {tank} (3 degrees off); K of the receivers, meshed against the wall as an image")
     print_rows(compare(sensor, tank, gaps, fine=not args.no_fine))
 
