@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImagePlane", "ImageGroup", "split_image_face", "split_image_faces", "ImageFaceError"]
+__all__ = ["ImagePlane", "ImageGroup", "image_plane_of", "split_image_face", "split_image_faces", "ImageFaceError"]
 
 #: the face's vertices off its plane, relative to the mesh's extent, above which it is not a plane
 PLANE_TOL = 1e-9
@@ -91,21 +91,26 @@ class ImageGroup:
 
 def split_image_faces(mesh, region_names):
     """(the mesh without the regions ``region_names``, their :class:`ImageGroup`): each face as
-    :func:`split_image_face` takes it; faces that are not mutually perpendicular refused."""
-    planes, rest = [], mesh
+    :func:`image_plane_of` takes it; faces that are not mutually perpendicular refused."""
+    planes = []
     for name in region_names:
-        _, plane = split_image_face(mesh, name)
-        rest = rest.select(~rest.region_mask(name))
+        plane = image_plane_of(mesh, name)
         for other_name, other in zip(region_names, planes):
             if abs(float(plane.normal @ other.normal)) > 1e-9:
                 raise ImageFaceError(f"image planes: the faces {other_name!r} and {name!r} are not perpendicular "
                                      "(parallel faces would need an infinite series of images)")
         planes.append(plane)
-    return rest, ImageGroup(tuple(planes))
+    on_faces = np.isin(mesh.region, [mesh.region_index(name) for name in region_names])
+    return mesh.select(~on_faces), ImageGroup(tuple(planes))
 
 
 def split_image_face(mesh, region_name: str):
-    """(the mesh without the region ``region_name``, its :class:`ImagePlane`).
+    """(the mesh without the region ``region_name``, its :class:`ImagePlane`)."""
+    return mesh.select(~mesh.region_mask(region_name)), image_plane_of(mesh, region_name)
+
+
+def image_plane_of(mesh, region_name: str) -> ImagePlane:
+    """The plane of the region ``region_name`` of a closed mesh, its normal out of the water.
 
     Refuses (:class:`ImageFaceError`) a region the mesh does not have, one that is not flat, and one with
     parts of the rest of the mesh on both sides of its plane (the image would lie in the water).
@@ -125,7 +130,6 @@ def split_image_face(mesh, region_name: str):
     if off > PLANE_TOL * extent + 1e-12:
         raise ImageFaceError(f"image plane: the face {region_name!r} is not flat ({off:.2e} m off its plane)")
     plane = ImagePlane(point, normal)
-    rest = mesh.select(~on_face)
-    if np.any(plane.distance_m(rest.vertices_m) < -PLANE_TOL * extent - 1e-12):
+    if np.any(plane.distance_m(mesh.vertices_m) < -PLANE_TOL * extent - 1e-12):
         raise ImageFaceError(f"image plane: the tank lies on both sides of the face {region_name!r}")
-    return rest, plane
+    return plane

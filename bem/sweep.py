@@ -417,10 +417,10 @@ class PoseSweep:
         self.env_boundary = wb
         meshed = np.ones(wb.n_triangles - Ns, bool)   # the environment's triangles in the system: all but an image's
         if self.image_faces:
-            n_tank = tank_mesh.n_triangles
-            meshed[:n_tank] = ~np.isin(tank_mesh.region, [tank_mesh.region_index(f) for f in self.image_faces
-                                                          if f in tank_mesh.region_names])
-            tank_mesh, self.image_group = split_image_faces(tank_mesh, self.image_faces)
+            rest, self.image_group = split_image_faces(tank_mesh, self.image_faces)   # refuses what cannot be one
+            meshed[:tank_mesh.n_triangles] = ~np.isin(tank_mesh.region,
+                                                      [tank_mesh.region_index(f) for f in self.image_faces])
+            tank_mesh = rest
         self.env_tris = TriangleSet(wb.triangles_m[Ns:][meshed])
         self.n_conductors = wb.n_conductors
         cs, cd, grp = column_coefficients(wb, self.sigma_S_per_m, self.z_c, self.scale_m)
