@@ -106,7 +106,8 @@ def split_image_faces(mesh, region_names):
 
 def split_image_face(mesh, region_name: str):
     """(the mesh without the region ``region_name``, its :class:`ImagePlane`)."""
-    return mesh.select(~mesh.region_mask(region_name)), image_plane_of(mesh, region_name)
+    plane = image_plane_of(mesh, region_name)
+    return mesh.select(~mesh.region_mask(region_name)), plane
 
 
 def image_plane_of(mesh, region_name: str) -> ImagePlane:
