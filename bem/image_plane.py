@@ -27,14 +27,14 @@ Example
 >>> from electrosense.meshes import Tank
 >>> from electrosense.meshes.tank_mesh import mesh_tank
 >>> mesh = mesh_tank(Tank((0.4, 0.3, 0.3)), 0.05)
->>> rest, plane = split_image_face(mesh, "wall_x-")
+>>> plane = image_plane_of(mesh, "wall_x-")
 >>> plane.reflect(np.array([[-0.19, 0.0, 0.0]])).round(3).tolist()    # 1 cm from the wall at x = -0.2 m
 [[-0.21, 0.0, 0.0]]
->>> rest.n_triangles < mesh.n_triangles, "wall_x-" in rest.region_names
-(True, True)
 >>> rest, group = split_image_faces(mesh, ("wall_x-", "floor"))      # a corner: three images
 >>> [g.round(3).tolist() for g in group.images(np.array([[-0.19, 0.0, -0.14]]))]
 [[[-0.21, 0.0, -0.14]], [[-0.19, 0.0, -0.16]], [[-0.21, 0.0, -0.16]]]
+>>> rest.n_triangles < mesh.n_triangles, "wall_x-" in rest.region_names
+(True, True)
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ImagePlane", "ImageGroup", "image_plane_of", "split_image_face", "split_image_faces", "ImageFaceError"]
+__all__ = ["ImagePlane", "ImageGroup", "image_plane_of", "split_image_faces", "ImageFaceError"]
 
 #: the face's vertices off its plane, relative to the mesh's extent, above which it is not a plane
 PLANE_TOL = 1e-9
@@ -102,12 +102,6 @@ def split_image_faces(mesh, region_names):
         planes.append(plane)
     on_faces = np.isin(mesh.region, [mesh.region_index(name) for name in region_names])
     return mesh.select(~on_faces), ImageGroup(tuple(planes))
-
-
-def split_image_face(mesh, region_name: str):
-    """(the mesh without the region ``region_name``, its :class:`ImagePlane`)."""
-    plane = image_plane_of(mesh, region_name)
-    return mesh.select(~mesh.region_mask(region_name)), plane
 
 
 def image_plane_of(mesh, region_name: str) -> ImagePlane:

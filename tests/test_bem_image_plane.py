@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from electrosense.bem import PoseSweep
-from electrosense.bem.image_plane import ImageFaceError, split_image_face
+from electrosense.bem.image_plane import ImageFaceError, split_image_faces
 from electrosense.meshes import Tank, preset
 from electrosense.meshes.cylinder_tank import CylinderTank
 from electrosense.meshes.tank_mesh import mesh_tank
@@ -94,7 +94,7 @@ def test_a_corner_takes_both_walls_and_their_product_as_images():
 def test_refusals_name_the_face():
     mesh = mesh_tank(Tank((0.3, 0.2, 0.2)), 0.05)
     with pytest.raises(ImageFaceError, match="no face 'wall_z'.*wall_x-"):
-        split_image_face(mesh, "wall_z")
+        split_image_faces(mesh, ("wall_z",))
     with pytest.raises(ValueError, match="unbounded water has no faces"):
         PoseSweep(SENSOR, None, edge_length_m=EDGE_M, image_face="floor")
     with pytest.raises(ValueError, match="image plane, not a mesh"):
