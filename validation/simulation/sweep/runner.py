@@ -141,7 +141,23 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
         # dask sets the BLAS's threads through the environment, not numba's or scipy's; a plugin reaches every
         # worker, also one the nanny starts again after a crash
         client.register_plugin(_one_thread_plugin())
-        yield client
+        try:
+            yield client
+        except KeyboardInterrupt:
+            # the user stopped the run: as the cluster closes, the scheduler's handlers of the operations in
+            # flight (a scatter of the next chunk's model) and the workers' heartbeats fail and would log their
+            # tracebacks under the one line the interrupt prints
+            logging.getLogger("distributed").setLevel(logging.CRITICAL)
+            try:
+                client.run(_quiet_distributed_logs, wait=True)
+            except Exception:   # a worker already gone: nothing of it left to log
+                pass
+            raise
+
+
+def _quiet_distributed_logs() -> None:
+    """Only critical messages from dask.distributed in this process (a worker of an interrupted run)."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
 
 
 def _one_thread_plugin():
