@@ -18,8 +18,10 @@ sums ``G(g x, y)`` over all of them (:class:`ImageGroup`); two parallel faces wo
 and are refused.
 
 What this buys: a sensor a few millimetres from a wall needs a tank mesh graded to the gap on that wall, ten
-times a mid-tank pose's triangles; with the wall as an image plane the rest of the tank is as coarse as in
-mid-tank.
+times a mid-tank pose's triangles, and still carries that mesh's error (0.04 % at 5 mm); with the wall as an
+image plane the rest of the tank is as coarse as in mid-tank and the error is gone. What it costs: the
+sensor's own image, a block the sensor's size compressed to low rank, 4-6 s of CPU for an 8 400-triangle
+sensor, so that beyond about 2 cm from the wall the mesh is cheaper (``esense study image_plane``).
 
 Example
 -------
