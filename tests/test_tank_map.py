@@ -22,6 +22,7 @@ from electrosense.validation.simulation.tank_map import (
     build_tank_map,
     load_tank_map,
     reachable_poses,
+    reference_round,
     scene_from_record,
     scene_record,
 )
@@ -273,6 +274,33 @@ def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses()
     assert np.allclose(m.conductance(P), _assemble(K_free[iu] * np.exp(L + d), n, iu), rtol=1e-8, atol=0)
     plain = RBFInterpolant(F[ref], d[ref], degree=2)
     assert np.abs(m.leave_one_out_ref).max() < 1e-3 * np.abs(plain.leave_one_out[:, emitter_pairs]).max()
+
+
+def test_a_round_of_reference_poses_goes_where_the_correction_errs_and_a_share_across_the_tank():
+    """The correction's estimated error is largest near the walls (where its reference poses cost most); a round
+    puts half of its poses there and spreads the other half over the tank, farthest from the reference poses it
+    has: a random sensor's nodes in a random box, the error growing towards the walls."""
+    from electrosense.validation.diagnosis.anchored import pose_features
+    from electrosense.validation.diagnosis.unseen import random_sensor
+    from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
+
+    rng = np.random.default_rng(11)
+    sensor = random_sensor(rng, 5)
+    tank = Tank(tuple(rng.uniform([0.5, 0.4, 0.3], [0.8, 0.6, 0.45])))
+    nodes = reachable_poses(sensor, tank, 0.0, spacing_m=0.03, n_headings=8)
+    nodes = nodes[rng.permutation(len(nodes))[:300]]
+    gap = sensor_wall_gap_m(sensor, tank, nodes)
+    error = 1e-4 / (gap + 0.002)                    # a wall's effect: largest at the walls
+    frame = MapFrame(sensor, tank)
+    X, T = frame.features(nodes), pose_features(sensor, nodes)
+    ref = np.argsort(gap)[:6]                        # the reference poses so far, all at a wall
+    pick = reference_round(X, T, error, ref, 8)
+    assert len(pick) == len(set(pick.tolist())) == 8 and not np.isin(pick, ref).any()
+    near = gap[pick] < np.quantile(gap, 0.25)
+    assert near.sum() >= 4                           # half where the error is largest
+    assert gap[pick].max() > np.quantile(gap, 0.75)  # and the tank's middle reached
+    assert reference_round(X, T, error, ref, 8, spread_share=0.0).tolist() != pick.tolist()
+    assert len(reference_round(X, T, error, np.arange(295), 8)) == 5   # no more than the nodes left
 
 
 @pytest.mark.parametrize("tank, band", [(Tank((0.7, 0.45, 0.4)), False), (Tank((0.7, 0.45, 0.4)), True),
