@@ -98,7 +98,10 @@ EXPLORE_SHARE = 1.0 / 3.0
 #: its 44 reference poses within 13 mm of a wall and left the middle of the tank to a few, where most of a random
 #: pose's error was then the correction's (seed 4's study box: at 40 random poses the correction 0.018 % RMS of
 #: 0.020 %, the coarse interpolation 0.014 %). With half of each round spread, the same 540 s of CPU: 0.016 % RMS
-#: (correction 0.014 %), near the walls 0.071 % against 0.068 % at 40 poses 5-15 mm from one
+#: (correction 0.014 %), near the walls 0.071 % against 0.068 % at 40 poses 5-15 mm from one; another draw's
+#: 4-electrode sensor in a 0.70 x 0.43 m box (seed 6): 0.018 % / 0.120 % -> 0.014 % / 0.085 % at 40 random poses,
+#: near the walls 0.023 % -> 0.021 %, and 475 BEM poses where 420 were bought (a reference pose mid-tank costs
+#: less than one at a wall)
 REFERENCE_SPREAD_SHARE = 0.5
 
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
