@@ -101,7 +101,10 @@ EXPLORE_SHARE = 1.0 / 3.0
 #: (correction 0.014 %), near the walls 0.071 % against 0.068 % at 40 poses 5-15 mm from one; another draw's
 #: 4-electrode sensor in a 0.70 x 0.43 m box (seed 6): 0.018 % / 0.120 % -> 0.014 % / 0.085 % at 40 random poses,
 #: near the walls 0.023 % -> 0.021 %, and 475 BEM poses where 420 were bought (a reference pose mid-tank costs
-#: less than one at a wall)
+#: less than one at a wall). The tank-map studies (20 fresh poses): seed 4 0.019 % / 0.071 % -> 0.017 % / 0.055 %,
+#: near the walls 0.119 % / 0.338 % -> 0.091 % / 0.243 %; angels-4 in the 1 m tank 0.012 % / 0.057 % -> 0.017 % /
+#: 0.093 % (its maximum, a tip 5.6 mm from a wall, now the correction's: fewer reference poses at the walls), near
+#: the walls 0.043 % / 0.086 % -> 0.031 % / 0.065 %
 REFERENCE_SPREAD_SHARE = 0.5
 
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
