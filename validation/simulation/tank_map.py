@@ -163,13 +163,34 @@ def _farthest_points(F: np.ndarray, k: int, start: np.ndarray | None = None) -> 
     return np.asarray(out, int)
 
 
-# ------------------------------------------------------------------ scene in the file
+def spread_round(X: np.ndarray, T: np.ndarray, error: np.ndarray, X_have: np.ndarray, T_have: np.ndarray, k: int,
+                 spread_share: float, n_worst: int | None = None) -> np.ndarray:
+    """Indices of the ``k`` rows of a round of BEM poses: ``1 - spread_share`` of them among the ``n_worst`` rows of
+    largest estimated ``error`` (default 20 a pick), spread by farthest points in the map's coordinates ``X`` (B, d)
+    from ``X_have``; the rest spread over the tank, farthest in the tips' positions ``T`` (B, 6) from ``T_have``
+    and from the first picks. A build's coarse rounds (:data:`EXPLORE_SHARE`, over the candidates) and its
+    reference rounds (:data:`REFERENCE_SPREAD_SHARE`, over the nodes, :func:`reference_round`) both take it: the
+    error's estimate is right on average but leads to the walls, where a pose costs most.
+
+    >>> X = np.linspace(0.0, 1.0, 11)[:, None]
+    >>> error = np.r_[np.zeros(9), 1.0, 2.0]             # the estimated error largest at one end
+    >>> spread_round(X, np.hstack([X] * 6), error, X[:1], np.zeros((1, 6)), 2, 0.5).tolist()
+    [10, 5]
+    """
+    k_spread = int(round(spread_share * k))
+    worst = np.argsort(error)[::-1][: 20 * (k - k_spread) if n_worst is None else n_worst]
+    pick = worst[_farthest_points(X[worst], k - k_spread, X_have)]
+    if k_spread:
+        pick = np.r_[pick, _farthest_points(T, k_spread, np.vstack([T_have, T[pick]]))]
+    return pick
+
+
 def reference_round(X: np.ndarray, T: np.ndarray, error: np.ndarray, ref_index: np.ndarray, k: int,
                     spread_share: float = REFERENCE_SPREAD_SHARE) -> np.ndarray:
-    """Indices of the ``k`` nodes a round of reference poses goes to: ``1 - spread_share`` of them among the nodes
-    of largest estimated ``error`` of the correction (B,), spread by farthest points in the map's coordinates
-    ``X`` (B, d), the rest spread over the tank, farthest from every reference pose in the tips' positions ``T``
-    (B, 6) (:data:`REFERENCE_SPREAD_SHARE`); never a node in ``ref_index``.
+    """Indices of the ``k`` nodes (at most those left) a round of reference poses goes to (:func:`spread_round`
+    over the nodes not in ``ref_index``, ``error`` the correction's estimated error (B,), 20 candidates a pose of
+    the round): half where the correction's error is largest, half spread over the tank
+    (:data:`REFERENCE_SPREAD_SHARE`).
 
     >>> X = np.linspace(0.0, 1.0, 11)[:, None]
     >>> error = np.r_[np.zeros(9), 1.0, 2.0]             # the correction's error largest at one end
@@ -178,15 +199,10 @@ def reference_round(X: np.ndarray, T: np.ndarray, error: np.ndarray, ref_index: 
     """
     free = np.setdiff1d(np.arange(len(X)), ref_index)
     k = min(int(k), len(free))
-    k_spread = int(round(spread_share * k))
-    worst = free[np.argsort(error[free])[::-1][: 20 * k]]
-    pick = worst[_farthest_points(X[worst], k - k_spread, X[ref_index])]
-    rest = np.setdiff1d(free, pick)
-    if k_spread and len(rest):
-        pick = np.r_[pick, rest[_farthest_points(T[rest], k_spread, T[np.r_[ref_index, pick]])]]
-    return pick
+    return free[spread_round(X[free], T[free], error[free], X[ref_index], T[ref_index], k, spread_share, 20 * k)]
 
 
+# ------------------------------------------------------------------ scene in the file
 def scene_record(tank, objects=()) -> dict:
     """The tank and fixed objects as plain JSON data (:func:`scene_from_record` reads them back)."""
     from dataclasses import asdict
@@ -1000,13 +1016,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 e_nodes = estimated_error(m._parts[1].X, m.leave_one_out_ref, X).max(axis=1)
                 solve_ref(reference_round(X, pose_features(sensor, nodes), e_nodes, ref_index, k))
             else:   # most where the estimated error is largest, a share spread over the tank (module doc)
-                k_spread = int(round(EXPLORE_SHARE * k))
-                worst = np.argsort(err_c)[::-1][: 20 * (k - k_spread)]
-                pick = worst[_farthest_points(F[worst], k - k_spread, m._parts[0].X)]
-                if k_spread:
-                    T_have = np.vstack([pose_features(sensor, nodes), T[pick]])
-                    pick = np.r_[pick, _farthest_points(T, k_spread, T_have)]
-                solve(np.unique(pick))
+                solve(np.unique(spread_round(F, T, err_c, m._parts[0].X, pose_features(sensor, nodes), k,
+                                             EXPLORE_SHARE)))
     finally:
         pool.close()
     return m
