@@ -12,10 +12,22 @@ from __future__ import annotations
 import os
 import time
 
-__all__ = ["exit_with_parent", "one_thread"]
+__all__ = ["exit_with_parent", "one_thread", "one_thread_environment"]
 
 #: the environment variables a thread pool loaded after :func:`one_thread` reads its size from
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_thread_environment() -> None:
+    """Ask the thread pools of the libraries loaded after this call for one thread each, by their environment
+    variables (unless the user set them): a study that measures speed on one core calls it before it imports
+    numpy. numba's variable only while numba is not loaded: once its threads are launched, numba refuses a
+    change of it at its next compilation (``Cannot set NUMBA_NUM_THREADS to a different value once the threads
+    have been launched``), which a study imported by a process that had used numba (a test run) met."""
+    import sys
+
+    for name in THREAD_VARIABLES + (() if "numba" in sys.modules else ("NUMBA_NUM_THREADS",)):
+        os.environ.setdefault(name, "1")
 
 
 def one_thread():

@@ -7,11 +7,11 @@ Run: ``python -m electrosense.validation.studies.psm_speed [--poses N]``.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from electrosense.validation.simulation.workers import one_thread_environment
+
+one_thread_environment()
 
 import numpy as np  # noqa: E402
 

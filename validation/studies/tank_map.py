@@ -27,8 +27,9 @@ import tempfile
 import time
 from pathlib import Path
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
+from electrosense.validation.simulation.workers import one_thread_environment
+
+one_thread_environment()
 
 import numpy as np  # noqa: E402
 
