@@ -80,6 +80,12 @@ class CylinderTank:
         return CYLINDER_TANK_REGIONS
 
     @property
+    def flat_region_pairs(self) -> tuple[tuple[str, str], ...]:
+        """The regions that are planes with all the water on one side (the floor and the free surface), in
+        pairs of opposite faces (parallel planes)."""
+        return (CYLINDER_TANK_REGIONS[1:],)
+
+    @property
     def floor_z_m(self) -> float:
         return -0.5 * self.height_m
 

@@ -47,6 +47,12 @@ class Tank:
         return TANK_REGIONS
 
     @property
+    def flat_region_pairs(self) -> tuple[tuple[str, str], ...]:
+        """The regions that are planes with all the water on one side (every face of a box), in pairs of
+        opposite faces (parallel planes)."""
+        return tuple(zip(TANK_REGIONS[::2], TANK_REGIONS[1::2]))
+
+    @property
     def floor_z_m(self) -> float:
         return -0.5 * self.size_m[2]
 

@@ -171,10 +171,14 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(K[:, iu[0], iu[1]], pair_values(m.K_ref, SENSOR.emitter), rtol=1e-8, atol=0)
     # every node is the BEM as a user runs it at that pose (its tank mesh graded to that pose alone), on the
     # reference sensor and tank meshes (the map's BEM options) and on the coarse sensor mesh and the BEM's
-    # default tank mesh (coarse_options), with the map's truncation of the sensor-tank coupling; the BEM's own
-    # truncation a few parts in a million away
+    # default tank mesh (coarse_options) with the faces near the sensor image planes, with the map's truncation
+    # of the sensor-tank coupling; the BEM's own truncation a few parts in a million away
     from electrosense.bem import PoseSweep
-    from electrosense.validation.simulation.tank_map import MAP_COUPLING_TOL, REFERENCE_TANK_GRADING
+    from electrosense.validation.simulation.tank_map import (
+        MAP_COUPLING_TOL,
+        REFERENCE_TANK_GRADING,
+        image_faces_near,
+    )
 
     assert m.bem_options == {**OPTIONS, "tank_grading": REFERENCE_TANK_GRADING}
     user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, **m.bem_options)
@@ -182,8 +186,12 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(m.K_ref[:1], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
     K_default = PoseSweep(SENSOR, TANK, (), 1.0, **m.bem_options).conductance(m.nodes[m.ref_index[:1]]).K_S
     np.testing.assert_allclose(m.K_ref[:1], K_default, rtol=2e-5, atol=0)
-    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, **coarse_options()).conductance(m.nodes[-1:]).K_S
-    np.testing.assert_allclose(m.K_nodes[-1:], user, rtol=1e-9, atol=1e-12 * np.abs(user).max())
+    last = m.nodes[-1:]
+    faces = image_faces_near(SENSOR, TANK, last)[0]
+    assert faces     # this shallow tank's floor and free surface are near every pose
+    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, image_face=faces, **coarse_options())
+    K_user = user.conductance(last).K_S
+    np.testing.assert_allclose(m.K_nodes[-1:], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
     other = np.setdiff1d(np.arange(len(m.nodes)), m.ref_index)
     ratio = m.conductance(m.nodes[other])[:, iu[0], iu[1]] / m.K_nodes[other][:, iu[0], iu[1]]
     assert np.abs(ratio - 1).max() < 0.02 and np.abs(ratio - 1).max() > 1e-6
@@ -198,11 +206,12 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
 def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_ahead(built, tmp_path, monkeypatch):
     """Two spawned workers, one of which sets the reference sweep up while the other solves coarse poses: each
     pose's K is the in-process BEM's at that pose, whichever worker solved it."""
-    from electrosense.validation.simulation.tank_map import MAP_COUPLING_TOL, _BemPool
+    from electrosense.validation.simulation.tank_map import IMAGE_FACES_WITHIN_M, MAP_COUPLING_TOL, _BemPool
 
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     m, _ = built
-    options = {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL}, "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}
+    options = {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL, "image_faces_within_m": IMAGE_FACES_WITHIN_M},
+               "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}
     pool = _BemPool(SENSOR, TANK, (), options, workers=2)
     try:
         assert pool._warming is not None

@@ -34,8 +34,9 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    (:meth:`TankMap._fit_correction`). The reference is also the finer tank
    mesh (:data:`REFERENCE_TANK_GRADING`), and the coarse poses' tank mesh is
    coarser near a wall (:data:`COARSE_TANK_NEAR_RATIO`: such a pose costs its
-   tank mesh): the correction carries the tank mesh's error with the sensor
-   mesh's.
+   tank mesh), its flat faces near the sensor image planes instead
+   (:func:`image_faces_near`; the reference poses keep them meshed): the
+   correction carries the tank mesh's error with the sensor mesh's.
 
 The map is one ``.npz`` file: the nodes, the BEM's K there, the interpolant's
 coefficients, the scene, the sensor, the BEM options and the code version;
@@ -65,8 +66,8 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "build_tank_map", "load_tank_map",
-           "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "image_faces_near", "build_tank_map",
+           "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
 
@@ -694,14 +695,17 @@ def _pool_worker_init(*args):
 
 def _worker_sweep(fidelity: str):
     """This process's :class:`~electrosense.bem.PoseSweep` on the ``fidelity``'s sensor mesh, set up on first use
-    (a map without a correction never pays for the reference); its sensor block goes to the disk cache, where
-    the other workers find it."""
+    (a map without a correction never pays for the reference), and the distance within which its poses take the
+    tank's flat faces as image planes (None: never; the options' ``image_faces_within_m``); its sensor block goes
+    to the disk cache, where the other workers find it."""
     from electrosense.bem import PoseSweep
 
     if fidelity not in _WORKER["sweeps"]:
         sensor, tank, objects = _WORKER["args"]
+        options = dict(_WORKER["options"][fidelity])
+        within_m = options.pop("image_faces_within_m", None)
         _WORKER["sweeps"][fidelity] = PoseSweep(sensor, tank, objects, sigma_S_per_m=1.0,
-                                                memory_share=_WORKER["memory_share"], **_WORKER["options"][fidelity])
+                                                memory_share=_WORKER["memory_share"], **options), within_m
     return _WORKER["sweeps"][fidelity]
 
 
@@ -715,17 +719,59 @@ def _worker_solve(poses, fidelity: str = "coarse"):
     """K at ``poses`` on the ``fidelity``'s sensor mesh ("coarse" or "ref"), each pose on a tank mesh graded to it
     alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared), this process's id and its
     CPU seconds so far (its set-up included)."""
-    sweep = _worker_sweep(fidelity)
+    sweep, within_m = _worker_sweep(fidelity)
     if sweep.tank is None and not sweep.objects:
         return sweep.conductance(poses).K_S, os.getpid(), time.process_time()
-    return each_on_its_own_tank_mesh(sweep, poses), os.getpid(), time.process_time()
+    return each_on_its_own_tank_mesh(sweep, poses, within_m), os.getpid(), time.process_time()
 
 
-def each_on_its_own_tank_mesh(sweep, poses) -> np.ndarray:
+def each_on_its_own_tank_mesh(sweep, poses, image_faces_within_m: float | None = None) -> np.ndarray:
     """K (P, n, n) of a :class:`~electrosense.bem.PoseSweep` at ``poses`` (P, 4), each on a tank mesh graded to
-    it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared): as a map's nodes."""
-    return np.concatenate([sweep.with_focus(tank_near_ratio=sweep.tank_near_ratio).conductance(pose[None]).K_S
-                           for pose in poses])
+    it alone (:meth:`~electrosense.bem.PoseSweep.with_focus`, the sensor's block shared), the tank's flat faces
+    within ``image_faces_within_m`` of the sensor image planes (:func:`image_faces_near`; None: every face
+    meshed): as a map's nodes."""
+    if image_faces_within_m is None or sweep.tank is None:
+        faces = [()] * len(poses)
+    else:
+        faces = image_faces_near(sweep.sensor, sweep.tank, poses, image_faces_within_m)
+    return np.concatenate([sweep.with_focus(tank_near_ratio=sweep.tank_near_ratio, image_face=f or None)
+                           .conductance(pose[None]).K_S for pose, f in zip(poses, faces)])
+
+
+#: a flat face of the tank within this distance (m) of the sensor's surface is an image plane at a map's coarse
+#: BEM poses (:func:`image_faces_near`); beyond it the BEM's default tank mesh is within 0.005 % of the image
+#: (angels-4 parallel to the 1 m tank's wall: 0.030 / 0.028 / 0.020 / 0.012 / 0.005 % at 5 / 10 / 20 / 40 / 80
+#: mm), so a face that enters the images as the pose moves changes K by no more than that
+IMAGE_FACES_WITHIN_M = 0.08
+
+
+def image_faces_near(sensor, tank, poses: np.ndarray, within_m: float = IMAGE_FACES_WITHIN_M) -> list:
+    """The tank's flat faces within ``within_m`` of the sensor's surface at each of ``poses`` (P, 4), at most one
+    of each pair of opposite faces (the nearer): a tuple of names per pose, empty where none is that near.
+
+    A map's coarse BEM poses take them as image planes (:mod:`electrosense.bem.image_plane`; mutually
+    perpendicular: a box's wall, the next wall and the floor at a corner), its reference poses mesh them. On the
+    coarse sensor mesh an image costs no more than the face's mesh (the sensor's own image is what makes it dear,
+    and the coarse sensor is small), and it takes the tank mesh's error, largest next to the sensor and steepest
+    in the pose, out of the K the many poses interpolate: the correction to the reference, known at fewer poses,
+    then carries the reference tank mesh's error, which is smooth. Every face that near, not only the nearest
+    (the nearest alone switched from wall to wall across a corner, and the other's mesh error made a step).
+
+    >>> from electrosense.meshes import Tank, preset
+    >>> image_faces_near(preset("angels-4"), Tank((1.0, 1.0, 1.0)), np.array([[0.2, 0.45, 0.0, 0.0], [0, 0, 0, 0]]))
+    [('wall_y+',), ()]
+    """
+    gap = tank.distance_to_boundary_m(_axis_points(sensor, poses)).min(axis=1) - sensor.radius_m   # (P, regions)
+    column = {name: k for k, name in enumerate(tank.region_names)}
+    out = []
+    for g in gap:
+        faces = []
+        for a, b in tank.flat_region_pairs:
+            nearer = a if g[column[a]] <= g[column[b]] else b
+            if g[column[nearer]] < within_m:
+                faces.append(nearer)
+        out.append(tuple(faces))
+    return out
 
 
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
@@ -871,7 +917,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL},
                   "coarse": {**options, "tol": MAP_COUPLING_TOL, "edge_length_m": coarse_edge_m,
                              **({} if tank is None else {"tank_grading": coarse_grading,
-                                                         "tank_near_ratio": COARSE_TANK_NEAR_RATIO})}}
+                                                         "tank_near_ratio": COARSE_TANK_NEAR_RATIO,
+                                                         "image_faces_within_m": IMAGE_FACES_WITHIN_M})}}
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:
