@@ -739,9 +739,10 @@ def each_on_its_own_tank_mesh(sweep, poses, image_faces_within_m: float | None =
 
 
 #: a flat face of the tank within this distance (m) of the sensor's surface is an image plane at a map's coarse
-#: BEM poses (:func:`image_faces_near`); beyond it the BEM's default tank mesh is within 0.005 % of the image
-#: (angels-4 parallel to the 1 m tank's wall: 0.030 / 0.028 / 0.020 / 0.012 / 0.005 % at 5 / 10 / 20 / 40 / 80
-#: mm), so a face that enters the images as the pose moves changes K by no more than that
+#: BEM poses (:func:`image_faces_near`). The coarse poses' tank mesh against the image (angels-4 3 degrees off
+#: parallel to the 1 m tank's wall, the coarse sensor mesh, COARSE_TANK_NEAR_RATIO): 0.108 / 0.040 / 0.016 / 0.010
+#: / 0.007 / 0.0065 % at 5 / 20 / 40 / 60 / 80 / 100 mm, so a face that enters the images as the pose moves makes
+#: a step of about 0.007 % in the coarse K, which a larger distance would hardly lower (the mesh's far error)
 IMAGE_FACES_WITHIN_M = 0.08
 
 
