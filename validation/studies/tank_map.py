@@ -189,8 +189,10 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
     ax.axhline(0.05, color="0.3", ls=":", lw=1, label="bench noise")
     ax.set_xlabel("x of the sensor centre (m); heading along x")
     ax.set_ylabel("largest |model / BEM - 1| (%)")
-    ax.set_title(f"{sensor.n_electrodes}-electrode sensor, tips {gap.min():.0f} mm to "
-                 f"{gap.max():.0f} mm from the end walls")
+    round_tank = hasattr(tank, "radius_m")
+    ax.set_title(f"{sensor.n_electrodes}-electrode sensor along a {'diameter' if round_tank else 'line'} of the tank,\n"
+                 f"tips {gap.min():.0f} mm to {gap.max():.0f} mm from {'its wall' if round_tank else 'the end walls'}"
+                 f"{'' if ok.any() else ' (the PSM: no images of a round wall)'}", fontsize=9)
     ax.legend(fontsize=7)
     save(fig, out, vector=None)
     return {"x_m": x.tolist(), "map": err_map.tolist(), "psm": err_psm.tolist()}
