@@ -324,7 +324,8 @@ def test_the_wall_images_grow_at_a_wall_are_the_same_at_a_folded_pose_and_have_t
         P[:, 2] = rng.uniform(-0.05, 0.05, len(P))
     R, dR = frame.wall_images(P, jacobian=True)
     k = len(np.unique(SENSOR.electrode_centres_m[:, 0]))
-    assert R.shape == (len(P), k * (k + 1) // 2) and dR.shape == (len(P), 3, R.shape[1])
+    pairs = k * (k + 1) // 2     # the walls' group first, then (a box) the edges'
+    assert R.shape == (len(P), frame.n_image_groups * pairs) and dR.shape == (len(P), 3, R.shape[1])
     assert np.allclose(frame.wall_images(frame.folded(P)), R, rtol=1e-10)
     for j, axis in enumerate((0, 1, 3)):
         d = np.zeros(4)
@@ -334,8 +335,9 @@ def test_the_wall_images_grow_at_a_wall_are_the_same_at_a_folded_pose_and_have_t
     wall_x = float(tank.radius_at(0.0)) if hasattr(tank, "radius_at") else tank.water_bounds_m[1][0]
     reach = wall_x - 0.5 * SENSOR.length_m        # the head's tip at the +x wall
     line = np.c_[np.linspace(0.0, reach - 0.005, 20), np.zeros((20, 2)), np.zeros(20)]
-    assert np.all(np.diff(frame.wall_images(line)[-5:].sum(axis=1)) > 0)   # nearer the wall, every step larger
-    assert frame.wall_images(line[-1:])[0, -1] > 3 * frame.wall_images(line[:1])[0, -1]   # the head's own image
+    walls = frame.wall_images(line)[:, :pairs]
+    assert np.all(np.diff(walls[-5:].sum(axis=1)) > 0)   # nearer the wall, every step larger
+    assert walls[-1, -1] > 3 * walls[0, -1]               # the head's own image
 
 
 def test_the_map_regresses_on_the_wall_images_where_they_carry_the_walls_effect():

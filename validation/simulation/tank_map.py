@@ -69,7 +69,7 @@ from electrosense.validation.simulation.workers import exit_with_parent, one_thr
 __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "image_faces_near", "build_tank_map",
            "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 7"   # 7: the images' powers stored (6: a flag)
+MAP_FORMAT = "electrosense tank map 8"   # 8: the edges' images a group of their own (7: the images' powers stored)
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
