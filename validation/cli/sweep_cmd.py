@@ -158,7 +158,7 @@ def _sweep(o):
     from electrosense.meshes.tank import Tank
     from electrosense.validation.simulation.models import code_version, pose_evaluator
     from electrosense.validation.simulation.sweep.grid import line_poses, parse_grid, parse_xy
-    from electrosense.validation.simulation.sweep.runner import default_chunk_poses, local_cores, run_sweep
+    from electrosense.validation.simulation.sweep.runner import ctrl_c_held, default_chunk_poses, local_cores, run_sweep
     from electrosense.validation.simulation.sweep.store import export_netcdf, open_sweep, remove_store
 
     model, psm_file, workers, out = o.model, o.psm_file, o.workers, Path(o.output)
@@ -243,8 +243,10 @@ def _sweep(o):
     evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
                                poses=poses, **bem_options, **({"tank_map": tank_map} if model == "map" else {}))
     chunk_poses = o.chunk_poses or default_chunk_poses(len(poses), n_workers)
-    store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
-                        overwrite=o.overwrite)
+    with ctrl_c_held() as release:   # a store is written whole; a Ctrl-C meanwhile is raised after it
+        store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
+                            overwrite=o.overwrite)
+        release()
     pending = store.pending_chunks()
     if pending:
         n_left = sum(b - a for a, b in pending)

@@ -125,9 +125,14 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
     if n == 1:
         yield None
         return
+    from multiprocessing import resource_tracker
+
     from dask.distributed import Client, LocalCluster
 
-    with _workers_ignore_ctrl_c():  # the workers start with SIGINT ignored; this process gets it back at once
+    # the resource tracker, started by the first worker process, unblocks SIGINT in the thread that starts it
+    # (the cluster's event loop, and then every thread and worker that loop starts): started here, before
+    resource_tracker.ensure_running()
+    with ctrl_c_held() as release:   # the workers never see Ctrl-C; this process's waits for the start
         cluster = LocalCluster(
             n_workers=n,
             threads_per_worker=1,
@@ -137,22 +142,23 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
             memory_limit=0,  # the models check their own memory needs
             silence_logs=logging.ERROR,
         )
-    with cluster, Client(cluster, set_as_default=False) as client:
-        # dask sets the BLAS's threads through the environment, not numba's or scipy's; a plugin reaches every
-        # worker, also one the nanny starts again after a crash
-        client.register_plugin(_one_thread_plugin())
-        try:
-            yield client
-        except KeyboardInterrupt:
-            # the user stopped the run: as the cluster closes, the scheduler's handlers of the operations in
-            # flight (a scatter of the next chunk's model) and the workers' heartbeats fail and would log their
-            # tracebacks under the one line the interrupt prints
-            logging.getLogger("distributed").setLevel(logging.CRITICAL)
+        with cluster, Client(cluster, set_as_default=False) as client:
+            # dask sets the BLAS's threads through the environment, not numba's or scipy's; a plugin reaches every
+            # worker, also one the nanny starts again after a crash
+            client.register_plugin(_one_thread_plugin())
             try:
-                client.run(_quiet_distributed_logs, wait=True)
-            except Exception:   # a worker already gone: nothing of it left to log
-                pass
-            raise
+                release()   # a Ctrl-C while the cluster started is raised here, and handled as any other
+                yield client
+            except KeyboardInterrupt:
+                # the user stopped the run: as the cluster closes, the scheduler's handlers of the operations in
+                # flight (a scatter of the next chunk's model) and the workers' heartbeats fail and would log
+                # their tracebacks under the one line the interrupt prints
+                logging.getLogger("distributed").setLevel(logging.CRITICAL)
+                try:
+                    client.run(_quiet_distributed_logs, wait=True)
+                except Exception:   # a worker already gone: nothing of it left to log
+                    pass
+                raise
 
 
 def _quiet_distributed_logs() -> None:
@@ -175,26 +181,53 @@ def _one_thread_plugin():
 
 
 @contextmanager
-def _workers_ignore_ctrl_c():
-    """Start worker processes with SIGINT ignored: Ctrl-C reaches this process alone.
+def ctrl_c_held():
+    """Hold Ctrl-C through a step that must not stop halfway, and start processes that never see it.
 
-    A terminal sends Ctrl-C to every process of the foreground group; without
-    this each dask worker would print its own KeyboardInterrupt traceback.
-    Here the interrupt stops the run in the client, which closes the cluster
-    (the chunks already landed stay in the store). Child processes inherit an
-    ignored signal; the handler of this process is restored at once.
+    Inside the block SIGINT is blocked in this thread: the threads and processes started from it meanwhile
+    inherit the mask and never receive it (a dask cluster's event loop and its nannies' workers: a terminal
+    sends Ctrl-C to every process of the foreground group, and a worker that got it would print its own
+    KeyboardInterrupt traceback). The kernel hands a SIGINT that arrives meanwhile to a thread started before
+    (zarr's event loop), whose note of it this process's handler keeps. Calling the yielded ``release()``
+    restores the handler and the mask and raises KeyboardInterrupt for a Ctrl-C held meanwhile, where the
+    caller handles it (inside the cluster's context, which then closes it; after a store is whole); leaving
+    the block releases without raising. An interrupt used to be ignored while the cluster started, and one in
+    those seconds (3-10 s on 2 busy cores) was lost; one while a sweep's store was written left zarr's
+    tasks pending, each said at exit. Without ``signal.pthread_sigmask`` (Windows), or off the main thread,
+    nothing is held.
+
+    >>> with ctrl_c_held() as release:
+    ...     release()        # nothing held: returns
     """
     import signal
     import threading
 
-    if threading.current_thread() is not threading.main_thread():
-        yield
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield lambda: None
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
+    held = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    released = False
+
+    def release(raise_held: bool = True) -> None:
+        nonlocal released
+        if released:
+            return
+        released = True
+        if signal.SIGINT in signal.sigpending():   # one sent to this thread: noted, not delivered
+            held.append(signal.SIGINT)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)     # discards the pending one
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        if held and raise_held:
+            raise KeyboardInterrupt
+
+    try:
+        yield release
+    finally:
+        release(raise_held=False)
 
 
 def default_chunk_poses(n_poses: int, workers: int) -> int:
