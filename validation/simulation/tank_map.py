@@ -648,22 +648,6 @@ def _refine_pays(rms_coarse: float, n_coarse: int, cpu_coarse_s: float | None, r
     return rms_ref**2 / (n_ref * cpu_ref_s) > rms_coarse**2 / (max(n_coarse, 1) * cpu_coarse_s)
 
 
-def _refine_for_the_max(err_coarse: np.ndarray, err_ref: np.ndarray, target_max: float) -> bool:
-    """Once the RMS target is met, whether the next round goes to reference poses: where the candidates still over
-    ``target_max`` err more through the correction than through the coarse interpolation (their squared
-    estimated errors summed), which :func:`_refine_pays`, weighing the RMS, does not see. On a random sensor's
-    map (seed 2) the RMS target was met at 219 s of its 294 and the rule on the RMS then spent 50 s on four
-    reference rounds while its worst candidates, in the tank's corners, were the interpolation's (0.12 %
-    against 0.006 % at the worst fresh pose).
-
-    >>> err_c, err_r = np.array([1e-4, 8e-4]), np.array([2e-4, 1e-4])
-    >>> _refine_for_the_max(err_c, err_r, 5e-4), _refine_for_the_max(err_r, err_c, 5e-4)
-    (False, True)
-    """
-    over = np.hypot(err_coarse, err_ref) > target_max
-    return bool(over.any()) and float(np.sum(err_ref[over] ** 2)) > float(np.sum(err_coarse[over] ** 2))
-
-
 #: the coarse sensor mesh's edge over the reference's, for the many poses of a map (the reference mesh, 3.5x the
 #: CPU per pose, at fewer poses corrects them): 3 is the diagnosis anchors' factor
 COARSE_FACTOR = 3.0
@@ -897,9 +881,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser (at most as coarse as the
     mesher makes it, :func:`~electrosense.meshes.sensor_mesh.coarsest_edge_length_m`) and corrected by the
     reference at fewer poses (``first_ref`` first, then a round of them where it removes more of the
-    estimated error per CPU second than a round of coarse ones, :func:`_refine_pays` (once the RMS target is
-    met, where the candidates over ``target_max`` err more through the correction, :func:`_refine_for_the_max`),
-    at the nodes where the
+    estimated error per CPU second than a round of coarse ones, :func:`_refine_pays`, at the nodes where the
     correction's estimated error is largest and a share, :data:`REFERENCE_SPREAD_SHARE`, spread over the tank;
     1: every pose on the reference mesh); ``max_cpu_seconds``: CPU
     budget of the whole build, every process counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
@@ -1066,10 +1048,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             if rms <= target and err.max() <= target_max:
                 break
             # the next round: more coarse poses, or more reference ones, whichever buys more (_refine_pays)
-            # (once the RMS target is met, the part that makes the largest errors: _refine_for_the_max)
-            refine = corrected and len(ref_index) < len(nodes) and (
-                _refine_pays(rms_c, len(nodes), per_pose.get("coarse"), rms_r, len(ref_index), per_pose.get("ref"))
-                if rms > target else _refine_for_the_max(err_c, err_r, target_max))
+            refine = corrected and len(ref_index) < len(nodes) and _refine_pays(
+                rms_c, len(nodes), per_pose.get("coarse"), rms_r, len(ref_index), per_pose.get("ref"))
             # the last round is what the budget still pays for (a cylinder's 24 coarse poses cost 160 s of CPU:
             # whole rounds left up to that unspent), and its last seconds go to the cheaper coarse poses
             k = min(max(4, per_round // 3) if refine else per_round, affordable("ref" if refine else "coarse"))
