@@ -180,12 +180,12 @@ def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path
     (0.3 s after the store appears) and once it runs: no worker tracebacks, no zarr task left pending, the store
     kept whole. (In a tank: the PSM in unbounded water came to 300 000 poses/s and finished the grid before the
     signal.)"""
-    from electrosense.validation.simulation.sweep.store import open_sweep
-
     import os
     import signal
     import subprocess
     import sys
+
+    from electrosense.validation.simulation.sweep.store import open_sweep
 
     out = tmp_path / "map.csv"
     cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from electrosense.validation.cli import main; main()",

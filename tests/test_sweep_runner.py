@@ -220,3 +220,23 @@ def test_a_worker_with_other_model_code_refuses():
     K, seconds, meta = _evaluate_block(WallImageEvaluator(), line_poses((0, 0), (0.1, 0), 2),
                                        __import__("electrosense.validation.simulation.models", fromlist=["x"]).code_version())
     assert K.shape == (2, 4, 4) and meta["emitter"] == 4 and meta["info"]["triangles"] == 0
+
+
+def test_a_ctrl_c_inside_the_held_block_waits_for_release_and_the_handler_comes_back():
+    """SIGINT sent to this process inside ``ctrl_c_held`` raises nothing there; ``release()`` raises it once, and the
+    handler and the signal mask are what they were."""
+    import os
+    import signal
+
+    from electrosense.validation.simulation.sweep.runner import ctrl_c_held
+
+    handler, mask = signal.getsignal(signal.SIGINT), signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    with ctrl_c_held() as release:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)                      # a step that must not stop halfway goes on
+        with pytest.raises(KeyboardInterrupt):
+            release()
+        release()                             # once only
+    assert signal.getsignal(signal.SIGINT) is handler and signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
+    with ctrl_c_held() as release:            # nothing sent: nothing raised
+        release()

@@ -267,7 +267,7 @@ class MapFrame:
         functions where their leave-one-out errors favour it). A box: its four walls and four vertical edges
         (the paper's eight images), and the floor and free surface in a band, the edges' images (a wall's image in
         the next wall) a group of their own: with one coefficient for all, a sensor in a corner took the edge's
-        image at a single wall's weight (refitted on four studies' nodes, the split took a corner pose's error
+        image at a single wall's weight (refitted on the nodes of five studies' maps, the split took a corner pose's error
         from 0.156 % to 0.110 % and the poses 5-15 mm from a wall from 0.046 % / 0.123 % to 0.033 % / 0.068 %);
         a cylinder: each point mirrored across the wall along its radius (the tangent plane's image), and the
         floor and free surface in a band. Fixed objects have no images. Invariant under the tank's symmetries,

@@ -125,13 +125,16 @@ def dask_client(scheduler: str | None = None, workers: int | None = None, proces
     if n == 1:
         yield None
         return
-    from multiprocessing import resource_tracker
+    import signal
 
     from dask.distributed import Client, LocalCluster
 
-    # the resource tracker, started by the first worker process, unblocks SIGINT in the thread that starts it
-    # (the cluster's event loop, and then every thread and worker that loop starts): started here, before
-    resource_tracker.ensure_running()
+    if hasattr(signal, "pthread_sigmask"):   # POSIX
+        from multiprocessing import resource_tracker
+
+        # the resource tracker, started by the first worker process, unblocks SIGINT in the thread that starts
+        # it (the cluster's event loop, and then every thread and worker that loop starts): started here, before
+        resource_tracker.ensure_running()
     with ctrl_c_held() as release:   # the workers never see Ctrl-C; this process's waits for the start
         cluster = LocalCluster(
             n_workers=n,
@@ -219,7 +222,7 @@ def ctrl_c_held():
             held.append(signal.SIGINT)
             signal.signal(signal.SIGINT, signal.SIG_IGN)     # discards the pending one
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         if held and raise_held:
             raise KeyboardInterrupt
