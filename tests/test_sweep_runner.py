@@ -240,3 +240,22 @@ def test_a_ctrl_c_inside_the_held_block_waits_for_release_and_the_handler_comes_
     assert signal.getsignal(signal.SIGINT) is handler and signal.pthread_sigmask(signal.SIG_BLOCK, []) == mask
     with ctrl_c_held() as release:            # nothing sent: nothing raised
         release()
+
+
+def test_a_ctrl_c_ignored_by_the_process_stays_ignored_through_the_held_block():
+    """A process started with SIGINT ignored (a background job): the held block raises nothing at release and
+    leaves the signal ignored."""
+    import os
+    import signal
+
+    from electrosense.validation.simulation.sweep.runner import ctrl_c_held
+
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with ctrl_c_held() as release:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            release()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)

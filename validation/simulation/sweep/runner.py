@@ -196,8 +196,8 @@ def ctrl_c_held():
     caller handles it (inside the cluster's context, which then closes it; after a store is whole); leaving
     the block releases without raising. An interrupt used to be ignored while the cluster started, and one in
     those seconds (3-10 s on 2 busy cores) was lost; one while a sweep's store was written left zarr's
-    tasks pending, each said at exit. Without ``signal.pthread_sigmask`` (Windows), or off the main thread,
-    nothing is held.
+    tasks pending, each said at exit. A process started with Ctrl-C ignored (a background job) keeps it
+    ignored. Without ``signal.pthread_sigmask`` (Windows), or off the main thread, nothing is held.
 
     >>> with ctrl_c_held() as release:
     ...     release()        # nothing held: returns
@@ -224,7 +224,7 @@ def ctrl_c_held():
             signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
-        if held and raise_held:
+        if held and raise_held and previous is not signal.SIG_IGN:   # an ignored Ctrl-C stays ignored
             raise KeyboardInterrupt
 
     try:
