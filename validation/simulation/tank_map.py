@@ -7,9 +7,7 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
 1. the candidate poses: (x, y, heading) on a grid at depth ``z_m`` (or
    several depths of a band) with the sensor's surface at least
    ``wall_gap_m`` from every wall, floor, surface and object
-   (:func:`reachable_poses`), and the grid's poses nearest a wall or object
-   moved onto that gap (:func:`poses_at_the_gap`: tips and corners at the
-   closest reach), folded into the tank's fundamental domain
+   (:func:`reachable_poses`), folded into the tank's fundamental domain
    (:mod:`.map_coordinates`);
 2. the BEM as a user runs it at one pose (:class:`electrosense.bem.PoseSweep`,
    the sensor's block shared, each pose on a tank mesh graded to it alone,
@@ -68,7 +66,7 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "poses_at_the_gap", "sensor_wall_gap_m", "image_faces_near", "build_tank_map",
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "sensor_wall_gap_m", "image_faces_near", "build_tank_map",
            "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 8"   # 8: the edges' images a group of their own (7: the images' powers stored)
@@ -124,22 +122,16 @@ def _axis_points(sensor, poses, n_axis: int = 9) -> np.ndarray:
     return sensor_to_tank(axis, np.asarray(poses, float).reshape(-1, 4))  # (P, n_axis, 3)
 
 
-def boundary_gaps_m(sensor, tank, poses: np.ndarray, objects=()) -> np.ndarray:
-    """(P, B) the distance (m) from the sensor's surface (a cylinder of its radius with round ends) to each of the
-    tank's boundaries (its walls, floor and free surface, ordered as ``tank.distance_to_boundary_m``) and to each
-    of the fixed ``objects`` after them."""
-    from electrosense.meshes.scene_mesh import distance_to_object_m
-
-    pts = _axis_points(sensor, poses)
-    gaps = [tank.distance_to_boundary_m(pts).min(axis=1)]
-    gaps += [distance_to_object_m(obj, pts).min(axis=1)[:, None] for obj in objects]
-    return np.hstack(gaps) - sensor.radius_m
-
-
 def sensor_wall_gap_m(sensor, tank, poses: np.ndarray, objects=()) -> np.ndarray:
     """(P,) the smallest distance (m) from the sensor's surface (a cylinder of its radius with round ends) to the
     tank's walls, floor and free surface, and to the fixed ``objects``."""
-    return boundary_gaps_m(sensor, tank, poses, objects).min(axis=1)
+    from electrosense.meshes.scene_mesh import distance_to_object_m
+
+    pts = _axis_points(sensor, poses)
+    gap = tank.distance_to_boundary_m(pts).min(axis=(1, 2))
+    for obj in objects:
+        gap = np.minimum(gap, distance_to_object_m(obj, pts).min(axis=1))
+    return gap - sensor.radius_m
 
 
 def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: float = 0.01, n_headings: int = 48,
@@ -154,54 +146,6 @@ def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: flo
     X, Y, Z, W = np.meshgrid(xs, ys, zs, yaws, indexing="ij")
     P = np.c_[X.ravel(), Y.ravel(), Z.ravel(), W.ravel()]
     return P[sensor_wall_gap_m(sensor, tank, P, objects) >= wall_gap_m]
-
-
-def poses_at_the_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, within_m: float, objects=(),
-                     steps: int = 3) -> np.ndarray:
-    """(Q, 4) the ``poses`` whose sensor lies within ``within_m`` of the gap ``wall_gap_m`` from a wall or
-    object, moved across the water (x, y; depth and heading kept) until it is at that gap exactly: from each
-    such pose, one moved onto each near boundary alone and, where two or more are near (a corner), one moved
-    onto all of them. A grid of spacing h puts the sensor anywhere from the gap to the gap + h from a wall, so
-    the closest poses a robot can take, where a wall's effect is largest and changes fastest, are missing from
-    it; these are them. A wall's gap is moved to by Newton steps on its gradient in (x, y) (finite differences:
-    exact in one for a flat wall); the floor and the free surface, flat across the water, are not moved to;
-    a pose that cannot reach every chosen gap with all others open is dropped.
-
-    >>> from electrosense.meshes import preset
-    >>> from electrosense.meshes.tank import Tank
-    >>> sensor, tank = preset("angels-4"), Tank((1.0, 1.0, 1.0))
-    >>> P = np.array([[0.385, 0.0, 0.0, 0.0], [0.385, 0.475, 0.0, 0.0]])   # a tip 15 mm from a wall; a corner
-    >>> Q = poses_at_the_gap(sensor, tank, P, 0.005, 0.02)
-    >>> len(Q), np.round(1e3 * sensor_wall_gap_m(sensor, tank, Q), 6).tolist()
-    (4, [5.0, 5.0, 5.0, 5.0])
-    """
-    poses = np.asarray(poses, float).reshape(-1, 4)
-    h = 1e-5
-    gaps = lambda P: boundary_gaps_m(sensor, tank, P, objects)   # noqa: E731
-
-    def gradient(P):
-        G = gaps(P)
-        return G, np.stack([(gaps(P + np.r_[h, 0.0, 0.0, 0.0]) - G) / h,
-                            (gaps(P + np.r_[0.0, h, 0.0, 0.0]) - G) / h], axis=-1)   # (P, B, 2)
-
-    G, D = gradient(poses)
-    near = (G < wall_gap_m + within_m) & (np.linalg.norm(D, axis=-1) > 0.5)   # walls and objects, not the floor
-    masks = [near & (np.arange(near.shape[1]) == b) for b in range(near.shape[1])]
-    masks.append(np.where(near.sum(axis=1, keepdims=True) >= 2, near, False))
-    target = wall_gap_m * (1.0 + 1e-9) + 1e-12
-    out = []
-    for mask in masks:
-        rows = mask.any(axis=1)
-        P, M = poses[rows].copy(), mask[rows]
-        for _ in range(steps):   # least-norm Newton steps onto the chosen gaps
-            G, D = gradient(P)
-            A = np.where(M[..., None], D, 0.0)
-            r = np.where(M, target - G, 0.0)
-            P[:, :2] += np.einsum("pij,pj->pi", np.linalg.pinv(A), r)
-        G = gaps(P)
-        ok = (G.min(axis=1) >= wall_gap_m) & (np.where(M, np.abs(G - target), 0.0).max(axis=1) < 1e-6)
-        out.append(P[ok])
-    return np.vstack(out) if out else np.zeros((0, 4))
 
 
 def _farthest_points(F: np.ndarray, k: int, start: np.ndarray | None = None) -> np.ndarray:
@@ -988,7 +932,6 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     C = reachable_poses(sensor, tank, depths, wall_gap_m, spacing_m, n_headings, objects)
     if not len(C):
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
-    C = np.vstack([C, poses_at_the_gap(sensor, tank, C, wall_gap_m, spacing_m, objects)])
     frame = MapFrame(sensor, tank, objects, band, warp_m)
     F = frame.features(C)
     if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses all lie in the
@@ -997,7 +940,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         C, F = frame.folded(C[np.sort(keep)]), F[np.sort(keep)]
     T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
-        f"{wall_gap_m * 1e3:g} mm from the walls and the grid's nearest moved to it{', folded by the tank symmetry' if frame.symmetric else ''})")
+        f"{wall_gap_m * 1e3:g} mm from the walls{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
     n = K_free.shape[0]
     nodes, K_nodes, history = np.zeros((0, 4)), np.zeros((0, n, n)), []
