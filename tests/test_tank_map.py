@@ -135,6 +135,41 @@ def _synthetic_nodes(seed, n_poses, spacing_m, n_headings):
     return rng, P, MapFrame(SENSOR, TANK), iu, K_free
 
 
+@pytest.mark.parametrize("tank, objects", [(Tank((0.62, 0.47, 0.3)), ()),
+                                           (CylinderTank(0.27, 0.3, floor_radius_m=0.24), ()),
+                                           (Tank((0.62, 0.47, 0.3)), (Sphere((0.05, 0.02, 0.0), 0.03),))],
+                         ids=["box", "taper", "box and ball"])
+def test_the_candidates_put_a_tip_at_the_closest_gap_facing_every_wall(tank, objects):
+    """A grid leaves a tip up to a spacing short of the closest gap; the tips moved onto it put a random sensor's
+    tip at the gap exactly, facing the wall (or the ball) it is near, at both ends of the sensor, and nowhere
+    closer to anything."""
+    from electrosense.validation.diagnosis.unseen import random_sensor
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m, sensor_wall_gap_m, tips_at_the_gap
+
+    sensor = random_sensor(np.random.default_rng(5), 4)
+    gap, spacing = 0.005, 0.02
+    C = reachable_poses(sensor, tank, 0.0, gap, spacing, 8, objects)
+    Q = tips_at_the_gap(sensor, tank, C, gap, spacing, objects)
+    assert len(Q) and np.allclose(sensor_wall_gap_m(sensor, tank, Q, objects), gap, rtol=0, atol=1e-8)
+    assert np.allclose(Q[:, 2], 0.0) and np.isin(Q[:, 3], C[:, 3]).all()   # depth and headings kept
+    G = boundary_gaps_m(sensor, tank, Q, objects)
+    at = np.abs(G - gap) < 1e-8
+    assert (at.sum(axis=1) == 1).all()                      # one boundary each: a tip, not a side
+    walls = range(4) if isinstance(tank, Tank) else range(1)
+    assert all(at[:, b].any() for b in walls)               # every wall faced
+    if objects:
+        assert at[:, -1].any()                              # and the ball
+    # the tips' positions: at the gap + the sensor's radius from the boundary, along the axis either way
+    tip_on = np.isclose(np.cos(Q[:, 3]) ** 2, 1.0) & at[:, 0] if isinstance(tank, Tank) else None
+    if tip_on is not None:
+        lo = tank.water_bounds_m[0][0]
+        assert np.allclose(np.abs(Q[tip_on, 0] - lo) - 0.5 * sensor.length_m, gap, atol=1e-8)
+        assert len(np.unique(np.round(np.cos(Q[tip_on, 3])))) == 2   # either end of the sensor at the wall
+    assert sensor_wall_gap_m(sensor, tank, C[np.isclose(np.cos(C[:, 3]) ** 2, 1.0)], objects).min() > gap + 1e-4
+    assert not tips_at_the_gap(sensor, tank, C[sensor_wall_gap_m(sensor, tank, C, objects) > gap + spacing],
+                               gap, spacing, objects).size
+
+
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):
@@ -424,8 +459,8 @@ def test_the_map_error_covariance_holds_its_estimate_and_is_smooth_along_a_pass(
     """The covariance's diagonal is the estimated error's square, it is a covariance (positive semi-definite), and
     the error of two poses a millimetre apart is nearly one error while that of poses across the tank is not."""
     m, _ = built
-    P = np.c_[np.linspace(-0.08, 0.08, 17), np.full(17, 0.05), np.zeros(17), np.full(17, 0.3)]
-    P = np.r_[P, [[-0.079, 0.05, 0.0, 0.3]]]
+    P = np.c_[np.linspace(-0.12, 0.12, 17), np.full(17, 0.05), np.zeros(17), np.full(17, 0.3)]
+    P = np.r_[P, [[-0.119, 0.05, 0.0, 0.3]]]
     C = m.error_covariance(P)
     sd = m.estimated_error(P).ravel()
     n = m.estimated_error(P).shape[1]
