@@ -991,7 +991,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     C = reachable_poses(sensor, tank, depths, wall_gap_m, spacing_m, n_headings, objects)
     if not len(C):
         raise ValueError(f"no pose at depth z = {z_m} m keeps the sensor {wall_gap_m} m from the walls")
-    tips = tips_at_the_gap(sensor, tank, C, wall_gap_m, spacing_m, objects)
+    # the tips facing a wall square on, to within half the grid's heading step (one heading a wall position)
+    tips = tips_at_the_gap(sensor, tank, C, wall_gap_m, spacing_m, objects, facing_rad=np.pi / n_headings)
     is_tip = np.r_[np.zeros(len(C), bool), np.ones(len(tips), bool)]
     C = np.vstack([C, tips])
     frame = MapFrame(sensor, tank, objects, band, warp_m)
