@@ -1090,12 +1090,12 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             say(f"reference BEM at up to {first_ref - len(ref_index)} of them (sensor mesh edge "
                 f"{1e3 * options['edge_length_m']:.2f} mm)")
             X = frame.features(nodes)
-            # not at the tips at the gap: the correction is smooth there (seed 4's box: 0.005-0.025 % at 16 such
-            # poses from none of them), and a reference pose there costs its wall's mesh
-            off_gap = np.flatnonzero(sensor_wall_gap_m(sensor, tank, nodes, objects) > wall_gap_m + 1e-6)
-            off_gap = np.setdiff1d(off_gap, ref_index)
-            spread = off_gap[_farthest_points(X[off_gap], min(first_ref - len(ref_index), len(off_gap)),
-                                              X[ref_index] if len(ref_index) else None)]
+            # among the grid's first poses, not the tips at the gap after them: the correction is smooth there
+            # (seed 4's box: 0.005-0.025 % at 16 such poses from none of them), and a reference pose there costs
+            # its wall's mesh
+            grid_first = np.setdiff1d(np.arange(min(first, len(nodes))), ref_index)
+            spread = grid_first[_farthest_points(X[grid_first], min(first_ref - len(ref_index), len(grid_first)),
+                                                 X[ref_index] if len(ref_index) else None)]
             for chunk in np.array_split(spread, int(np.ceil(len(spread) / MIN_REFERENCE_POSES))) if len(spread) else []:
                 if len(ref_index) >= MIN_REFERENCE_POSES and spent("ref", len(chunk)):
                     say(f"time budget spent after {len(ref_index)} reference poses")
