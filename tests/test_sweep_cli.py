@@ -191,7 +191,10 @@ def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path
     cmd = [sys.executable, "-c", "import sys; sys.argv[0] = 'esense'; from electrosense.validation.cli import main; main()",
            "sweep", "--model", "psm", "--psm", str(psm_file), "--sensor", "angels-4", "--tank", "1,1,1",
            "--grid", "-0.3:0.3:1200,-0.3:0.3:1200", "--workers", "2", "--quiet", "-o", str(out)]
-    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # Ctrl-C as a terminal's foreground job has it: a test run started in the background (a non-interactive
+    # shell's `&`) ignores SIGINT, its children inherit that, and a sweep so started rightly keeps ignoring it
+    p = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     store = tmp_path / "map.csv.partial.zarr"
     t0 = time.monotonic()
     while not store.exists() and time.monotonic() - t0 < 60 and p.poll() is None:
