@@ -68,8 +68,9 @@ from electrosense.bem.conductance import pair_values
 from electrosense.validation.simulation.map_coordinates import DEFAULT_WARP_M, MapFrame
 from electrosense.validation.simulation.workers import exit_with_parent, one_thread
 
-__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "sensor_wall_gap_m", "image_faces_near", "build_tank_map",
-           "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record", "same_scene"]
+__all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "boundary_gaps_m", "sensor_wall_gap_m",
+           "image_faces_near", "build_tank_map", "load_tank_map", "MAP_FORMAT", "scene_record", "scene_from_record",
+           "same_scene"]
 
 MAP_FORMAT = "electrosense tank map 8"   # 8: the edges' images a group of their own (7: the images' powers stored)
 
@@ -1004,7 +1005,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         C, F, is_tip = frame.folded(C[keep]), F[keep], is_tip[keep]
     T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
-        f"{wall_gap_m * 1e3:g} mm from the walls, {int(is_tip.sum())} of them a tip at that gap{', folded by the tank symmetry' if frame.symmetric else ''})")
+        f"{wall_gap_m * 1e3:g} mm from the walls, {int(is_tip.sum())} of them a tip at that gap"
+        f"{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
     n = K_free.shape[0]
     nodes, K_nodes, history = np.zeros((0, 4)), np.zeros((0, n, n)), []
