@@ -27,6 +27,11 @@ Three facts make the BEM's K far easier to interpolate than it looks in (x, y, h
    electrodes' mirror images in it (:meth:`MapFrame.wall_images`), which the
    map may take as linear regressors beside its radial basis functions.
 
+4. **the fold's faces**: an interpolant over folded nodes has nodes on one
+   side of each mirror plane only, and errs there as at any edge of its
+   nodes; a node near a face lends it its mirror image
+   (:meth:`MapFrame.mirror_ghosts`), so the plane is inside the nodes again.
+
 Folded and warped, a cubic RBF on 60 BEM poses of a 4-electrode sensor in a
 0.6 x 0.5 x 0.4 m box came 10x closer to the BEM at fresh poses (tips 5 mm to
 17 cm from a wall) than on the bare tip positions: 0.54 % RMS against 5.6 %.
@@ -54,6 +59,10 @@ __all__ = ["MapFrame", "warp", "DEFAULT_WARP_M"]
 #: error at fresh poses was flat from 0.3 to 1 mm and grew above: 0.54, 0.66, 0.78 % RMS at 1, 3, 5 mm, 1.1 % at
 #: 10 mm, 4.0 % at 100 mm)
 DEFAULT_WARP_M = 0.001
+
+#: a mirror image of a node nearer than this many times the node's spacing to any node is left out
+#: (:meth:`MapFrame.mirror_ghosts`): a quintic kernel's matrix is near singular for two close nodes
+GHOST_MIN_GAP = 0.5
 
 
 def warp(u: np.ndarray, lo, hi, c: float) -> tuple[np.ndarray, np.ndarray]:
@@ -153,6 +162,67 @@ class MapFrame:
         u, v, hx, hy = np.where(swap, v, u), np.where(swap, u, v), np.where(swap, hy, hx), np.where(swap, hx, hy)
         return np.c_[u, v, p[:, 2], np.arctan2(hy, hx)]
 
+    def mirror_ghosts(self, F: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mirror images of nodes across the fundamental domain's faces, in features: ``(F_ghost, source, odd)``.
+
+        The fold (:meth:`folded`) cuts the pose space along the tank's mirror planes, and an interpolant over
+        the folded nodes has nodes on one side of each cut only: it extrapolates there, as at the edge of any
+        node set, though the BEM's K goes on smoothly across the plane (seed 4's box: a tip 5 mm from a wall
+        on the plane y = 0 erred 0.09-0.10 %, at 6-18 cm from it 0.01-0.02 %). A node's mirror image across a
+        face has the node's K (the electrodes permuted by the sensor's lateral mirror where the image is
+        reflected, ``odd``) and in features it is the node with its lateral coordinates negated (a box's y = 0
+        and x = 0 planes, and their product near the box's centre line), or its two coordinates swapped (a
+        square's diagonal), or its centre's offset from the axis negated (a cylinder). Those within ``reach``
+        times the node's distance to its nearest other node of it (and not on the face itself: a node there is
+        its own image) are returned, ``source`` the index of their node.
+
+        >>> from electrosense.meshes import preset
+        >>> from electrosense.meshes.tank import Tank
+        >>> frame = MapFrame(preset("angels-4"), Tank((1.0, 0.8, 1.0)))
+        >>> F = frame.features(np.array([[0.3, 0.002, 0.0, 0.0], [0.3, 0.05, 0.0, 0.0], [0.35, 0.0, 0.0, 0.0]]))
+        >>> G, source, odd = frame.mirror_ghosts(F, reach=1.0)
+        >>> source.tolist(), odd.tolist()       # the node 2 mm off y = 0 only: the last lies on the plane
+        ([0], [True])
+        >>> G_pose = frame.features(np.array([[0.3, -0.002, 0.0, 0.0]]), fold=False)
+        >>> bool(np.allclose(G, G_pose))
+        True
+        """
+        F = np.asarray(F, float)
+        if not self.symmetric or not self.mirrors or len(F) < 2:
+            return np.zeros((0, F.shape[1])), np.zeros(0, int), np.zeros(0, bool)
+        from scipy.spatial import cKDTree
+
+        def negate(cols):
+            def image(A):
+                A = A.copy()
+                A[:, cols] *= -1.0
+                return A
+            return image
+
+        def swap(A):
+            A = A.copy()
+            A[:, [0, 1, 2, 3]] = A[:, [1, 0, 3, 2]]
+            return A
+
+        lateral = negate([1, 3])
+        if self.cylinder:
+            images = [(lateral, True)]
+        elif abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:   # a square: faces y = 0 and y = x
+            images = [(lateral, True), (swap, True), (lambda A: swap(lateral(A)), False)]
+        else:
+            images = [(lateral, True), (negate([0, 2]), True), (negate([0, 1, 2, 3]), False)]
+        tree = cKDTree(F)
+        spacing = tree.query(F, k=2)[0][:, 1]
+        out, source, odd = [np.zeros((0, F.shape[1]))], [np.zeros(0, int)], [np.zeros(0, bool)]
+        for image, reflects in images:
+            G = image(F)
+            d = np.linalg.norm(G - F, axis=1)
+            keep = np.flatnonzero((d < reach * spacing) & (tree.query(G)[0] >= GHOST_MIN_GAP * spacing))
+            out.append(G[keep])
+            source.append(keep)
+            odd.append(np.full(len(keep), reflects))
+        return np.vstack(out), np.concatenate(source), np.concatenate(odd)
+
     @property
     def n_features(self) -> int:
         return 4 + int(self.band)
@@ -160,8 +230,9 @@ class MapFrame:
     def _cap_offset_m(self) -> float:
         return 0.5 * self.sensor.length_m - self.sensor.radius_m
 
-    def features(self, poses, jacobian: bool = False):
-        """(P, d) features of ``poses`` (P, 4); with ``jacobian`` also d features / d(x, y, yaw), (P, d, 3)."""
+    def features(self, poses, jacobian: bool = False, fold: bool = True):
+        """(P, d) features of ``poses`` (P, 4); with ``jacobian`` also d features / d(x, y, yaw), (P, d, 3);
+        ``fold=False``: of the poses as they are, not folded (:meth:`mirror_ghosts`)."""
         p = np.asarray(poses, float).reshape(-1, 4)
         x, y, z, yaw = p.T
         a, r = self._cap_offset_m(), self.sensor.radius_m
@@ -171,7 +242,7 @@ class MapFrame:
             if self.symmetric:   # the sensor's own frame: rotated by -yaw, mirrored to y' >= 0
                 cs, sn = np.cos(yaw), np.sin(yaw)
                 u, v = x * cs + y * sn, -x * sn + y * cs
-                sgn = self._cylinder_side(x, y, yaw)
+                sgn = self._cylinder_side(x, y, yaw) if fold else np.ones(P)
                 v = sgn * v
                 # d(u, v)/d(x, y, yaw)
                 du = np.stack([cs, sn, v * sgn], axis=-1)
@@ -200,7 +271,7 @@ class MapFrame:
                     dcols += [Jx, Jy]
         else:
             lo, hi = self.tank.water_bounds_m
-            sx, sy, swap = self._box_fold(x, y)
+            sx, sy, swap = self._box_fold(x, y) if fold else (np.ones(P), np.ones(P), np.zeros(P, bool))
             x, y = sx * x, sy * y
             yaw = np.where(sx < 0, np.pi - yaw, yaw)
             yaw = np.where(sy < 0, -yaw, yaw)

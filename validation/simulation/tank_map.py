@@ -111,6 +111,13 @@ EXPLORE_SHARE = 1.0 / 3.0
 #: the walls 0.043 % / 0.086 % -> 0.031 % / 0.065 %
 REFERENCE_SPREAD_SHARE = 0.5
 
+#: a node's mirror image across a face of the fold joins the interpolants' nodes where it lies within this many
+#: times the node's distance to its nearest other node (:meth:`MapFrame.mirror_ghosts`). Refitted offline on seed
+#: 4's finished map (reach 0 / 2 / 3 / 5): 16 tips 5-7 mm from the middle of a wall 0.103 / 0.054 / 0.054 / 0.038 %
+#: at most, 36 square-on tips 0.111 / 0.066 / 0.060 / 0.073 %, 8 near-wall poses 0.085 / 0.128 / 0.106 / 0.114 %;
+#: seed 2's corner pose 0.107 / 0.127 / 0.147 / 0.167 % (its 19 others 0.025 % -> 0.011 % at most in the study)
+GHOST_REACH = 3.0
+
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
 TARGET_MAX = 5e-4
@@ -372,16 +379,21 @@ class TankMap:
         if self.fitted is None:
             X = self.frame.features(self.nodes)
             K_nodes = self.mirrored(self.K_nodes, self.nodes)   # every node's K in its folded pose's frame
-            L_coarse = np.log(pair_values(K_nodes, self._pair_emitter) / self._free_pairs)
-            interp = self._fit_coarse(X, L_coarse)
-            self.fitted = {"X": X, "coef": interp.coef, "loo": interp.leave_one_out,
+            # with the nodes' mirror images across the fold's faces (MapFrame.mirror_ghosts)
+            Xg, src, odd = self.frame.mirror_ghosts(X, GHOST_REACH)
+            L_coarse = np.log(pair_values(self._permuted(K_nodes, src, odd), self._pair_emitter) / self._free_pairs)
+            interp = self._fit_coarse(np.vstack([X, Xg]), L_coarse, np.vstack([self.nodes, self.nodes[src]]))
+            self.fitted = {"X": np.vstack([X, Xg]), "coef": interp.coef, "loo": interp.leave_one_out,
                            "images": np.array(interp.n_regressors // max(self.frame.n_wall_images, 1))}
             if len(self.ref_index):
                 Xr = X[self.ref_index]
-                K_ref = self.mirrored(self.K_ref, self.nodes[self.ref_index])
-                d = np.log(pair_values(K_ref, self._pair_emitter)
-                           / pair_values(K_nodes[self.ref_index], self._pair_emitter))
-                corr, pairs = self._fit_correction(Xr, d, L_coarse[self.ref_index])
+                Xrg, src_r, odd_r = self.frame.mirror_ghosts(Xr, GHOST_REACH)
+                K_ref = self._permuted(self.mirrored(self.K_ref, self.nodes[self.ref_index]), src_r, odd_r)
+                K_at = self._permuted(K_nodes[self.ref_index], src_r, odd_r)
+                d = np.log(pair_values(K_ref, self._pair_emitter) / pair_values(K_at, self._pair_emitter))
+                L_at = np.log(pair_values(K_at, self._pair_emitter) / self._free_pairs)
+                Xr = np.vstack([Xr, Xrg])
+                corr, pairs = self._fit_correction(Xr, d, L_at)
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
         self._images = int(self.fitted.get("images", 0))   # the powers of the images (0: none; True: 1)
@@ -396,8 +408,17 @@ class TankMap:
         """RMS over the nodes and the emitter's pairs of an interpolant's leave-one-out errors."""
         return float(np.sqrt(np.mean(np.asarray(interpolant.leave_one_out)[:, self._rec] ** 2)))
 
-    def _fit_coarse(self, X, L_coarse):
-        """log(K_coarse / K_free) (B, pairs) interpolated over the features ``X``: radial basis functions with a
+    def _permuted(self, K: np.ndarray, source: np.ndarray, odd: np.ndarray) -> np.ndarray:
+        """K (B, n, n) followed by the K of its mirror images ``K[source]``, the electrodes permuted by the sensor's
+        lateral mirror where the image is reflected (``odd``; :meth:`MapFrame.mirror_ghosts`)."""
+        ghosts = np.array(K[source], float)
+        if self._perm is not None and odd.any():
+            ghosts[odd] = ghosts[odd][..., self._perm, :][..., :, self._perm]
+        return np.concatenate([K, ghosts])
+
+    def _fit_coarse(self, X, L_coarse, poses):
+        """log(K_coarse / K_free) (B, pairs) at ``poses`` (B, 4; a mirror image's at its node's, whose images in
+        the walls are its own) interpolated over the features ``X``: radial basis functions with a
         quadratic trend (:data:`RBF_DEGREE`), with the walls' images as linear regressors
         (:meth:`MapFrame.wall_images`), their first :data:`IMAGE_POWERS` powers or the first alone, or without,
         whichever is closer at left-out nodes (RMS over the receivers). In boxes the images came 1.2-2x closer at
@@ -406,7 +427,7 @@ class TankMap:
         from electrosense.validation.diagnosis.anchored import RBFInterpolant, trend_terms
 
         best = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE)
-        R = self.frame.wall_images(self.nodes)
+        R = self.frame.wall_images(poses)
         for powers in sorted({1, IMAGE_POWERS}):   # the first alone, then all
             if len(X) <= 2 * (trend_terms(X.shape[1], RBF_DEGREE) + powers * R.shape[1]):   # too few nodes
                 break
