@@ -173,17 +173,18 @@ class MapFrame:
         reflected, ``odd``) and in features it is the node with its lateral coordinates negated (a box's y = 0
         and x = 0 planes, and their product near the box's centre line), or its two coordinates swapped (a
         square's diagonal), or its centre's offset from the axis negated (a cylinder). Those within ``reach``
-        times the node's distance to its nearest other node of it (and not on the face itself: a node there is
-        its own image) are returned, ``source`` the index of their node.
+        times the node's distance to its nearest other node are returned, ``source`` the index of their node,
+        but none nearer any node than :data:`GHOST_MIN_GAP` times that distance (a node on or close to the face
+        is its own image there, and two close nodes make a quintic kernel's matrix near singular).
 
         >>> from electrosense.meshes import preset
         >>> from electrosense.meshes.tank import Tank
         >>> frame = MapFrame(preset("angels-4"), Tank((1.0, 0.8, 1.0)))
-        >>> F = frame.features(np.array([[0.3, 0.002, 0.0, 0.0], [0.3, 0.05, 0.0, 0.0], [0.35, 0.0, 0.0, 0.0]]))
-        >>> G, source, odd = frame.mirror_ghosts(F, reach=1.0)
-        >>> source.tolist(), odd.tolist()       # the node 2 mm off y = 0 only: the last lies on the plane
+        >>> F = frame.features(np.array([[0.3, 0.02, 0.0, 0.0], [0.3, 0.06, 0.0, 0.0], [0.35, 0.0, 0.0, 0.0]]))
+        >>> G, source, odd = frame.mirror_ghosts(F, reach=2.0)
+        >>> source.tolist(), odd.tolist()       # the node 2 cm off y = 0 only: the last lies on it
         ([0], [True])
-        >>> G_pose = frame.features(np.array([[0.3, -0.002, 0.0, 0.0]]), fold=False)
+        >>> G_pose = frame.features(np.array([[0.3, -0.02, 0.0, 0.0]]), fold=False)
         >>> bool(np.allclose(G, G_pose))
         True
         """
