@@ -18,6 +18,7 @@ from electrosense.validation.diagnosis.anchored import RBFInterpolant
 from electrosense.validation.simulation.map_coordinates import MapFrame
 from electrosense.validation.simulation.models import pose_evaluator
 from electrosense.validation.simulation.tank_map import (
+    GHOST_REACH,
     TankMap,
     build_tank_map,
     load_tank_map,
@@ -706,6 +707,69 @@ def test_a_sector_sensor_map_permutes_the_sectors_of_its_mirror_images():
     assert not frame.mirrors and not frame.reflected(images).any()
     F = frame.features(images)
     assert not np.allclose(F[0], F[1])
+
+
+def _symmetric_K(sensor, tank, poses):
+    """(P, n, n) a K-like matrix of the electrodes' tank-frame positions (a sector's at its azimuth), with the
+    tank's symmetry: each electrode's weight grows towards every wall, so a mirrored pose's K is the pose's with
+    the electrodes permuted by the sensor's lateral mirror (the physics a map's mirror images rely on)."""
+    from electrosense.meshes.pose import sensor_to_tank
+    from electrosense.meshes.sensor import sector_azimuths_rad
+
+    points = sensor.electrode_centres_m.copy()   # on the axis; a sector on the surface at its azimuth
+    for k in range(sensor.n_electrodes):
+        index, sector = sensor.sector_of(k + 1)
+        electrode = sensor.electrodes[index]
+        if electrode.sectors > 1:
+            phi = sector_azimuths_rad(electrode, sensor.radius_m)[0][sector - 1]
+            points[k, 1:] = sensor.radius_m * np.cos(phi), sensor.radius_m * np.sin(phi)
+    c = sensor_to_tank(points, np.asarray(poses, float))       # (P, n, 3)
+    if isinstance(tank, CylinderTank):   # the round wall: the same at every rotation about the axis
+        w = np.exp(-(tank.radius_m - np.hypot(c[..., 0], c[..., 1])) / 0.05)    # (P, n)
+    else:
+        lo, hi = tank.water_bounds_m
+        w = sum(np.exp(-np.abs(c[..., k] - b) / 0.05) for k in (0, 1) for b in (lo[k], hi[k]))
+    K = -(1.0 + 0.01 * (w[:, :, None] + w[:, None, :]))
+    n = K.shape[1]
+    K[:, np.arange(n), np.arange(n)] = 0.0
+    K[:, np.arange(n), np.arange(n)] = -K.sum(axis=2)
+    return K
+
+
+@pytest.mark.parametrize("tank", [Tank((0.5, 0.4, 0.2)), Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
+                         ids=["box", "square", "cylinder"])
+def test_the_nodes_mirror_images_carry_the_mirror_poses_K(tank):
+    """Each mirror image a map adds across a face of its fold (MapFrame.mirror_ghosts) is, in features, a pose's
+    mirror image unfolded, and carries that pose's K: the node's with a 4-sector sensor's left and right sectors
+    swapped where the image is reflected (one of its mirror planes), unswapped where it is rotated (two)."""
+    sensor = preset("angels-4").with_sectors({2: 4}, gap_m=0.002)
+    rng = np.random.default_rng(2)
+    P = reachable_poses(sensor, tank, 0.0, 0.02, 0.02, 16)
+    P = P[rng.choice(len(P), 150, replace=False)]
+    m = TankMap(sensor, tank, 0.0, P, _symmetric_K(sensor, tank, P), _symmetric_K(sensor, tank, P[:1])[0])
+    X = m.frame.features(m.nodes)
+    G, source, odd = m.frame.mirror_ghosts(X, GHOST_REACH)
+    assert len(G) >= 5 and odd.any()
+    assert len(m._parts[0].X) == len(X) + len(G)          # the images joined the interpolant
+    K_images = m._permuted(m.mirrored(m.K_nodes, m.nodes), source, odd)[len(X):]
+    node = m.frame.folded(m.nodes)[source]
+    x, y, yaw = node[:, 0], node[:, 1], node[:, 3]
+    if isinstance(tank, CylinderTank):   # the folded pose sits at heading 0: its mirror across the x axis
+        candidates = [np.c_[x, -y, node[:, 2], -yaw]]
+    else:                                # across x = 0, y = 0, both; a square's diagonal and after y = 0
+        candidates = [np.c_[-x, y, node[:, 2], np.pi - yaw], np.c_[x, -y, node[:, 2], -yaw],
+                      np.c_[-x, -y, node[:, 2], yaw + np.pi], np.c_[y, x, node[:, 2], 0.5 * np.pi - yaw],
+                      np.c_[-y, x, node[:, 2], 0.5 * np.pi + yaw]]
+    matched = np.zeros(len(G), bool)
+    perm = sensor.lateral_mirror()
+    for Q in candidates:
+        hit = np.all(np.isclose(m.frame.features(Q, fold=False), G, atol=1e-9), axis=1) & ~matched
+        K_true = _symmetric_K(sensor, tank, Q[hit])
+        assert np.allclose(K_images[hit], K_true, rtol=1e-12)
+        swapped = K_true[:, perm][:, :, perm]
+        assert np.all(np.abs(K_images[hit] - swapped).max(axis=(1, 2)) > 1e-6)   # the sectors do differ
+        matched |= hit
+    assert matched.all()
 
 
 def test_a_cylinder_folds_a_sector_sensor_by_its_diameters_with_the_sectors_permuted():

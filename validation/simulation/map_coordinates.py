@@ -168,7 +168,7 @@ class MapFrame:
         The fold (:meth:`folded`) cuts the pose space along the tank's mirror planes, and an interpolant over
         the folded nodes has nodes on one side of each cut only: it extrapolates there, as at the edge of any
         node set, though the BEM's K goes on smoothly across the plane (seed 4's box: a tip 5 mm from a wall
-        on the plane y = 0 erred 0.09-0.10 %, at 6-18 cm from it 0.01-0.02 %). A node's mirror image across a
+        on the plane y = 0 erred 0.08-0.10 %, at 6-18 cm from it 0.004-0.021 %). A node's mirror image across a
         face has the node's K (the electrodes permuted by the sensor's lateral mirror where the image is
         reflected, ``odd``) and in features it is the node with its lateral coordinates negated (a box's y = 0
         and x = 0 planes, and their product near the box's centre line), or its two coordinates swapped (a
