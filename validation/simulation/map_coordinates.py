@@ -112,6 +112,11 @@ class MapFrame:
         :meth:`~electrosense.meshes.sensor.SensorDescription.lateral_mirror`); a cylinder's rotations need none."""
         return self.symmetric and self.sensor.lateral_mirror() is not None
 
+    @property
+    def square(self) -> bool:
+        """A box with a square floor: folded across its diagonal too."""
+        return not self.cylinder and abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12
+
     def _box_fold(self, x, y):
         """(sx, sy, swap) of a box's fold: the signs that reflect x and y into x, y >= 0, then, in a square tank,
         the swap of x and y across its diagonal; no reflection where :attr:`mirrors` is False."""
@@ -119,8 +124,7 @@ class MapFrame:
         if not self.mirrors:
             return np.ones(P), np.ones(P), np.zeros(P, bool)
         sx, sy = np.where(x < 0, -1.0, 1.0), np.where(y < 0, -1.0, 1.0)
-        square = abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12
-        return sx, sy, (np.abs(y) > np.abs(x)) & square
+        return sx, sy, (np.abs(y) > np.abs(x)) & self.square
 
     def _cylinder_side(self, x, y, yaw):
         """(P,) -1 where a cylinder's fold reflects the pose (the sensor's centre on its own -y side), else 1."""
@@ -208,7 +212,7 @@ class MapFrame:
         lateral = negate([1, 3])
         if self.cylinder:
             images = [(lateral, True)]
-        elif abs(self.tank.size_m[0] - self.tank.size_m[1]) < 1e-12:   # a square: faces y = 0 and y = x
+        elif self.square:   # faces y = 0 and y = x
             images = [(lateral, True), (swap, True), (lambda A: swap(lateral(A)), False)]
         else:
             images = [(lateral, True), (negate([0, 2]), True), (negate([0, 1, 2, 3]), False)]
