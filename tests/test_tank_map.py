@@ -171,6 +171,36 @@ def test_the_candidates_put_a_tip_at_the_closest_gap_facing_every_wall(tank, obj
                                gap, spacing, objects).size
 
 
+@pytest.mark.parametrize("tank, objects", [(Tank((0.62, 0.47, 0.3)), ()),
+                                           (Tank((0.62, 0.47, 0.3)), (Sphere((0.05, 0.02, 0.0), 0.03),)),
+                                           (CylinderTank(0.27, 0.3), ())], ids=["box", "box and ball", "cylinder"])
+def test_the_candidates_put_the_sensor_at_the_gap_from_two_walls_at_every_corner(tank, objects):
+    """Poses near two boundaries that meet at an angle are moved until the sensor is at the gap from both: a random
+    sensor at each of a box's four corners, at the headings the grid has, nowhere closer to anything; a round tank
+    has no corner (its one wall is not two), and a grid far from the corners gives none."""
+    from electrosense.validation.diagnosis.unseen import random_sensor
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m, corners_at_the_gap, sensor_wall_gap_m
+
+    sensor = random_sensor(np.random.default_rng(7), 4)
+    gap, spacing = 0.005, 0.02
+    C = reachable_poses(sensor, tank, 0.0, gap, spacing, 8, objects)
+    Q = corners_at_the_gap(sensor, tank, C, gap, spacing, objects)
+    if isinstance(tank, CylinderTank):
+        assert not Q.size
+        return
+    assert len(Q) and np.allclose(sensor_wall_gap_m(sensor, tank, Q, objects), gap, rtol=0, atol=1e-8)
+    assert np.allclose(Q[:, 2], 0.0) and np.isin(Q[:, 3], C[:, 3]).all()   # depth and headings kept
+    at = np.abs(boundary_gaps_m(sensor, tank, Q, objects) - gap) < 1e-6   # a micrometre: the ball is round
+    assert (at.sum(axis=1) == 2).all()                      # two boundaries each
+    for a, b in ((0, 2), (0, 3), (1, 2), (1, 3)):           # every corner of the box (x-, x+ by y-, y+)
+        assert (at[:, a] & at[:, b]).any()
+    assert not (at[:, 0] & at[:, 1]).any() and not (at[:, 2] & at[:, 3]).any()   # no two opposite walls
+    if objects:
+        assert at[:, -1].any()                              # a wall and the ball
+    far = C[sensor_wall_gap_m(sensor, tank, C, objects) > gap + spacing]
+    assert not corners_at_the_gap(sensor, tank, far, gap, spacing, objects).size
+
+
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):
@@ -222,12 +252,13 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     np.testing.assert_allclose(m.K_ref[:1], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
     K_default = PoseSweep(SENSOR, TANK, (), 1.0, **m.bem_options).conductance(m.nodes[m.ref_index[:1]]).K_S
     np.testing.assert_allclose(m.K_ref[:1], K_default, rtol=2e-5, atol=0)
-    last = m.nodes[-1:]
+    near = [j for j, f in enumerate(image_faces_near(SENSOR, TANK, m.nodes)) if f]
+    assert near      # the first round's poses spread to the walls
+    last = m.nodes[near[-1]:near[-1] + 1]
     faces = image_faces_near(SENSOR, TANK, last)[0]
-    assert faces     # this shallow tank's floor and free surface are near every pose
     user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, image_face=faces, **coarse_options())
     K_user = user.conductance(last).K_S
-    np.testing.assert_allclose(m.K_nodes[-1:], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
+    np.testing.assert_allclose(m.K_nodes[near[-1]:near[-1] + 1], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
     other = np.setdiff1d(np.arange(len(m.nodes)), m.ref_index)
     ratio = m.conductance(m.nodes[other])[:, iu[0], iu[1]] / m.K_nodes[other][:, iu[0], iu[1]]
     assert np.abs(ratio - 1).max() < 0.02 and np.abs(ratio - 1).max() > 1e-6
