@@ -5,7 +5,8 @@ Goals (issue 23), printed beside every figure:
 * the map within a third of the bench noise of the BEM at random poses it was not built on (0.017 % RMS,
   0.05 % at most), sensor tips 5 mm to 20 cm from a wall, the BEM solved on another tank mesh (graded towards the
   test poses); besides, ``--near-wall-poses`` poses 5-15 mm from a wall (:func:`check_near_wall`), where a
-  20-pose draw puts two or three and the map is hardest;
+  20-pose draw puts two or three and the map is hardest, and in a box ``--corner-poses`` poses 5-12 mm from two
+  walls at once (:func:`check_corners`), which a 20-pose draw seldom holds;
 * built in under 5 minutes on 2 cores from an empty cache (wall and CPU time);
 * 10 000 poses/s or more with the pose Jacobian on one core, and through ``esense sweep --model map``;
 * on a virtual-bench log (BEM physics, 0.05 % noise) passing 2 cm from a wall: the map's position error within
@@ -15,7 +16,8 @@ Goals (issue 23), printed beside every figure:
 Also written: ``map_vs_psm.png``, the map's and the PSM's error against the BEM on a line from wall to wall
 (the README's figure), and ``localise.png``.
 
-Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [--near-wall-poses N] [-o DIR]``.
+Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [--near-wall-poses N] [--corner-poses N]
+[-o DIR]``.
 """
 from __future__ import annotations
 
@@ -99,6 +101,40 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
             "gaps_m": sensor_wall_gap_m(sensor, tank, P).tolist(), "errors": err.tolist()}
+
+
+#: the gaps (m) from each of two walls of the study's corner check
+CORNER_GAP_M = (0.005, 0.012)
+
+
+def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M) -> np.ndarray:
+    """``n`` random poses of a box's tank with the sensor ``gap_m`` from two walls that meet at a corner (each gap
+    drawn alone; a random heading and corner), none nearer anything than the first gap."""
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m
+
+    column = {name: k for k, name in enumerate(tank.region_names)}
+    out = []
+    while len(out) < n:
+        zz = z if band is None else rng.uniform(*band)
+        p = np.array([0.0, 0.0, zz, rng.uniform(-np.pi, np.pi)])
+        g = boundary_gaps_m(sensor, tank, p[None])[0]
+        sx, sy = rng.choice([-1.0, 1.0], 2)
+        ix, iy = column["wall_x+" if sx > 0 else "wall_x-"], column["wall_y+" if sy > 0 else "wall_y-"]
+        gx, gy = rng.uniform(*gap_m, 2)
+        p[0], p[1] = sx * (g[ix] - gx), sy * (g[iy] - gy)     # a flat wall's gap is linear in x or y
+        if boundary_gaps_m(sensor, tank, p[None])[0].min() >= gap_m[0] - 1e-9:
+            out.append(p)
+    return np.array(out)
+
+
+def check_corners(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
+    """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
+    a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
+    P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band)
+    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P)
+    return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
+            "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
+            "errors": err.tolist()}
 
 
 def errors_on_own_tank_meshes(m, sensor, tank, P):
@@ -292,6 +328,9 @@ def main(argv=None):
     ap.add_argument("--near-wall-poses", type=int, default=8,
                     help=f"poses {1e3 * NEAR_WALL_GAP_M[0]:g}-{1e3 * NEAR_WALL_GAP_M[1]:g} mm from a wall, floor or "
                          "surface checked besides the test poses (0: none)")
+    ap.add_argument("--corner-poses", type=int, default=8,
+                    help=f"in a box, poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from two walls at "
+                         "once checked besides (0: none)")
     ap.add_argument("--log-poses", type=int, default=31)
     ap.add_argument("--cylinder", action="store_true", help="a cylindrical tank (no localisation: box bench only)")
     ap.add_argument("--band", type=float, default=0.0, help="a band of depths of this height (m) around z")
@@ -355,6 +394,11 @@ def main(argv=None):
         print(f"BEM at {args.near_wall_poses} random poses {1e3 * NEAR_WALL_GAP_M[0]:g}-{1e3 * NEAR_WALL_GAP_M[1]:g} mm "
               "from a wall, each on its own tank mesh")
         results["near_wall"] = check_near_wall(m, sensor, tank, z, args.seed, args.near_wall_poses, band)
+        save()
+    if args.corner_poses and not args.cylinder:
+        print(f"BEM at {args.corner_poses} random poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
+              "two walls at once, each on its own tank mesh")
+        results["corners"] = check_corners(m, sensor, tank, z, args.seed, args.corner_poses, band)
         save()
     # ---------------------------------------------------------------- speed
     Q = test_poses(sensor, tank, z, rng, 2000, band)
@@ -427,6 +471,11 @@ def main(argv=None):
         print(f"  near the walls ({len(nw['poses'])} poses {1e3 * min(nw['gaps_m']):.1f}-{1e3 * max(nw['gaps_m']):.1f} mm "
               f"from one, each on its own tank mesh): {nw['rms']:.3%} RMS, {nw['max']:.3%} max; the map's own "
               f"estimate there {nw['estimated_rms']:.3%} RMS")
+    if "corners" in results:
+        co = results["corners"]
+        print(f"  at the corners ({len(co['poses'])} poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
+              f"two walls, each on its own tank mesh): {co['rms']:.3%} RMS, {co['max']:.3%} max; the map's own "
+              f"estimate there {co['estimated_rms']:.3%} RMS")
     _line(f"build, wall s ({args.workers} workers, empty cache)", b["wall_s"], GOALS["build_s"], "{:.0f}")
     print(f"  build CPU s (all processes): {b['cpu_s']:.0f} (on {args.workers} free cores: about "
           f"{b['cpu_s'] / args.workers:.0f} s wall); loading the map: {b['load_ms']:.1f} ms")
