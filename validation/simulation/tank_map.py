@@ -164,6 +164,15 @@ def reachable_poses(sensor, tank, z_m, wall_gap_m: float = 0.005, spacing_m: flo
     return P[sensor_wall_gap_m(sensor, tank, P, objects) >= wall_gap_m]
 
 
+def _gaps_and_gradient(sensor, tank, poses: np.ndarray, objects=(), h_m: float = 1e-5):
+    """:func:`boundary_gaps_m` at ``poses`` (P, B) and its gradient by the pose's x and y, (P, B, 2), by forward
+    differences of ``h_m`` (exact for a flat wall's gap, linear in x and y)."""
+    G = boundary_gaps_m(sensor, tank, poses, objects)
+    step = lambda d: boundary_gaps_m(sensor, tank, poses + d, objects)   # noqa: E731
+    return G, np.stack([(step(np.r_[h_m, 0.0, 0.0, 0.0]) - G) / h_m,
+                        (step(np.r_[0.0, h_m, 0.0, 0.0]) - G) / h_m], axis=-1)
+
+
 def tips_at_the_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, within_m: float, objects=(),
                     facing_rad: float = np.pi / 8, steps: int = 3) -> np.ndarray:
     """(Q, 4) the ``poses`` whose sensor's tip faces a wall or object (its axis within ``facing_rad`` of the
@@ -186,13 +195,8 @@ def tips_at_the_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, within_m
     ([[0.395, 0.0, 0.0, 0.0]], [5.0])
     """
     poses = np.asarray(poses, float).reshape(-1, 4)
-    h = 1e-5
     gaps = lambda P: boundary_gaps_m(sensor, tank, P, objects)   # noqa: E731
-
-    def gradient(P):
-        G = gaps(P)
-        return G, np.stack([(gaps(P + np.r_[h, 0.0, 0.0, 0.0]) - G) / h,
-                            (gaps(P + np.r_[0.0, h, 0.0, 0.0]) - G) / h], axis=-1)   # (P, B, 2)
+    gradient = lambda P: _gaps_and_gradient(sensor, tank, P, objects)   # noqa: E731
 
     G, D = gradient(poses)
     norm = np.linalg.norm(D, axis=-1)
@@ -236,13 +240,8 @@ def corners_at_the_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, withi
     [5.0, 5.0]
     """
     poses = np.asarray(poses, float).reshape(-1, 4)
-    h = 1e-5
     gaps = lambda P: boundary_gaps_m(sensor, tank, P, objects)   # noqa: E731
-
-    def gradient(P):
-        G = gaps(P)
-        return G, np.stack([(gaps(P + np.r_[h, 0.0, 0.0, 0.0]) - G) / h,
-                            (gaps(P + np.r_[0.0, h, 0.0, 0.0]) - G) / h], axis=-1)   # (P, B, 2)
+    gradient = lambda P: _gaps_and_gradient(sensor, tank, P, objects)   # noqa: E731
 
     G, D = gradient(poses)
     norm = np.linalg.norm(D, axis=-1)
