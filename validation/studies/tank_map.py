@@ -97,10 +97,16 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M)
+    return {**errors_at(m, sensor, tank, P), "gaps_m": sensor_wall_gap_m(sensor, tank, P).tolist()}
+
+
+def errors_at(m, sensor, tank, P) -> dict:
+    """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`): its RMS
+    and largest, the map's own estimate there (RMS), the poses and every receiver's error."""
     err, _ = errors_on_own_tank_meshes(m, sensor, tank, P)
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
-            "gaps_m": sensor_wall_gap_m(sensor, tank, P).tolist(), "errors": err.tolist()}
+            "errors": err.tolist()}
 
 
 #: the gaps (m) from each of two walls of the study's corner check
@@ -130,11 +136,7 @@ def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M) -> np.n
 def check_corners(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
     """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
     a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
-    P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band)
-    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P)
-    return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
-            "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
-            "errors": err.tolist()}
+    return errors_at(m, sensor, tank, corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band))
 
 
 def errors_on_own_tank_meshes(m, sensor, tank, P):
