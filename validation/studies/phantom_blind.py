@@ -1,7 +1,7 @@
 """Blind files of an EIT phantom's layout: the BEM at a scene the file does not state, an instrument with a known fault.
 
 Run: ``esense study phantom_blind --scene validation/data/pail_1planeB.toml -o DIR [--fault crosstalk|common_mode|none]
-[--seed N] [--no-bem-table]``.
+[--common-mode C] [--seed N] [--no-bem-table]``.
 
 The ``real_tank`` study is checked on data of a known cause, made the way a
 real file differs from its scene: the file holds what a tank measured, not
@@ -26,8 +26,11 @@ what its description says.
   - ``crosstalk``: a fixed reading added to each class of (drive, measurement)
     by the parity of their places on the ring, +8 % of the median reading
     on the two mixed classes and -4 % on odd-odd (a multiplexer group's);
-  - ``common_mode``: a magnitude demodulator reading ``|Z + 0.2 j V_cm|``, the
-    measurement pair's mean potential against the ring's mean in quadrature;
+  - ``common_mode``: a magnitude demodulator reading ``|Z + c V_cm|``, the
+    measurement pair's mean potential against the ring's mean, ``c`` complex
+    (``--common-mode``; default ``0.2j``, in quadrature: 3 % RMS on the empty
+    tank of ``pail_1planeB.toml``; ``0.4j`` 10 %, the size of the second
+    Ottawa file's empty-tank gap);
   - ``none``: the scene's and the channels' errors only.
 
 The study is then run on the file as a user runs it (``esense study
@@ -75,8 +78,8 @@ CURRENT_A = 4.6e-3
 CHANNEL_GAIN_RMS, ROW_ERROR_RMS, FRAME_NOISE_RMS = 0.005, 0.008, 0.0005
 #: crosstalk per class (even-even, even-odd, odd-even, odd-odd) as a fraction of the median reading
 CROSSTALK_OF_MEDIAN = (0.0, 0.08, 0.08, -0.04)
-#: quadrature common-mode fraction read by the magnitude demodulator
-COMMON_MODE_QUADRATURE = 0.2
+#: the common-mode fraction read by the magnitude demodulator (default: in quadrature)
+COMMON_MODE = 0.2j
 #: what the diagnosis should name for each fault
 NAMED = {"crosstalk": "pair_parity_offsets", "common_mode": "common_mode", "none": None}
 
@@ -115,8 +118,9 @@ def _is_setup(name: str, value) -> bool:
             and all(isinstance(p, list) and len(p) == 2 for p in value))
 
 
-def instrument_reading(K_S, ring, fault: str, gains, row_error, rng) -> np.ndarray:
-    """(n, n) magnitudes the instrument stores (drive-major), zero where a measurement touches the drive."""
+def instrument_reading(K_S, ring, fault: str, gains, row_error, rng, common_mode: complex = COMMON_MODE) -> np.ndarray:
+    """(n, n) magnitudes the instrument stores (drive-major), zero where a measurement touches the drive;
+    ``common_mode``: the fraction ``c`` of the ``common_mode`` fault (module doc)."""
     d, m = adjacent_protocol(ring)
     n = len(ring)
     Z = transfer_impedances_ohm(K_S, d, m)                             # (n, n) signed, V(m) - V(m + 1) per ampere
@@ -125,7 +129,7 @@ def instrument_reading(K_S, ring, fault: str, gains, row_error, rng) -> np.ndarr
         idx = np.asarray(ring) - 1
         V = V - V[:, idx].mean(axis=1, keepdims=True)
         Vcm = 0.5 * (V[:, m[:, 0] - 1] + V[:, m[:, 1] - 1])             # (n, n)
-        reading = np.abs(Z + 1j * COMMON_MODE_QUADRATURE * Vcm)
+        reading = np.abs(Z + common_mode * Vcm)
     else:
         reading = np.abs(Z)
     touched = involves_drive(d, m)
@@ -137,7 +141,8 @@ def instrument_reading(K_S, ring, fault: str, gains, row_error, rng) -> np.ndarr
     return np.where(touched, 0.0, reading * CURRENT_A)
 
 
-def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=print) -> tuple[Path, dict]:
+def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=print,
+                     common_mode: complex = COMMON_MODE) -> tuple[Path, dict]:
     """The blind ``.mat`` of the scene's layout, and the truth it was made at."""
     scene, settings = load_scene(scene_path), load_scene_settings(scene_path)
     protocol = settings["protocol"]
@@ -162,7 +167,7 @@ def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=pri
         t0 = time.perf_counter()
         sol = solve_scene(replace(truth, objects=balls), 1.0, **options)
         K = sol.conductance.K_S
-        data["vv" + name] = instrument_reading(K, ring, fault, gains, row_error, rng).reshape(-1, 1)
+        data["vv" + name] = instrument_reading(K, ring, fault, gains, row_error, rng, common_mode).reshape(-1, 1)
         current = "volt" if name == reference else "volts"        # as the second Ottawa file spells them
         data[current + name] = np.full((n, 1), CURRENT_A)            # the source's current, named "volt(s)"
         # the drive pair's voltage: the water's and the pair's contact impedances (4-9x the water's, as on the bench)
@@ -173,9 +178,17 @@ def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=pri
     return path, {"fault": fault, "seed": seed, "reference": reference, "scene_drawn": draw,
                   "mesh": {k: v for k, v in options.items() if k != "tank_focus_m"},
                   "crosstalk_of_median": list(CROSSTALK_OF_MEDIAN) if fault == "crosstalk" else None,
-                  "common_mode_quadrature": COMMON_MODE_QUADRATURE if fault == "common_mode" else None,
+                  "common_mode": [common_mode.real, common_mode.imag] if fault == "common_mode" else None,
                   "channel_gain_rms": CHANNEL_GAIN_RMS, "row_error_rms": ROW_ERROR_RMS,
                   "frame_noise_rms": FRAME_NOISE_RMS}
+
+
+def _complex(text: str) -> complex:
+    """A complex number as Python writes it (``0.4j``, ``0.05+0.3j``), refused in argparse's words otherwise."""
+    try:
+        return complex(text.replace(" ", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a complex number: {text!r} (write e.g. 0.4j or 0.05+0.3j)") from None
 
 
 def main(argv=None) -> None:
@@ -183,6 +196,8 @@ def main(argv=None) -> None:
     ap.add_argument("--scene", type=Path, required=True, help="the layout's scene file (TOML) with a [protocol]")
     ap.add_argument("-o", "--out", type=Path, required=True)
     ap.add_argument("--fault", choices=sorted(NAMED), default="crosstalk")
+    ap.add_argument("--common-mode", type=_complex, default=COMMON_MODE, metavar="C",
+                    help="the common mode's fraction, complex (default 0.2j: in quadrature)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-bem-table", dest="bem_table", action="store_false",
                     help="run the study on the scene file without its [bem] table (the study then picks the mesh)")
@@ -190,7 +205,7 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     t0, c0 = time.perf_counter(), time.process_time()
     args.out.mkdir(parents=True, exist_ok=True)
-    mat, truth = write_blind_file(args.scene, args.out, args.fault, args.seed)
+    mat, truth = write_blind_file(args.scene, args.out, args.fault, args.seed, common_mode=args.common_mode)
     scene_copy = args.out / args.scene.name
     text = args.scene.read_text()
     scene_copy.write_text(text if args.bem_table else re.sub(r"(?ms)^\[bem\].*?(?=^\[|\Z)", "", text))
