@@ -58,9 +58,11 @@ def test_a_scene_moved_keeps_its_ring_on_the_wall_and_what_leaves_the_water_is_r
     assert 0 < f < 1 and "shortened" in note
 
 
-def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_surrogate():
+@pytest.mark.parametrize("common_mode", [0.01, 0.45])
+def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_surrogate(common_mode):
     """No BEM: a random linear surrogate, data made from known geometry and instrument with noise at the floors;
-    the fit finds them within 4 standard errors, and a direction the data never see is named."""
+    the fit finds them within 4 standard errors, and a direction the data never see is named. A common mode
+    read in quadrature is found at 0.01 and at 0.45 (beyond 0.2, where the fit's bound once clipped it)."""
     rng = np.random.default_rng(5)
     n = 8
     d, m = adjacent_protocol(range(1, n + 1))
@@ -84,7 +86,7 @@ def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_s
     ref = T.SetupSurrogate(names[:3], np.zeros(3), logZ, Dref, sign, Vcm, None)
     ball = T.SetupSurrogate(names[:3], np.zeros(3), ball_logZ, Dball, sign, Vcm, None)
     truth = dict.fromkeys(names, 0.0)
-    truth.update(g1=0.12, g2=-0.07, log_scale=1.3, mux_odd_odd=-0.08, common_mode_quadrature=0.01)
+    truth.update(g1=0.12, g2=-0.07, log_scale=1.3, mux_odd_odd=-0.08, common_mode_quadrature=common_mode)
     x = np.array([truth[k] for k in names])
     data = T._Data(np.ones(R), (dp // 2) % 2 == 0, 2 * (dp % 2) + mp % 2, mp, n, {"A": np.zeros(R)}, 1e-3,
                    {"A": 1e-4})
@@ -98,6 +100,11 @@ def test_known_unknowns_are_recovered_within_their_standard_errors_on_a_linear_s
     for k in ("g1", "g2", "log_scale", "mux_odd_odd"):
         i = names.index(k)
         assert abs(got[k] - truth[k]) < 4 * sf.se[i] + 1e-9, (k, got[k], truth[k], sf.se[i])
+    cm, se = abs(got["common_mode_quadrature"]), sf.se[names.index("common_mode_quadrature")]   # its sign is free
+    if common_mode > 0.1:   # seen by the data: within 4 standard errors, and those small (the bound of 0.2 this
+        assert abs(cm - common_mode) < 4 * se and se < 0.01, (cm, se)   # fit once had: 0.2 +- 0.066)
+    else:                   # at 0.01 it enters the readings at 1e-4, below their noise: found near zero
+        assert cm < 0.012, cm
     assert np.isnan(sf.se[names.index("unseen")])
     assert any("unseen" in d["unknowns"] for d in sf.not_separable)
     # the description's tolerance as a prior: the unseen unknown at its stated value, its standard error the
