@@ -42,12 +42,17 @@ def potential_at(solution, points_m, V) -> np.ndarray:
 
 
 def current_density_at(solution, points_m, V, step_m: float | None = None) -> np.ndarray:
-    """Current density ``-sigma grad u`` (A/m^2), shape (..., 3), at points in the water."""
+    """Current density ``-sigma grad u`` (A/m^2), shape (..., 3), at points in the water.
+
+    ``step_m``: the central differences' step; default 1e-6 of the sensor's size (of the whole boundary's in a
+    scene without a sensor: a tank with electrodes of its own)."""
     pts = np.asarray(points_m, dtype=float)
     shape = pts.shape
     pts = pts.reshape(-1, 3)
     if step_m is None:
-        extent = np.ptp(solution.boundary.triangles_m[: solution.boundary.n_sensor].reshape(-1, 3), axis=0).max()
+        tris = solution.boundary.triangles_m
+        tris = tris[: solution.boundary.n_sensor] if solution.boundary.n_sensor else tris
+        extent = np.ptp(tris.reshape(-1, 3), axis=0).max()
         step_m = 1e-6 * extent
     shifted = np.concatenate([pts + s * step_m * e for e in np.eye(3) for s in (1.0, -1.0)])
     u = potential_at(solution, shifted, V).reshape(3, 2, len(pts))
