@@ -85,6 +85,31 @@ def test_a_build_its_workers_could_not_hold_is_refused_before_any_bem(tmp_path, 
     assert res.exit_code != 0 and "Traceback" not in res.output and "nearest a wall" in res.output, res.output
 
 
+def test_a_workers_sweeps_are_checked_together_against_its_share_of_the_memory(monkeypatch):
+    """A worker keeps a sweep of the coarse and of the reference mesh: their largest poses together must fit its
+    share (one worker's of the memory), not each a share of the share (a random sensor's reference pose of
+    5.1 GB was refused on a 24.5 GB machine with two workers, its sweeps needing 7.2 GB of the worker's 9.8)."""
+    from electrosense.bem import memory
+    from electrosense.validation.simulation.tank_map import check_pose_memory
+
+    options = {"coarse": coarse_options(), "ref": OPTIONS}
+    poses = np.array([[0.16, 0.0, 0.0, 0.0], [0.0, 0.1, 0.0, 0.5]])
+    seen = []
+    monkeypatch.setattr(memory, "check_bytes", lambda need, what, fraction, hint="": seen.append((need, what, fraction)))
+    check_pose_memory(SENSOR, TANK, (), options, poses, 0.5)
+    for name in options:
+        check_pose_memory(SENSOR, TANK, (), {name: options[name]}, poses, 0.5)
+    (both, what, fraction), (coarse, *_), (ref, *_) = seen
+    assert both == pytest.approx(coarse + ref) and ref > coarse > 0 and fraction == pytest.approx(0.4)
+    assert "coarse BEM pose" in what and "reference BEM pose" in what and "together" in what
+    monkeypatch.undo()
+    monkeypatch.setattr(memory, "available_bytes", lambda: 1.01 * both / 0.4)
+    check_pose_memory(SENSOR, TANK, (), options, poses, 0.5)            # fits its share: no refusal
+    monkeypatch.setattr(memory, "available_bytes", lambda: 0.99 * both / 0.4)
+    with pytest.raises(memory.MemoryRefusal, match="together"):
+        check_pose_memory(SENSOR, TANK, (), options, poses, 0.5)
+
+
 def test_a_reference_edge_near_the_sensors_diameter_puts_the_coarse_poses_on_the_coarsest_mesh(monkeypatch):
     """The coarse sensor mesh is ``coarse_factor`` times the reference's edge, at most the sensor's diameter (the
     mesher's coarsest): a user's reference edge of 0.012 m on angels-4 (diameter 0.0244 m) had asked for 0.036 m

@@ -914,9 +914,14 @@ def image_faces_near(sensor, tank, poses: np.ndarray, within_m: float = IMAGE_FA
 
 def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, memory_share: float) -> None:
     """Refuse (:class:`~electrosense.bem.memory.MemoryRefusal`), before any BEM, what a worker's sweeps could not
-    hold: ``poses`` (those nearest a wall: the finest tank mesh) on each of ``options``' sensor meshes, each
-    sweep within ``memory_share`` of the memory, as the sweep checks it itself. Cheap: the sensor meshes are
-    counted, not made, and a tank mesh is made once per pose for every mesh that shares its options."""
+    hold: ``poses`` (those nearest a wall: the finest tank mesh) on each of ``options``' sensor meshes, all of a
+    worker's sweeps at their largest at once (a worker keeps a sweep of each mesh; it solves one pose at a time,
+    so this is an upper bound) within ``memory_share`` of the memory. Cheap: the sensor meshes are counted, not
+    made, and a tank mesh is made once per pose for every mesh that shares its options.
+
+    The sum, not a share per sweep: a random 5-electrode sensor of 12 354 reference triangles, whose reference
+    pose beside a wall needs 5.1 GB, was refused on a 24.5 GB machine with two workers when each of a worker's two
+    sweeps was given a quarter of the memory (4.9 GB), though the two together need at most 7.2 GB of the worker's 9.8."""
     from electrosense.bem.memory import check_bytes, dense_system_bytes
     from electrosense.bem.sweep import pose_bytes
     from electrosense.meshes.object_mesh import mesh_object
@@ -931,7 +936,7 @@ def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, m
     from electrosense.meshes.sensor_mesh import estimate_triangles
 
     n_objects = sum(mesh_object(o, None).n_triangles for o in objects)
-    n_tank = {}
+    n_tank, needs = {}, []
     for name, opts in options.items():
         how = (opts.get("tank_edge_length_m"), opts.get("tank_grading") or DEFAULT_TANK_GRADING,
                opts.get("tank_near_ratio", DEFAULT_TANK_NEAR_RATIO))
@@ -940,11 +945,13 @@ def check_pose_memory(sensor, tank, objects, options: dict, poses: np.ndarray, m
                 mesh_tank_around(sensor, tank, sensor_axis_points_m(Scene(sensor, Pose.from_array(p), tank), 9),
                                  *how).n_triangles for p in poses)
         Ns, Ne = estimate_triangles(sensor, opts.get("edge_length_m")), n_tank[how] + n_objects
-        check_bytes(max(pose_bytes(Ns, Ne), dense_system_bytes(Ns, 1.1)),
-                    f"a {'reference' if name == 'ref' else name} BEM pose nearest a wall (tank and objects {Ne} "
-                    f"triangles, sensor {Ns})", 0.8 * memory_share,
-                    hint="use fewer workers (--workers), a coarser reference sensor mesh (--edge-length) or a wider "
-                         "wall gap (--wall-gap)")
+        needs.append((max(pose_bytes(Ns, Ne), dense_system_bytes(Ns, 1.1)),
+                      f"a {'reference' if name == 'ref' else name} BEM pose nearest a wall (tank and objects {Ne} "
+                      f"triangles, sensor {Ns})"))
+    what = " and ".join(w for _, w in needs) + (" together" if len(needs) > 1 else "")
+    check_bytes(sum(b for b, _ in needs), what, 0.8 * memory_share,
+                hint="use fewer workers (--workers), a coarser reference sensor mesh (--edge-length) or a wider "
+                     "wall gap (--wall-gap)")
 
 
 class _BemPool:
@@ -955,8 +962,9 @@ class _BemPool:
 
     def __init__(self, sensor, tank, objects, options: dict, workers: int, hardest=None):
         self.workers = max(1, int(workers))
-        # every worker holds a sweep of each mesh at once: each may take its share of the memory
-        self.args = (sensor, tank, tuple(objects), options, 1.0 / (self.workers * len(options)))
+        # every worker holds a sweep of each mesh: their sum is checked against the worker's share here, and each
+        # sweep checks itself against that share
+        self.args = (sensor, tank, tuple(objects), options, 1.0 / self.workers)
         if hardest is not None and (tank is not None or objects):
             check_pose_memory(sensor, tank, objects, options, hardest, self.args[-1])
         self._cpu = {}
