@@ -110,6 +110,25 @@ def test_a_workers_sweeps_are_checked_together_against_its_share_of_the_memory(m
         check_pose_memory(SENSOR, TANK, (), options, poses, 0.5)
 
 
+def test_a_build_whose_workers_would_not_fit_together_runs_on_fewer_and_says_so(tmp_path, monkeypatch):
+    """Memory for one worker's BEM poses but not for two: the build runs on one (the CPU budget unchanged), says
+    why, and still leaves a map; it is refused only where one worker's would not fit."""
+    import electrosense.validation.simulation.tank_map as tm
+    from electrosense.bem.memory import MemoryRefusal
+
+    def one_worker_only(sensor, tank, objects, options, poses, share):
+        if share < 1.0:
+            raise MemoryRefusal(f"a reference BEM pose nearest a wall needs more than its share, {share:.2g}")
+
+    monkeypatch.setattr(tm, "check_pose_memory", one_worker_only)
+    said = []
+    m = build_tank_map(SENSOR, TANK, 0.0, path=tmp_path / "m.npz", max_seconds=0, progress=said.append,
+                       **{**BUILD, "per_round": 4, "workers": 2})
+    assert len(m.nodes) == 4 and (tmp_path / "m.npz").exists()
+    assert any("2 workers would not hold" in line and "1 instead" in line for line in said), said
+    assert any("on 1 process(es)" in line for line in said), said
+
+
 def test_a_reference_edge_near_the_sensors_diameter_puts_the_coarse_poses_on_the_coarsest_mesh(monkeypatch):
     """The coarse sensor mesh is ``coarse_factor`` times the reference's edge, at most the sensor's diameter (the
     mesher's coarsest): a user's reference edge of 0.012 m on angels-4 (diameter 0.0244 m) had asked for 0.036 m

@@ -1037,7 +1037,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     budget of the whole build, every process counted (default ``workers * max_seconds``: on a machine busy with other work the same command solves the
     same BEM poses and gives the same map); ``max_seconds``: wall-clock budget; at either the map is saved as it
     stands, its estimated error with it (the last round is as many poses as the CPU budget still pays for);
-    ``workers``: processes solving the BEM.
+    ``workers``: processes solving the BEM (fewer, said, where their BEM poses nearest a wall would not fit in the
+    memory together; the CPU budget stays ``workers * max_seconds``).
     """
     from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
     from electrosense.meshes.sensor_mesh import coarsest_edge_length_m, default_edge_length_m
@@ -1119,10 +1120,20 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         nodes, K_nodes, history = old.nodes, old.K_nodes, list(old.history)
         ref_index, K_ref = old.ref_index, old.K_ref
         say(f"resuming from {len(nodes)} BEM poses ({len(ref_index)} on the reference mesh) in {path}")
-    # the memory checked at the poses nearest a wall (the finest tank meshes) before any BEM
+    # the memory checked at the poses nearest a wall (the finest tank meshes) before any BEM; where the workers'
+    # sweeps do not fit together, fewer workers, said (one that does not fit alone is refused)
+    from electrosense.bem.memory import MemoryRefusal
+
     nearest = C[np.argsort(sensor_wall_gap_m(sensor, tank, C, objects))[:2]]
-    pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": fidelities["ref"]}, workers,
-                    nearest)
+    for w in range(max(1, int(workers)), 0, -1):
+        try:
+            pool = _BemPool(sensor, tank, objects, fidelities if corrected else {"coarse": fidelities["ref"]}, w,
+                            nearest)
+            break
+        except MemoryRefusal as exc:
+            if w == 1:
+                raise
+            say(f"  memory: {w} workers would not hold their BEM poses nearest a wall ({exc}); {w - 1} instead")
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
     per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)
