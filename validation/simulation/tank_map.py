@@ -1133,7 +1133,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         except MemoryRefusal as exc:
             if w == 1:
                 raise
-            say(f"  memory: {w} workers would not hold their BEM poses nearest a wall ({exc}); {w - 1} instead")
+            reason = str(exc).split(": use ")[0]   # the numbers, not the remedy: this is it
+            say(f"  memory: {w} workers would not hold their BEM poses nearest a wall ({reason}); {w - 1} instead")
     prior_cpu = float(history[-1].get("cpu_seconds", 0.0)) if history else 0.0
     prior_wall = float(history[-1].get("seconds", 0.0)) if history else 0.0
     per_pose = {}   # CPU seconds per pose of each mesh, set-up included (an upper estimate)

@@ -184,7 +184,11 @@ def write_blind_file(scene_path: Path, out: Path, fault: str, seed: int, log=pri
 
 
 def _complex(text: str) -> complex:
-    """A complex number as Python writes it (``0.4j``, ``0.05+0.3j``), refused in argparse's words otherwise."""
+    """A complex number as Python writes it (``0.4j``, ``0.05+0.3j``), refused in argparse's words otherwise.
+
+    >>> _complex("0.05+0.3j"), _complex(" 0.4j")
+    ((0.05+0.3j), 0.4j)
+    """
     try:
         return complex(text.replace(" ", ""))
     except ValueError:
