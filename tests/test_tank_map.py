@@ -245,38 +245,6 @@ def test_the_candidates_put_the_sensor_at_the_gap_from_two_walls_at_every_corner
     assert not corners_at_the_gap(sensor, tank, far, gap, spacing, objects).size
 
 
-@pytest.mark.parametrize("tank", [Tank((0.62, 0.47, 0.3)), Tank((0.5, 0.5, 0.3)), CylinderTank(0.25, 0.2)],
-                         ids=["box", "square", "cylinder"])
-def test_the_tips_on_the_mirror_planes_point_at_the_walls_the_planes_meet(tank):
-    """On each mirror plane of a box (y = 0, x = 0) the sensor's axis lies in the plane and points at the wall the
-    plane meets, either end first, a tip at each gap of the ladder and nearer no other boundary, at every depth
-    asked; a round tank has none."""
-    from electrosense.validation.diagnosis.unseen import random_sensor
-    from electrosense.validation.simulation.tank_map import (
-        MIRROR_PLANE_GAPS,
-        boundary_gaps_m,
-        sensor_wall_gap_m,
-        tips_on_the_mirror_planes,
-    )
-
-    sensor = random_sensor(np.random.default_rng(11), 4)
-    Q = tips_on_the_mirror_planes(sensor, tank, [0.0, 0.03], 0.005)
-    if isinstance(tank, CylinderTank):
-        assert not Q.size
-        return
-    assert len(Q) == 2 * 2 * 2 * len(MIRROR_PLANE_GAPS) and set(np.round(Q[:, 2], 9)) == {0.0, 0.03}
-    along_x = np.isclose(Q[:, 1], 0.0) & np.isclose(np.abs(np.cos(Q[:, 3])), 1.0)   # on y = 0, towards +x
-    along_y = np.isclose(Q[:, 0], 0.0) & np.isclose(np.abs(np.sin(Q[:, 3])), 1.0)   # on x = 0, towards +y
-    assert (along_x ^ along_y).all() and along_x.sum() == along_y.sum()
-    assert set(np.round(np.cos(Q[along_x, 3]))) == {-1.0, 1.0} and set(np.round(np.sin(Q[along_y, 3]))) == {-1.0, 1.0}
-    G = boundary_gaps_m(sensor, tank, Q)          # walls x-, x+, y-, y+, then floor and free surface
-    wall = np.where(along_x, 1, 3)
-    gap = G[np.arange(len(Q)), wall]
-    assert np.allclose(gap, sensor_wall_gap_m(sensor, tank, Q), atol=1e-12)   # that wall is the nearest
-    for sel in (along_x, along_y):
-        assert np.allclose(np.unique(np.round(gap[sel], 9)), 0.005 * np.asarray(MIRROR_PLANE_GAPS), atol=1e-9)
-
-
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):

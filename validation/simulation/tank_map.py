@@ -271,48 +271,6 @@ def corners_at_the_gap(sensor, tank, poses: np.ndarray, wall_gap_m: float, withi
     return np.vstack(out) if out else np.zeros((0, 4))
 
 
-#: the tip gaps of :func:`tips_on_the_mirror_planes`, times the map's wall gap
-MIRROR_PLANE_GAPS = (1.0, 1.5, 2.25, 3.4)
-
-
-def tips_on_the_mirror_planes(sensor, tank, depths, wall_gap_m: float, gaps=MIRROR_PLANE_GAPS) -> np.ndarray:
-    """(Q, 4) poses of a box's folded map with the sensor's axis on a mirror plane (y = 0, x = 0) pointing at the
-    wall that plane meets, either end first, a tip at ``gaps`` times ``wall_gap_m`` from it, at each of ``depths``;
-    none in a round tank.
-
-    Where a mirror plane meets a wall the folded map's coordinates have a corner: the nodes lie on one side of
-    the plane (their mirror images lend it the other, :meth:`MapFrame.mirror_ghosts`) and on one side of the
-    wall, and log K changes fastest there. The grid's poses and the tips at the gap leave it to the
-    interpolant, and a build's rounds do not find it, whose error estimate is low there: seed 7's study sensor
-    (a random 5-electrode sensor in a 0.59 x 0.47 m box) erred 0.080 % at a pose beside the +x wall on y = 0, the
-    estimate 0.0096 %, the coarse interpolation 0.055 % of it; at 12 random such poses (tips 5-20 mm square on
-    to within 0.15 rad, 15 mm of the plane) it erred 0.038 % RMS, 0.060 % max against its own coarse BEM, its
-    nearest node 0.06-0.09 away in the map's coordinates, and 12 more such poses as nodes took that to 0.0032 %
-    / 0.0060 %. It is also the path a robot drives most, along the tank's axis to its end walls.
-
-    >>> from electrosense.meshes import preset
-    >>> from electrosense.meshes.tank import Tank
-    >>> sensor, tank = preset("angels-4"), Tank((1.0, 0.8, 0.5))
-    >>> Q = tips_on_the_mirror_planes(sensor, tank, [0.0], 0.005, gaps=(1.0, 2.0))
-    >>> len(Q), np.round(1e3 * sensor_wall_gap_m(sensor, tank, Q), 6).tolist()
-    (8, [5.0, 10.0, 5.0, 10.0, 5.0, 10.0, 5.0, 10.0])
-    """
-    if not hasattr(tank, "size_m"):
-        return np.zeros((0, 4))
-    out, want = [], []
-    for axis, yaws in ((0, (0.0, np.pi)), (1, (0.5 * np.pi, -0.5 * np.pi))):   # towards the +x wall; the +y wall
-        for z in np.atleast_1d(depths):
-            for yaw in yaws:
-                for g in gaps:
-                    P = np.array([[0.0, 0.0, float(z), yaw]])
-                    for _ in range(3):   # the gap is linear in the centre's move towards a flat wall
-                        P[0, axis] += sensor_wall_gap_m(sensor, tank, P)[0] - g * wall_gap_m
-                    out.append(P[0])
-                    want.append(g * wall_gap_m)
-    Q = np.array(out)
-    return Q[np.abs(sensor_wall_gap_m(sensor, tank, Q) - np.array(want)) < 1e-9]   # none beyond another wall
-
-
 def _farthest_points(F: np.ndarray, k: int, start: np.ndarray | None = None) -> np.ndarray:
     """Indices of ``k`` rows of ``F`` spread by farthest-point sampling (from the rows ``start`` if given)."""
     d = np.full(len(F), np.inf)
@@ -1055,7 +1013,7 @@ class _BemPool:
 def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TARGET_RMS,
                    target_max: float = TARGET_MAX, wall_gap_m: float = 0.005, spacing_m: float = 0.01,
                    n_headings: int = 48, n_depths: int = 5, first: int = 60, first_tips: int = 30,
-                   first_corners: int = 30, first_planes: int = 16, per_round: int = 24,
+                   first_corners: int = 30, per_round: int = 24,
                    first_ref: int = 12, max_seconds: float = 270.0, max_cpu_seconds: float | None = None,
                    bem_options: dict | None = None, coarse_factor: float = COARSE_FACTOR,
                    sigma_S_per_m: float | None = None, workers: int = 2, warp_m: float = DEFAULT_WARP_M,
@@ -1069,8 +1027,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``first`` / ``first_tips``: the first round's poses, spread over the grid and then over the tips at the
     gap (:func:`tips_at_the_gap`; without them seed 4's map erred 0.09-0.17 % with a tip 5 mm from the middle of
     a wall, and 56 coarse poses there, 30 s of CPU, took 36 such poses from 0.053 % / 0.117 % to 0.016 % /
-    0.026 %), then over the poses at the gap from two walls at once (``first_corners``, :func:`corners_at_the_gap`),
-    then over the tips on a box's mirror planes (``first_planes``, :func:`tips_on_the_mirror_planes`);
+    0.026 %), then over the poses at the gap from two walls at once (:func:`corners_at_the_gap`);
     ``coarse_factor``: the many poses are solved on a sensor mesh this much coarser (at most as coarse as the
     mesher makes it, :func:`~electrosense.meshes.sensor_mesh.coarsest_edge_length_m`) and corrected by the
     reference at fewer poses (``first_ref`` first, then a round of them where it removes more of the
@@ -1130,13 +1087,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     tips = tips_at_the_gap(sensor, tank, C, wall_gap_m, spacing_m, objects, facing_rad=np.pi / n_headings)
     # and the sensor at the gap from two walls at once, where the grid leaves the corner to the interpolant
     corners = np.unique(np.round(corners_at_the_gap(sensor, tank, C, wall_gap_m, spacing_m, objects), 9), axis=0)
-    # and the tips on the fold's mirror planes pointing at the walls they meet, where the folded coordinates have
-    # a corner of their own (a box without objects: the fold's planes)
-    planes = (tips_on_the_mirror_planes(sensor, tank, depths, wall_gap_m) if not objects
-              else np.zeros((0, 4)))
-    kind = np.r_[np.zeros(len(C), int), np.ones(len(tips), int), np.full(len(corners), 2),
-                 np.full(len(planes), 3)]   # grid, tip, corner, mirror plane
-    C = np.vstack([C, tips, corners, planes])
+    kind = np.r_[np.zeros(len(C), int), np.ones(len(tips), int), np.full(len(corners), 2)]   # grid, tip, corner
+    C = np.vstack([C, tips, corners])
     frame = MapFrame(sensor, tank, objects, band, warp_m)
     F = frame.features(C)
     if frame.symmetric:   # one candidate per orbit, at its folded pose: the BEM's poses all lie in the
@@ -1147,7 +1099,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     T = pose_features(sensor, C)   # the tips' positions: where a round's spread share goes
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls, {int(np.sum(kind == 1))} of them a tip at that gap, "
-        f"{int(np.sum(kind == 2))} at that gap from two walls, {int(np.sum(kind == 3))} on the mirror planes"
+        f"{int(np.sum(kind == 2))} at that gap from two walls"
         f"{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
     n = K_free.shape[0]
@@ -1225,18 +1177,16 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         # the first poses in chunks, the budget checked between them (a slow scene gets fewer, never none): at
         # least one chunk of coarse poses and MIN_REFERENCE_POSES on the reference mesh make a map with its error
         n_tips = first + min(first_tips, int(np.sum(kind == 1)))
-        n_corners = n_tips + min(first_corners, int(np.sum(kind == 2)))
-        n_first = n_corners + min(first_planes, int(np.sum(kind == 3)))
+        n_first = n_tips + min(first_corners, int(np.sum(kind == 2)))
         if len(nodes) < n_first:
             say(f"BEM at {n_first - len(nodes)} first poses on {pool.workers} process(es)"
                 + (f", sensor mesh {coarse_factor:.3g}x coarser than the reference" if corrected else ""))
             # spread over the grid, then over the tips at the gap (the tips the grid misses, where log K changes
             # fastest: tips_at_the_gap; cheap on the coarse poses, whose faces near the sensor are image planes),
-            # then over the corners at the gap (corners_at_the_gap), then the tips on the mirror planes
-            # (tips_on_the_mirror_planes)
+            # then over the corners at the gap (corners_at_the_gap)
             have = frame.features(nodes) if len(nodes) else np.zeros((0, F.shape[1]))
             order = np.zeros(0, int)
-            for k, upto in ((0, first), (1, n_tips), (2, n_corners), (3, n_first)):
+            for k, upto in ((0, first), (1, n_tips), (2, n_first)):
                 pool_k = np.flatnonzero(kind == k)
                 pick = pool_k[_farthest_points(F[pool_k], max(0, upto - len(nodes) - len(order)),
                                                have if len(have) else None)]
