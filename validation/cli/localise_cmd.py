@@ -99,5 +99,7 @@ def localise(log, map_file, psm_model, outdir, no_figure, acceleration_psd, turn
     for name in ("map", "psm"):
         if "object" in s and name in s["object"]:
             click.echo(f"{name.upper()} object: {describe(s['object'][name])}")
+        elif "object" in s and f"{name}_left_out" in s["object"]:
+            click.echo(f"{name.upper()} object: left out ({s['object'][name + '_left_out']})")
     click.echo(f"wrote {outdir}/localise.json")
 

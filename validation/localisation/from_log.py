@@ -249,6 +249,7 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
     """An object the log passes, by the map (and the PSM where given): :func:`~electrosense.validation.
     localisation.object_position.locate_object` at the logged poses, scored against ``true_centre_m`` where
     known."""
+    from electrosense.psm.conductance import PlacementError
     from electrosense.validation.diagnosis.object_field import sensor_object_field
     from electrosense.validation.localisation.object_position import (
         FALSE_ALARM,
@@ -273,8 +274,13 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
                        "it is approximate where the object is near the curved wall")
     for name, model in models.items():
         say(f"looking for an object with the {name}")
-        fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m,
-                            model_error_cov=_error_blocks(tank_map, obs.poses) if name == "map" else None)
+        try:
+            fit = locate_object(model, currents, noise_rel, obs.poses, obs.tank, obs.sensor, field, z_m,
+                                model_error_cov=_error_blocks(tank_map, obs.poses) if name == "map" else None)
+        except PlacementError as exc:   # the PSM's spheres through a wall at a logged pose: its search left out,
+            out[f"{name}_left_out"] = f"the {name.upper()} refuses a logged pose: {exc}"   # the map's kept
+            say(out[f"{name}_left_out"])
+            continue
         out[name] = fit if true_centre_m is None else score_against(fit, true_centre_m)
     return out
 

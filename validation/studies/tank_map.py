@@ -525,7 +525,7 @@ def main(argv=None):
         print(f"  the ball at ({1e3 * o['true_centre_m'][0]:.1f}, {1e3 * o['true_centre_m'][1]:.1f}) mm, radius "
               f"{1e3 * BALL_M:g} mm")
         for name in ("map", "psm"):
-            print(f"  {name}: {describe(o[name])}")
+            print(f"  {name}: {describe(o[name]) if name in o else o.get(name + '_left_out', 'not run')}")
         lo = results["localise"]["object"]["map"]
         print(f"  the pass without a ball, map: {describe(lo)}")
     print(f"wrote {folder / 'study.json'}")
