@@ -72,7 +72,10 @@ __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "cor
            "sensor_wall_gap_m", "image_faces_near", "build_tank_map", "load_tank_map", "MAP_FORMAT", "scene_record",
            "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 8"   # 8: the edges' images a group of their own (7: the images' powers stored)
+MAP_FORMAT = "electrosense tank map 9"   # 9: the fixed objects' images (8: the edges' images a group of their own)
+#: an earlier format read as it is where nothing but the format changed: a map of format 8 without fixed objects
+#: (format 8 with objects: its interpolants fitted again from its nodes, which are kept)
+READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 8")
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
@@ -738,7 +741,7 @@ def load_tank_map(path) -> TankMap:
             arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in z.files})
     except (OSError, KeyError, ValueError, EOFError) as exc:
         raise ValueError(f"{path}: not a tank map ({exc})") from None
-    if meta.get("format") != MAP_FORMAT:
+    if meta.get("format") not in READABLE_FORMATS:
         raise ValueError(f"{path}: not a tank map of this version (format {meta.get('format')!r}, expected "
                          f"{MAP_FORMAT!r}); build it again")
     try:
@@ -747,13 +750,15 @@ def load_tank_map(path) -> TankMap:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: the map's scene cannot be read ({exc})") from None
     z = meta["z_m"]
+    fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref", "regressors_ref")
+              if k in arrays}
+    if meta["format"] != MAP_FORMAT and objects:   # fitted without the objects' images: fitted again
+        fitted = None
     return TankMap(sensor, tank, tuple(z) if isinstance(z, list) else float(z), arrays["nodes"], arrays["K_nodes"],
                    arrays["K_free"], objects, meta.get("bem_options", {}), meta.get("code", ""),
                    float(meta.get("wall_gap_m", 0.005)), meta.get("history", []), meta.get("sigma_S_per_m"),
                    float(meta.get("warp_m", DEFAULT_WARP_M)),
-                   {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref",
-                                           "regressors_ref") if k in arrays},
-                   float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
+                   fitted, float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
                    arrays["focus_m"] if len(arrays["focus_m"]) else None)
 
 

@@ -16,8 +16,12 @@ Goals (issue 23), printed beside every figure:
 Also written: ``map_vs_psm.png``, the map's and the PSM's error against the BEM on a line from wall to wall
 (the README's figure), and ``localise.png``.
 
-Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [--near-wall-poses N] [--corner-poses N]
-[-o DIR]``.
+With ``--objects N``, N random fixed objects (:func:`random_objects`: conducting balls and insulating poles at the
+sensor's depth) stand in the tank: they break its symmetry (the map is not folded) and the near-wall check
+counts them as walls; the localisation and the ``esense sweep`` grid, which would cross them, are left out.
+
+Run: ``esense study tank_map [--seed N] [--minutes M] [--cylinder] [--band] [--objects N] [--near-wall-poses N]
+[--corner-poses N] [-o DIR]``.
 """
 from __future__ import annotations
 
@@ -70,8 +74,48 @@ def random_scene(rng, cylinder: bool):
     return sensor, tank, round(z, 4)
 
 
-def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2)):
-    """``n`` random poses with the tips 5 mm to 20 cm (``gap_m``) from the nearest wall."""
+def random_objects(rng, sensor, tank, z, n: int) -> tuple:
+    """``n`` fixed objects at the sensor's depth ``z``: conducting balls (radius 2-3.5 cm) and insulating vertical
+    poles (radius 1.5-2.5 cm, from 1 cm above the floor to 1 cm below the free surface), in turn, each 6 cm or more of water
+    from the walls and from the others, so that the sensor can pass between them.
+
+    >>> from electrosense.meshes.tank import Tank
+    >>> from electrosense.meshes.sensor import preset
+    >>> objs = random_objects(np.random.default_rng(0), preset("angels-4"), Tank((1.0, 0.8, 0.5)), 0.0, 2)
+    >>> [type(o).__name__ for o in objs], objs[0].is_conducting, objs[1].is_insulating
+    (['Sphere', 'Cylinder'], True, True)
+    """
+    from electrosense.meshes.objects import Cylinder, Sphere
+
+    lo, hi = tank.water_bounds_m
+    out = []
+    for k in range(n):
+        for _ in range(1000):
+            if k % 2 == 0:
+                r = float(rng.uniform(0.02, 0.035))
+                cz = float(z)
+            else:
+                r = float(rng.uniform(0.015, 0.025))
+                h = tank.free_surface_z_m - tank.floor_z_m - 0.02
+                cz = tank.floor_z_m + 0.01 + 0.5 * h
+            free = 0.06 + r
+            if hi[0] - lo[0] < 2 * free or hi[1] - lo[1] < 2 * free:
+                raise ValueError(f"no room for an object of radius {r:.3f} m 6 cm from the walls of {tank}")
+            c = np.array([rng.uniform(lo[0] + free, hi[0] - free), rng.uniform(lo[1] + free, hi[1] - free)])
+            if all(np.hypot(*(c - o.centre_m[:2])) - o.radius_m - r >= 0.06 + 2 * sensor.radius_m for o in out):
+                break
+        else:
+            raise ValueError(f"could not place {n} objects 6 cm apart in {tank}")
+        centre = (round(float(c[0]), 4), round(float(c[1]), 4), round(cz, 4))
+        out.append(Sphere(centre, conductivity_S_per_m="conducting", radius_m=round(r, 4), name=f"ball {k + 1}")
+                   if k % 2 == 0 else
+                   Cylinder(centre, conductivity_S_per_m="insulating", radius_m=round(r, 4), height_m=round(h, 4),
+                            name=f"pole {k + 1}"))
+    return tuple(out)
+
+
+def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2), objects=()):
+    """``n`` random poses with the tips 5 mm to 20 cm (``gap_m``) from the nearest wall or object."""
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     lo, hi = tank.water_bounds_m
@@ -79,7 +123,7 @@ def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2)):
     while len(out) < n:
         zz = z if band is None else rng.uniform(*band)
         p = np.array([rng.uniform(lo[0], hi[0]), rng.uniform(lo[1], hi[1]), zz, rng.uniform(-np.pi, np.pi)])
-        g = sensor_wall_gap_m(sensor, tank, p[None])[0]
+        g = sensor_wall_gap_m(sensor, tank, p[None], objects)[0]
         if gap_m[0] <= g <= gap_m[1]:
             out.append(p)
     return np.array(out)
@@ -90,20 +134,51 @@ def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2)):
 NEAR_WALL_GAP_M = (0.005, 0.015)
 
 
-def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
-    """The map against the BEM at ``n`` random poses with gaps in :data:`NEAR_WALL_GAP_M`, each on a tank mesh graded
-    to it alone (as the map's nodes: the interpolation's error, :func:`errors_on_own_tank_meshes`), drawn from
-    their own seed (the study's other draws unchanged by ``n``)."""
+def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) -> dict:
+    """The map against the BEM at ``n`` random poses with gaps in :data:`NEAR_WALL_GAP_M` (from a wall or an
+    object), each on a tank mesh graded to it alone (as the map's nodes: the interpolation's error,
+    :func:`errors_on_own_tank_meshes`), drawn from their own seed (the study's other draws unchanged by ``n``)."""
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
-    P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M)
-    return {**errors_at(m, sensor, tank, P), "gaps_m": sensor_wall_gap_m(sensor, tank, P).tolist()}
+    P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M, objects)
+    return {**errors_at(m, sensor, tank, P, objects),
+            "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
 
 
-def errors_at(m, sensor, tank, P) -> dict:
+def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WALL_GAP_M) -> np.ndarray:
+    """``n`` random poses with the sensor ``gap_m`` from one of the fixed ``objects`` (each in turn) and no nearer
+    a wall than the gap's low end; random headings."""
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m
+
+    reach = 0.5 * sensor.length_m + sensor.radius_m + gap_m[1]
+    n_walls = boundary_gaps_m(sensor, tank, np.zeros((1, 4))).shape[1]
+    out = []
+    while len(out) < n:
+        k = len(out) % len(objects)
+        o = objects[k]
+        zz = z if band is None else rng.uniform(*band)
+        c = np.asarray(o.centre_m[:2]) + rng.uniform(-1, 1, 2) * (o.radius_m + reach)
+        p = np.array([c[0], c[1], zz, rng.uniform(-np.pi, np.pi)])
+        g = boundary_gaps_m(sensor, tank, p[None], objects)[0]
+        if gap_m[0] <= g[n_walls + k] <= gap_m[1] and g.min() >= gap_m[0]:
+            out.append(p)
+    return np.array(out)
+
+
+def check_near_objects(m, sensor, tank, z, seed: int, n: int, objects, band=None) -> dict:
+    """The map against the BEM at ``n`` random poses 5-15 mm from a fixed object (:func:`near_object_poses`), each
+    on a tank mesh graded to it alone, drawn from their own seed."""
+    from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
+
+    P = near_object_poses(sensor, tank, z, np.random.default_rng([seed, 4]), n, objects, band)
+    return {**errors_at(m, sensor, tank, P, objects),
+            "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+
+
+def errors_at(m, sensor, tank, P, objects=()) -> dict:
     """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`): its RMS
     and largest, the map's own estimate there (RMS), the poses and every receiver's error."""
-    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P)
+    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
             "errors": err.tolist()}
@@ -113,9 +188,9 @@ def errors_at(m, sensor, tank, P) -> dict:
 CORNER_GAP_M = (0.005, 0.012)
 
 
-def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M) -> np.ndarray:
+def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M, objects=()) -> np.ndarray:
     """``n`` random poses of a box's tank with the sensor ``gap_m`` from two walls that meet at a corner (each gap
-    drawn alone; a random heading and corner), none nearer anything than the first gap."""
+    drawn alone; a random heading and corner), none nearer anything (an object too) than the first gap."""
     from electrosense.validation.simulation.tank_map import boundary_gaps_m
 
     column = {name: k for k, name in enumerate(tank.region_names)}
@@ -128,18 +203,19 @@ def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M) -> np.n
         ix, iy = column["wall_x+" if sx > 0 else "wall_x-"], column["wall_y+" if sy > 0 else "wall_y-"]
         gx, gy = rng.uniform(*gap_m, 2)
         p[0], p[1] = sx * (g[ix] - gx), sy * (g[iy] - gy)     # a flat wall's gap is linear in x or y
-        if boundary_gaps_m(sensor, tank, p[None])[0].min() >= gap_m[0] - 1e-9:
+        if boundary_gaps_m(sensor, tank, p[None], objects)[0].min() >= gap_m[0] - 1e-9:
             out.append(p)
     return np.array(out)
 
 
-def check_corners(m, sensor, tank, z, seed: int, n: int, band=None) -> dict:
+def check_corners(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) -> dict:
     """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
     a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
-    return errors_at(m, sensor, tank, corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band))
+    P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, objects=objects)
+    return errors_at(m, sensor, tank, P, objects)
 
 
-def errors_on_own_tank_meshes(m, sensor, tank, P):
+def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
     """The map's relative error of the receiver currents (P, m) against the reference BEM solved as its nodes were,
     and that BEM's K (P, n, n): each pose on a tank mesh graded to it alone (a map of an earlier version, whose
     nodes share one tank mesh graded to the fundamental domain: on that mesh, at the folded poses)."""
@@ -149,15 +225,15 @@ def errors_on_own_tank_meshes(m, sensor, tank, P):
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
     if m.focus_m is None:
-        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, (), 1.0, **m.bem_options), P)
+        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P)
     else:
-        K = PoseSweep(sensor, tank, (), 1.0, focus_m=m.focus_m, tank_near_ratio=None,
+        K = PoseSweep(sensor, tank, objects, 1.0, focus_m=m.focus_m, tank_near_ratio=None,
                       **m.bem_options).conductance(m.frame.folded(P)).K_S
         K = m.mirrored(K, P)     # back to the poses' own frame (a sector sensor's permutation)
     return m.conductance(P)[:, r, e] / K[:, r, e] - 1, K
 
 
-def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
+def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4, objects=()):
     """Receiver-current errors of the map against the reference BEM (the map's sensor mesh options) at ``P``:
     ``other``: on one tank mesh graded towards all of ``P`` (a fresh BEM as a user would run it along a path);
     ``same``: each pose on a tank mesh graded to it alone, as the map's nodes were solved (the interpolation's
@@ -172,13 +248,13 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
     focus = trajectory_focus_m(sensor, P)
-    K_other = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
+    K_other = PoseSweep(sensor, tank, objects, 1.0, focus_m=focus, **m.bem_options).conductance(P).K_S
     out = {"other": m.conductance(P)[:, r, e] / K_other[:, r, e] - 1}
-    out["same"], K_same = errors_on_own_tank_meshes(m, sensor, tank, P)
+    out["same"], K_same = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
     out["bem_tank"] = K_same[:, r, e] / K_other[:, r, e] - 1
     if n_sensor_check:
         fine = {**m.bem_options, "edge_length_m": 0.7 * m.bem_options["edge_length_m"]}
-        K_fine = PoseSweep(sensor, tank, (), 1.0, focus_m=focus, **fine).conductance(P[:n_sensor_check]).K_S
+        K_fine = PoseSweep(sensor, tank, objects, 1.0, focus_m=focus, **fine).conductance(P[:n_sensor_check]).K_S
         out["bem_sensor"] = K_other[:n_sensor_check][:, r, e] / K_fine[:, r, e] - 1
         if m.focus_m is None and "tank_grading" in m.bem_options:
             from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
@@ -187,15 +263,17 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4):
             for name, grading in (("bem_tank_grading", 0.6 * m.bem_options["tank_grading"]),
                                   ("bem_default_tank", DEFAULT_TANK_GRADING)):
                 K_tank[name] = each_on_its_own_tank_mesh(
-                    PoseSweep(sensor, tank, (), 1.0, **{**m.bem_options, "tank_grading": grading}), P[:n_sensor_check])
+                    PoseSweep(sensor, tank, objects, 1.0, **{**m.bem_options, "tank_grading": grading}),
+                    P[:n_sensor_check])
             out["bem_tank_grading"] = K_same[:n_sensor_check][:, r, e] / K_tank["bem_tank_grading"][:, r, e] - 1
             out["bem_default_tank"] = K_tank["bem_default_tank"][:, r, e] / K_same[:n_sensor_check][:, r, e] - 1
     return out
 
 
-def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
+def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
     """The map's and the PSM's error against the BEM on a line from wall to wall (tips 5 mm from each), heading 0
-    (the PSM only in a box: it has no images of a cylinder's wall)."""
+    (the PSM only in a box: it has no images of a cylinder's wall); with fixed ``objects``, the poses 5 mm or more
+    from them."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import psm_usable
@@ -207,15 +285,23 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
     x = np.linspace(lo[0] + half + 0.005, hi[0] - half - 0.005, n)
     y0 = 0.5 * (lo[1] + hi[1]) if not hasattr(tank, "radius_m") else 0.0
     P = np.c_[x, np.full(n, y0), np.full(n, z), np.zeros(n)]
-    K = PoseSweep(sensor, tank, (), 1.0, focus_m=trajectory_focus_m(sensor, P), **m.bem_options).conductance(P).K_S
+    if objects:
+        from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
+
+        clear = sensor_wall_gap_m(sensor, tank, P, objects) >= 0.005 - 1e-9
+        x, P, n = x[clear], P[clear], int(clear.sum())
+    K = PoseSweep(sensor, tank, objects, 1.0, focus_m=trajectory_focus_m(sensor, P), **m.bem_options).conductance(P).K_S
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
     err_map = np.abs(m.conductance(P)[:, r, e] / K[:, r, e] - 1).max(axis=1)
+    from electrosense.meshes.objects import Sphere
+
     psm = calibrated_psm(sensor)
-    ok = psm_usable(psm, P, tank)
+    balls_only = all(isinstance(o, Sphere) for o in objects)   # the PSM's object term: a ball's dipole
+    ok = psm_usable(psm, P, tank) & balls_only
     err_psm = np.full(n, np.nan)
     if ok.any():
-        Kp = pose_evaluator("psm", sensor, tank, 1.0, psm_model=psm).conductance(P[ok]).K_S
+        Kp = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=psm).conductance(P[ok]).K_S
         err_psm[ok] = np.abs(Kp[:, r, e] / K[ok][:, r, e] - 1).max(axis=1)
     fig, axes = new_figure(1, 1, panel_size_in=(5.6, 3.4))
     ax = axes[0, 0]
@@ -230,7 +316,9 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25):
     round_tank = hasattr(tank, "radius_m")
     ax.set_title(f"{sensor.n_electrodes}-electrode sensor along a {'diameter' if round_tank else 'line'} of the tank,\n"
                  f"tips {gap.min():.0f} mm to {gap.max():.0f} mm from {'its wall' if round_tank else 'the end walls'}"
-                 f"{'' if ok.any() else ' (the PSM: no images of a round wall)'}", fontsize=9)
+                 f"{'' if ok.any() else ' (the PSM: no images of a round wall)' if balls_only else ''}"
+                 f"{f',{chr(10)}{len(objects)} fixed object(s), poses 5 mm or more from them' if objects else ''}"
+                 f"{'' if balls_only else ' (the PSM: balls only)'}", fontsize=9)
     ax.legend(fontsize=7)
     save(fig, out, vector=None)
     return {"x_m": x.tolist(), "map": err_map.tolist(), "psm": err_psm.tolist()}
@@ -336,6 +424,8 @@ def main(argv=None):
     ap.add_argument("--log-poses", type=int, default=31)
     ap.add_argument("--cylinder", action="store_true", help="a cylindrical tank (no localisation: box bench only)")
     ap.add_argument("--band", type=float, default=0.0, help="a band of depths of this height (m) around z")
+    ap.add_argument("--objects", type=int, default=0,
+                    help="fixed objects in the tank (balls and poles at the sensor's depth; no localisation)")
     ap.add_argument("--skip-localisation", action="store_true")
     ap.add_argument("--sensor", default=None, help="a preset or sensor file instead of a random sensor")
     ap.add_argument("--tank", default=None, help="LX,LY,LZ (m, full) instead of a random box tank")
@@ -359,14 +449,18 @@ def main(argv=None):
         tank = Tank(tuple(float(v) for v in args.tank.split(",")))
     z = z if args.z is None else args.z
     band = (z - args.band / 2, z + args.band / 2) if args.band else None
+    objects = random_objects(np.random.default_rng([args.seed, 3]), sensor, tank, z, args.objects)
     print(f"sensor: {sensor.n_electrodes} electrodes, length {sensor.length_m:.3f} m, radius {sensor.radius_m:.4f} m, "
           f"emitter {sensor.emitter}; tank {tank}; z = {band or z} m; folder {folder}")
-    results = {"sensor": sensor.to_dict(), "tank": repr(tank), "z_m": band or z}
+    for o in objects:
+        print(f"  fixed object: {o}")
+    results = {"sensor": sensor.to_dict(), "tank": repr(tank), "z_m": band or z,
+               "objects": [repr(o) for o in objects]}
     # ---------------------------------------------------------------- build
     path = folder / "study.map.npz"
     w0, c0 = time.perf_counter(), _cpu_s()
     # the budget in CPU seconds (workers x minutes): on a busy machine the same map, in more wall-clock time
-    m = build_tank_map(sensor, tank, band or z, path=path, max_seconds=6 * 60 * args.minutes,
+    m = build_tank_map(sensor, tank, band or z, path=path, objects=objects, max_seconds=6 * 60 * args.minutes,
                        max_cpu_seconds=args.workers * 60 * args.minutes, workers=args.workers,
                        progress=lambda s: print("  build:", s, flush=True))
     build_wall, build_cpu = time.perf_counter() - w0, _cpu_s() - c0
@@ -382,8 +476,8 @@ def main(argv=None):
     save()
     # ---------------------------------------------------------------- accuracy
     print(f"BEM at {args.test_poses} random poses (tips 5 mm to 20 cm from a wall), on a tank mesh graded to them")
-    P = test_poses(sensor, tank, z, rng, args.test_poses, band)
-    errs = check_accuracy(m, sensor, tank, P)
+    P = test_poses(sensor, tank, z, rng, args.test_poses, band, objects=objects)
+    errs = check_accuracy(m, sensor, tank, P, objects=objects)
     err = errs["other"]
     err_est = m.estimated_error(P)
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
@@ -395,32 +489,38 @@ def main(argv=None):
     if args.near_wall_poses:
         print(f"BEM at {args.near_wall_poses} random poses {1e3 * NEAR_WALL_GAP_M[0]:g}-{1e3 * NEAR_WALL_GAP_M[1]:g} mm "
               "from a wall, each on its own tank mesh")
-        results["near_wall"] = check_near_wall(m, sensor, tank, z, args.seed, args.near_wall_poses, band)
+        results["near_wall"] = check_near_wall(m, sensor, tank, z, args.seed, args.near_wall_poses, band, objects)
+        save()
+    if objects and args.near_wall_poses:
+        print(f"BEM at {args.near_wall_poses} random poses {1e3 * NEAR_WALL_GAP_M[0]:g}-{1e3 * NEAR_WALL_GAP_M[1]:g} mm "
+              "from a fixed object, each on its own tank mesh")
+        results["near_objects"] = check_near_objects(m, sensor, tank, z, args.seed, args.near_wall_poses, objects,
+                                                     band)
         save()
     if args.corner_poses and not args.cylinder:
         print(f"BEM at {args.corner_poses} random poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
               "two walls at once, each on its own tank mesh")
-        results["corners"] = check_corners(m, sensor, tank, z, args.seed, args.corner_poses, band)
+        results["corners"] = check_corners(m, sensor, tank, z, args.seed, args.corner_poses, band, objects)
         save()
     # ---------------------------------------------------------------- speed
-    Q = test_poses(sensor, tank, z, rng, 2000, band)
+    Q = test_poses(sensor, tank, z, rng, 2000, band, objects=objects)
     Q = np.repeat(Q, 50, axis=0)
     m.conductance(Q[:100], jacobian=True)
     t, c = time.perf_counter(), time.process_time()
     m.conductance(Q, jacobian=True)
     wall, cpu = time.perf_counter() - t, time.process_time() - c
     results["speed"] = {"poses_per_s_jacobian_cpu": len(Q) / cpu, "poses_per_s_jacobian_wall": len(Q) / wall}
-    if band is None:
+    if band is None and not objects:   # a grid would cross the objects, where the map refuses a pose
         run_rate, cmd_rate = sweep_speed(path, sensor, tank, z, folder)
         results["speed"].update({"sweep_poses_per_s": run_rate, "sweep_command_poses_per_s": cmd_rate})
     save()
     # ---------------------------------------------------------------- figure
     if band is None:
         print("the map and the PSM against the BEM from wall to wall")
-        results["line"] = map_vs_psm_figure(m, sensor, tank, z, folder / "map_vs_psm.png")
+        results["line"] = map_vs_psm_figure(m, sensor, tank, z, folder / "map_vs_psm.png", objects=objects)
     save()
     # ---------------------------------------------------------------- localisation
-    if not (args.skip_localisation or args.cylinder or band):
+    if not (args.skip_localisation or args.cylinder or band or objects):
         from electrosense.validation.defaults import BENCH_CURRENT_NOISE_REL
         from electrosense.validation.localisation.from_log import localise_log
 
@@ -470,9 +570,14 @@ def main(argv=None):
           f"{b['reference_poses']} on the reference sensor mesh)")
     if "near_wall" in results:
         nw = results["near_wall"]
-        print(f"  near the walls ({len(nw['poses'])} poses {1e3 * min(nw['gaps_m']):.1f}-{1e3 * max(nw['gaps_m']):.1f} mm "
+        print(f"  near the walls{' or objects' if objects else ''} ({len(nw['poses'])} poses {1e3 * min(nw['gaps_m']):.1f}-{1e3 * max(nw['gaps_m']):.1f} mm "
               f"from one, each on its own tank mesh): {nw['rms']:.3%} RMS, {nw['max']:.3%} max; the map's own "
               f"estimate there {nw['estimated_rms']:.3%} RMS")
+    if "near_objects" in results:
+        no = results["near_objects"]
+        print(f"  near the fixed objects ({len(no['poses'])} poses {1e3 * min(no['gaps_m']):.1f}-"
+              f"{1e3 * max(no['gaps_m']):.1f} mm from one, each on its own tank mesh): {no['rms']:.3%} RMS, "
+              f"{no['max']:.3%} max; the map's own estimate there {no['estimated_rms']:.3%} RMS")
     if "corners" in results:
         co = results["corners"]
         print(f"  at the corners ({len(co['poses'])} poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
