@@ -5,6 +5,7 @@ A small tank and coarse meshes keep it quick; the accuracy over a real tank is t
 tank_map``, README, issue 23).
 """
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -659,6 +660,27 @@ def test_map_build_command_refuses_bad_input_in_one_line(tmp_path):
                         (["--tank", "1,1,1"], "no sensor")):
         res = CliRunner().invoke(main, ["map", "build", *args, "-o", str(tmp_path / "m.npz")])
         assert res.exit_code != 0 and words in res.output, res.output
+
+
+def test_map_build_from_a_scene_takes_its_objects_and_its_sensors_height(tmp_path, monkeypatch):
+    """``esense map build --scene FILE`` builds the scene's tank with its fixed objects at its sensor's height
+    (``--z`` overrides it), the build itself stubbed: only what the command hands it is checked."""
+    from electrosense.validation.cli import main
+    from electrosense.validation.simulation import tank_map
+
+    seen = {}
+
+    def stub(sensor, tank, z_m, path=None, objects=(), **kwargs):
+        seen.update(sensor=sensor.name, tank=tank.size_m, z=z_m, objects=[o.name for o in objects])
+        raise ValueError("stopped by the test")
+
+    monkeypatch.setattr(tank_map, "build_tank_map", stub)
+    scene = str(Path(__file__).resolve().parents[1] / "validation" / "data" / "example_scene.toml")
+    res = CliRunner().invoke(main, ["map", "build", "--scene", scene, "-o", str(tmp_path / "m.npz")])
+    assert "stopped by the test" in res.output and "the scene's sensor pose" in res.output, res.output
+    assert seen == {"sensor": "angels-4", "tank": (1.0, 1.0, 1.0), "z": -0.1, "objects": ["steel ball", "PVC pole"]}
+    CliRunner().invoke(main, ["map", "build", "--scene", scene, "--z", "0.05", "-o", str(tmp_path / "m.npz")])
+    assert seen["z"] == 0.05
 
 
 def _write_log_by_the_map(m, path, seed: int = 3):

@@ -54,8 +54,9 @@ def parse_depths(text: str):
 @click.option("--tank", "tank_text", default=None, help="Box tank LX,LY,LZ, or cylinder:R,H (m).")
 @click.option("--depth", "depth_m", type=finite_float(positive=True), default=None,
               help="Water depth (m); default: the tank full (or the scene's).")
-@click.option("--z", "z_text", default="0", show_default=True,
-              help="Height of the sensor's centre (m, tank frame: 0 is mid-height of the tank), or a band Z0:Z1.")
+@click.option("--z", "z_text", default=None,
+              help="Height of the sensor's centre (m, tank frame: 0 is mid-height of the tank), or a band Z0:Z1; "
+                   "default: the scene's sensor pose, else 0.")
 @click.option("--sigma", type=finite_float(positive=True), default=None,
               help="The water's conductivity (S/m), recorded as the map's default (K is kept at 1 S/m: it scales).")
 @click.option("--wall-gap", "wall_gap_m", type=finite_float(positive=True), default=0.005, show_default=True,
@@ -93,7 +94,7 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
 
     from electrosense.validation.simulation.tank_map import build_tank_map
 
-    sensor, tank, objects = None, None, ()
+    sensor, tank, objects, scene_z = None, None, (), None
     if scene_file:
         from electrosense.meshes.scene_file import SceneFileError, load_scene, load_scene_settings
 
@@ -101,7 +102,7 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
             scene, settings = load_scene(scene_file), load_scene_settings(scene_file)
         except (SceneFileError, ValueError) as exc:
             raise click.BadParameter(str(exc), param_hint="--scene") from None
-        sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+        sensor, tank, objects, scene_z = scene.sensor, scene.tank, tuple(scene.objects), scene.pose.z_m
         sigma = sigma or settings.get("water", {}).get("sigma_S_per_m")
     if sensor_spec:
         sensor = sensor_option(sensor_spec)
@@ -116,7 +117,9 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
         raise click.UsageError("no sensor: give --sensor (a preset or a sensor file) or --scene")
     if tank is None:
         raise click.UsageError("a map is of a tank: give --tank LX,LY,LZ (or cylinder:R,H) or a --scene with one")
-    z_m = parse_depths(z_text)
+    if z_text is None and scene_z is not None:
+        click.echo(f"z = {scene_z:g} m, the scene's sensor pose (--z to choose another)")
+    z_m = parse_depths(z_text) if z_text is not None else float(scene_z or 0.0)
     options = {k: v for k, v in (("edge_length_m", edge_length_m), ("tank_edge_length_m", tank_edge_length_m))
                if v is not None}
     try:
