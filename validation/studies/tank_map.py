@@ -318,7 +318,7 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
                  f"tips {gap.min():.0f} mm to {gap.max():.0f} mm from {'its wall' if round_tank else 'the end walls'}"
                  f"{'' if ok.any() else ' (the PSM: no images of a round wall)' if balls_only else ''}"
                  f"{f',{chr(10)}{len(objects)} fixed object(s), poses 5 mm or more from them' if objects else ''}"
-                 f"{'' if balls_only else ' (the PSM: balls only)'}", fontsize=9)
+                 f"{'' if balls_only else ' (no PSM: it models balls only)'}", fontsize=9)
     ax.legend(fontsize=7)
     save(fig, out, vector=None)
     return {"x_m": x.tolist(), "map": err_map.tolist(), "psm": err_psm.tolist()}
