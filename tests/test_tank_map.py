@@ -601,6 +601,29 @@ def test_the_studys_near_wall_check_draws_poses_at_its_gaps_and_compares_them_wi
     assert 0 < res["rms"] < 3 * res["estimated_rms"] + 1e-3   # another tank mesh adds ~5e-4 (the test above)
 
 
+def test_the_studys_random_objects_stand_clear_and_its_near_object_poses_lie_at_their_gaps():
+    """``esense study tank_map --objects``: a ball and a pole 6 cm or more of water from the walls and each other,
+    in the water (the pole clear of the floor and the free surface), and its near-object poses 5-15 mm from the
+    object whose turn it is, no nearer a wall than 5 mm."""
+    import electrosense.validation.studies.tank_map as study
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m
+
+    tank = Tank((0.7, 0.5, 0.35), 0.3)
+    for seed in range(3):
+        ball, pole = study.random_objects(np.random.default_rng(seed), SENSOR, tank, 0.0, 2)
+        lo, hi = tank.water_bounds_m
+        for o in (ball, pole):
+            c = np.asarray(o.centre_m)
+            assert np.all(c[:2] - o.radius_m - lo[:2] >= 0.06) and np.all(hi[:2] - c[:2] - o.radius_m >= 0.06)
+        assert np.hypot(*np.subtract(ball.centre_m[:2], pole.centre_m[:2])) - ball.radius_m - pole.radius_m >= 0.06
+        assert pole.centre_m[2] - 0.5 * pole.height_m > tank.floor_z_m
+        assert pole.centre_m[2] + 0.5 * pole.height_m < tank.free_surface_z_m
+        P = study.near_object_poses(SENSOR, tank, 0.0, np.random.default_rng(seed), 4, (ball, pole))
+        G = boundary_gaps_m(SENSOR, tank, P, (ball, pole))
+        own = G[np.arange(4), G.shape[1] - 2 + np.arange(4) % 2]
+        assert np.all((own >= 0.005) & (own <= 0.015)) and G.min() >= 0.005
+
+
 def test_the_map_error_covariance_holds_its_estimate_and_is_smooth_along_a_pass(built):
     """The covariance's diagonal is the estimated error's square, it is a covariance (positive semi-definite), and
     the error of two poses a millimetre apart is nearly one error while that of poses across the tank is not."""
