@@ -102,6 +102,8 @@ def random_objects(rng, sensor, tank, z, n: int) -> tuple:
             if hi[0] - lo[0] < 2 * free or hi[1] - lo[1] < 2 * free:
                 raise ValueError(f"no room for an object of radius {r:.3f} m 6 cm from the walls of {tank}")
             c = np.array([rng.uniform(lo[0] + free, hi[0] - free), rng.uniform(lo[1] + free, hi[1] - free)])
+            if hasattr(tank, "radius_m") and np.hypot(*c) + free > float(tank.radius_at(cz)):   # a round tank
+                continue
             if all(np.hypot(*(c - o.centre_m[:2])) - o.radius_m - r >= 0.06 + 2 * sensor.radius_m for o in out):
                 break
         else:
@@ -152,8 +154,12 @@ def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WA
 
     reach = 0.5 * sensor.length_m + sensor.radius_m + gap_m[1]
     n_walls = boundary_gaps_m(sensor, tank, np.zeros((1, 4))).shape[1]
-    out = []
+    out, tries = [], 0
     while len(out) < n:
+        tries += 1
+        if tries > 200_000:
+            raise ValueError(f"no pose {gap_m[0]}-{gap_m[1]} m from {objects[len(out) % len(objects)]} keeps the "
+                             f"sensor {gap_m[0]} m from everything else")
         k = len(out) % len(objects)
         o = objects[k]
         zz = z if band is None else rng.uniform(*band)
