@@ -281,6 +281,7 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
     (the PSM only in a box: it has no images of a cylinder's wall); with fixed ``objects``, the poses 5 mm or more
     from them."""
     from electrosense.bem import PoseSweep
+    from electrosense.meshes.objects import Sphere
     from electrosense.meshes.scene_mesh import trajectory_focus_m
     from electrosense.validation.diagnosis.anchored import psm_usable
     from electrosense.validation.report.style import colour_of, new_figure, save
@@ -300,8 +301,6 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
     err_map = np.abs(m.conductance(P)[:, r, e] / K[:, r, e] - 1).max(axis=1)
-    from electrosense.meshes.objects import Sphere
-
     psm = calibrated_psm(sensor)
     balls_only = all(isinstance(o, Sphere) for o in objects)   # the PSM's object term: a ball's dipole
     ok = psm_usable(psm, P, tank) & balls_only
@@ -320,10 +319,13 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
     ax.set_xlabel("x of the sensor centre (m); heading along x")
     ax.set_ylabel("largest |model / BEM - 1| (%)")
     round_tank = hasattr(tank, "radius_m")
+    several = len(objects) > 1
+    objects_line = (f",\n{len(objects)} fixed object{'s' if several else ''}, poses 5 mm or more from "
+                    f"{'them' if several else 'it'}") if objects else ""
     ax.set_title(f"{sensor.n_electrodes}-electrode sensor along a {'diameter' if round_tank else 'line'} of the tank,\n"
                  f"tips {gap.min():.0f} mm to {gap.max():.0f} mm from {'its wall' if round_tank else 'the end walls'}"
                  f"{'' if ok.any() else ' (the PSM: no images of a round wall)' if balls_only else ''}"
-                 f"{f',{chr(10)}{len(objects)} fixed object(s), poses 5 mm or more from them' if objects else ''}"
+                 f"{objects_line}"
                  f"{'' if balls_only else ' (no PSM: it models balls only)'}", fontsize=9)
     ax.legend(fontsize=7)
     save(fig, out, vector=None)
