@@ -44,7 +44,7 @@ from electrosense.meshes.tank import TANK_REGIONS
 
 __all__ = ["SceneError", "SceneMesh", "check_scene", "scene_problems", "mesh_scene", "sensor_axis_points_m",
            "trajectory_focus_m", "default_tank_edge_length_m", "mesh_tank_around", "DEFAULT_TANK_GRADING", "DEFAULT_TANK_NEAR_RATIO",
-           "distance_to_object_m"]
+           "distance_to_object_m", "object_problems"]
 
 #: growth of the tank's edge length per metre from the sensor. With the edge
 #: length a twentieth of the sensor length at the sensor, angels-2 with its tip
@@ -287,15 +287,28 @@ def _body_electrode_problems(scene: Scene) -> list[str]:
 
 def _sensorless_problems(scene: Scene) -> list[str]:
     """Objects out of the water or touching each other (any shapes), in a scene without a sensor."""
+    return object_problems(scene.tank, scene.objects)
+
+
+def object_problems(tank, objects) -> list[str]:
+    """Every reason why fixed ``objects`` cannot stand in ``tank`` (None: unbounded water), wherever a sensor goes.
+
+    Example
+    -------
+    >>> from electrosense.meshes import Sphere, Tank
+    >>> object_problems(Tank((0.6, 0.4, 0.3)), (Sphere(centre_m=(0.29, 0.0, 0.0), radius_m=0.02),))
+    ['object_1 (sphere) is out of the water across the wall_x+ (by 0.01 m)']
+    """
     problems = []
-    tank = scene.tank
     names = tank.region_names if hasattr(tank, "region_names") else TANK_REGIONS
-    for i, obj in enumerate(scene.objects, start=1):
+    for i, obj in enumerate(objects, start=1):
+        if tank is None:
+            continue
         gap = tank.distance_to_boundary_m(_object_extreme_points_m(obj)).min(axis=0)
         crossings = _boundary_crossings(gap, names)
         if crossings:
             problems.append(f"{_object_name(i, obj)} {crossings}")
-    return problems + _touching_objects(scene.objects)
+    return problems + _touching_objects(tuple(objects))
 
 
 #: gaps (m) below this count as contact: a solver cannot separate touching surfaces

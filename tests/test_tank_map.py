@@ -5,6 +5,7 @@ A small tank and coarse meshes keep it quick; the accuracy over a real tank is t
 tank_map``, README, issue 23).
 """
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -683,6 +684,26 @@ def test_map_build_command_refuses_bad_input_in_one_line(tmp_path):
                         (["--tank", "1,1,1"], "no sensor")):
         res = CliRunner().invoke(main, ["map", "build", *args, "-o", str(tmp_path / "m.npz")])
         assert res.exit_code != 0 and words in res.output, res.output
+
+
+def test_a_build_refuses_objects_it_cannot_hold_before_any_candidate_or_bem(monkeypatch):
+    """An object out of the water, two touching, or one of a finite conductivity (the BEM's objects insulate or
+    conduct perfectly) is refused at once, naming the object and the reason, not after the first BEM round."""
+    import electrosense.validation.simulation.tank_map as tank_map
+    from electrosense.meshes.scene_mesh import SceneError
+
+    def no_candidates(*args, **kwargs):
+        raise AssertionError("the candidates were drawn before the scene was checked")
+
+    monkeypatch.setattr(tank_map, "reachable_poses", no_candidates)
+    ball = Sphere(centre_m=(0.1, 0.1, 0.0), radius_m=0.02, conductivity_S_per_m=np.inf)
+    for objects, words in (((Sphere(centre_m=(0.24, 0.0, 0.0), radius_m=0.02),), "object_1 (sphere) is out of"),
+                           ((ball, Sphere(centre_m=(0.1, 0.14, 0.0), radius_m=0.02)), "intersect or touch"),
+                           ((Sphere(centre_m=(0.1, 0.1, 0.0), radius_m=0.02, conductivity_S_per_m=0.3),),
+                            "conductivity 0.3 S/m")):
+        with pytest.raises(ValueError, match=re.escape(words)) as err:
+            build_tank_map(SENSOR, TANK, 0.0, objects=objects, max_seconds=0, **BUILD)
+        assert err.type is SceneError or "conductivity" in words
 
 
 def test_map_build_from_a_scene_takes_its_objects_and_its_sensors_height(tmp_path, monkeypatch):

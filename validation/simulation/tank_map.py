@@ -1045,7 +1045,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     ``workers``: processes solving the BEM (fewer, said, where their BEM poses nearest a wall would not fit in the
     memory together; the CPU budget stays ``workers * max_seconds``).
     """
-    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
+    from electrosense.bem.solve import check_object_materials
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, SceneError, object_problems
     from electrosense.meshes.sensor_mesh import coarsest_edge_length_m, default_edge_length_m
     from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
@@ -1054,6 +1055,10 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     t0, c0 = time.perf_counter(), time.process_time()
     max_cpu_seconds = workers * max_seconds if max_cpu_seconds is None else max_cpu_seconds
     objects = tuple(objects)
+    check_object_materials(objects)   # before any candidate or BEM pose: the scene's own faults, said at once
+    problems = object_problems(tank, objects)
+    if problems:
+        raise SceneError(problems)
     options = dict(bem_options or {})
     if options.get("edge_length_m") is None:
         options["edge_length_m"] = default_edge_length_m(sensor)
