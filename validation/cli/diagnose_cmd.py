@@ -87,8 +87,17 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
 
         if model != "anchored":
             raise click.BadParameter(f"--map is the baseline; it does not go with --model {model}", param_hint="--map")
+        from electrosense.validation.simulation.tank_map import log_in_map_scene
+
         try:
-            baseline = map_baseline(obs, map_option(map_file))
+            tank_map = map_option(map_file)
+            obs = log_in_map_scene(tank_map, obs)   # the map's fixed objects where the log lists none
+            baseline = map_baseline(obs, tank_map)
+            others = [f"object {i} ({type(o).__name__.lower()})" for i, o in enumerate(obs.objects, start=1)
+                      if type(o).__name__ != "Sphere"]
+            if others:   # the diagnosis's effect model, the PSM with Kelvin spheres, has balls only
+                raise ValueError(f"the map's fixed {', '.join(others)} cannot enter the diagnosis's effect model (the "
+                                 "PSM: balls only); `esense validate --map` and `esense localise --map` take this map")
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--map") from None
         model = "map"

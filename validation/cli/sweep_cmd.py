@@ -15,12 +15,11 @@ model); ``.zarr`` the chunked sweep store (resumable, xarray-readable);
 """
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import click
 
-from electrosense.validation.bench.log.header import describe_tank, tank_meta
+from electrosense.validation.bench.log.header import OBJECTS_META_KEY, describe_tank, objects_meta, tank_meta
 from electrosense.validation.cli._parsing import SCENE_OPTION_NAMES, finite_float, scene_from_options, scene_options
 from electrosense.validation.defaults import NOMINAL_TANK_M
 
@@ -38,12 +37,6 @@ def _sensor_spec_for_log(sensor, out: Path) -> str:
     side = out.with_name(out.stem + ".sensor.json")
     save_sensor(sensor, side)
     return side.name
-
-
-def _objects_description(objects) -> list:
-    from dataclasses import asdict
-
-    return [{"shape": type(o).__name__.lower(), **asdict(o)} for o in objects]
 
 
 def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: int, attrs: dict, ours: bool,
@@ -225,7 +218,7 @@ def _sweep(o):
         "sensor": sensor.to_dict(),
         "water_depth_m": None,
         **tank_meta(tank),                      # a cylinder's radii beside its bounding box
-        "objects": _objects_description(objects),
+        "objects": objects_meta(objects),
         "sigma_S_per_m": float(sigma),
         "model_options": model_options,
         "psm_model": psm_description,
@@ -280,10 +273,7 @@ def _sweep(o):
             "model_options": model_options,
         }
         if objects:
-            meta["objects"] = _objects_description(objects)
-            for obj in meta["objects"]:  # JSON has no infinity: write a conducting object by name
-                if math.isinf(obj.get("conductivity_S_per_m", 0.0)):
-                    obj["conductivity_S_per_m"] = "conducting"
+            meta[OBJECTS_META_KEY] = objects_meta(objects)
         write_bench_log(out, meta, _bench_log_frame(C, poses), overwrite=o.overwrite)
     elif out.suffix == ".nc":
         export_netcdf(store_path, out)

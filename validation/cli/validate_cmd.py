@@ -185,6 +185,9 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
             objects = tuple(load_scene(scene_file).objects)
         except ValueError as exc:
             raise click.ClickException(f"{scene_file}: {exc}") from None
+    if tank_map is not None and not objects and tank_map.objects:   # the map's scene, its fixed objects in it
+        objects = tuple(tank_map.objects)
+        click.echo(f"note: the map's {len(objects)} fixed object(s) stand in the tank of every log", err=True)
     if psm_file is not None and "psm" not in model_names:
         raise click.BadParameter("--psm is given but psm is not among --models", param_hint="--psm")
     if offscreen_backend() is None:  # EGL or OSMesa, chosen once for every picture

@@ -24,14 +24,10 @@ def map_baseline(obs, tank_map, target_factor: float = 1.0 / 3.0, noise: float |
     """The :class:`~electrosense.validation.diagnosis.anchored.AnchoredBaseline` of ``obs`` from ``tank_map``;
     refuses a map of another sensor, tank or objects, and logged poses it does not cover."""
     from electrosense.validation.diagnosis.anchored import AnchoredBaseline
-    from electrosense.validation.simulation.tank_map import same_scene, scene_record
+    from electrosense.validation.simulation.tank_map import log_in_map_scene
 
     t0 = time.perf_counter()
-    if tank_map.sensor.to_dict() != obs.sensor.to_dict():
-        raise ValueError(f"the map is of sensor {tank_map.sensor.name!r}, the log of {obs.sensor.name!r}")
-    if not same_scene(tank_map.tank, tank_map.objects, obs.tank, tuple(obs.objects)):
-        raise ValueError(f"the map is of {scene_record(tank_map.tank, tank_map.objects)}, the log's scene is "
-                         f"{None if obs.tank is None else scene_record(obs.tank, tuple(obs.objects))}")
+    obs = log_in_map_scene(tank_map, obs)
     inside, why = tank_map.covers(obs.poses)
     if not inside.all():
         raise ValueError(f"the map does not cover the log: {why}")

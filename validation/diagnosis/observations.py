@@ -23,6 +23,7 @@ import numpy as np
 
 from electrosense.meshes.sensor import SensorDescription
 from electrosense.meshes.tank import Tank
+from electrosense.validation.bench.log.header import logged_objects
 
 __all__ = ["Observations", "DiagnosisInputError", "from_bench_logs"]
 
@@ -176,6 +177,9 @@ def from_bench_logs(logs) -> Observations:
     sigmas = [p["sigma"] for p in parts]
     sigma_logged = np.concatenate(sigmas) if all(s is not None for s in sigmas) else None
     meta = dict(getattr(first, "meta", {}) or {})
+    objects = [logged_objects(getattr(log, "meta", {}) or {}, getattr(log, "path", "") or "") for log in logs]
+    if any(o != objects[0] for o in objects):
+        raise DiagnosisInputError("bench logs disagree on the objects in the tank (meta 'objects')")
     return Observations(
         poses=np.concatenate([p["poses"] for p in parts]),
         currents_A=np.concatenate([p["currents"] for p in parts]),
@@ -189,4 +193,5 @@ def from_bench_logs(logs) -> Observations:
         meta=meta,
         source=", ".join(str(getattr(log, "path", "") or "") for log in logs),
         sigma_logged_S_per_m=sigma_logged,
+        objects=objects[0],
     )

@@ -184,15 +184,10 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     from electrosense.psm.images import has_images as psm_has_images
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.simulation.models import calibrated_psm
-    from electrosense.validation.simulation.tank_map import same_scene, scene_record
+    from electrosense.validation.simulation.tank_map import log_in_map_scene
 
     say = progress or (lambda s: None)
-    if tank_map.sensor.to_dict() != obs.sensor.to_dict():
-        raise ValueError(f"the map is of sensor {tank_map.sensor.name!r}, the log of {obs.sensor.name!r}: build a map "
-                         "of the log's sensor")
-    if not same_scene(tank_map.tank, tank_map.objects, obs.tank, tuple(obs.objects)):
-        raise ValueError(f"the map is of the tank {scene_record(tank_map.tank)['tank']}, the log's is "
-                         f"{None if obs.tank is None else scene_record(obs.tank)['tank']}")
+    obs = log_in_map_scene(tank_map, obs)
     if obs.n_receivers < 3:
         raise ValueError(f"{obs.n_receivers} receiver current(s) per sample cannot fix (x, y, heading): localisation "
                          "needs a sensor with at least 3 receivers")

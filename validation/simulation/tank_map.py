@@ -359,6 +359,27 @@ def same_scene(tank, objects, other_tank, other_objects, tol_m: float = 1e-5) ->
     return _close(scene_record(tank, objects), scene_record(other_tank, other_objects), tol_m)
 
 
+def log_in_map_scene(tank_map, obs):
+    """``obs`` (:class:`~electrosense.validation.diagnosis.observations.Observations`) in the map's scene, or a
+    ValueError that names what differs: the sensor, the tank, or the fixed objects. A log that lists no objects
+    (a bench logger knows the tank, not what stands in it) takes the map's; one that lists them must list the
+    map's (``esense sweep`` of a scene writes them)."""
+    from dataclasses import replace
+
+    if tank_map.sensor.to_dict() != obs.sensor.to_dict():
+        raise ValueError(f"the map is of sensor {tank_map.sensor.name!r}, the log of {obs.sensor.name!r}: build a map "
+                         "of the log's sensor")
+    if not same_scene(tank_map.tank, (), obs.tank, ()):
+        raise ValueError(f"the map is of the tank {scene_record(tank_map.tank)['tank']}, the log's is "
+                         f"{None if obs.tank is None else scene_record(obs.tank)['tank']}")
+    if not obs.objects:
+        return replace(obs, objects=tuple(tank_map.objects))
+    if not same_scene(tank_map.tank, tank_map.objects, obs.tank, tuple(obs.objects)):
+        raise ValueError(f"the map's fixed objects are {scene_record(tank_map.tank, tank_map.objects)['objects']}, "
+                         f"the log lists {scene_record(obs.tank, tuple(obs.objects))['objects']}")
+    return obs
+
+
 def _close(a, b, tol: float) -> bool:
     """Equal records, numbers to ``tol``."""
     if isinstance(a, dict) and isinstance(b, dict):

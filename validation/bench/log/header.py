@@ -19,12 +19,13 @@ from __future__ import annotations
 import json
 import math
 import re
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
 
 from electrosense.meshes.cylinder_tank import CylinderTank
+from electrosense.meshes.objects import Box, Cylinder, Sphere
 from electrosense.meshes.sensor import SensorDescription, load_sensor
 from electrosense.meshes.tank import Tank
 from electrosense.validation.bench.log.errors import BenchLogError
@@ -33,6 +34,7 @@ __all__ = [
     "FORMAT_LINE", "META_PREFIX", "REQUIRED_META_KEYS", "BASE_COLUMNS", "OPTIONAL_NUMERIC_COLUMNS",
     "PASS_COLUMN", "Header", "receiver_columns", "standard_columns", "parse_format_line", "parse_meta_line",
     "interpret_meta", "check_columns", "format_meta_line", "META_LINE", "same_run", "tank_meta", "describe_tank",
+    "logged_objects", "objects_meta",
 ]
 
 FORMAT_VERSION = 1
@@ -46,6 +48,9 @@ CYLINDER_META_KEY = "tank_cylinder"
 CYLINDER_KEYS = ("radius_m", "floor_radius_m")
 #: relative tolerance of the check that ``tank_m`` is a cylinder's bounding box (a logger's rounding passes)
 BOUNDING_BOX_REL_TOL = 1e-6
+#: the optional meta key of the fixed objects known to be in the tank (``esense sweep`` of a scene writes it)
+OBJECTS_META_KEY = "objects"
+_OBJECT_SHAPES = {"sphere": Sphere, "box": Box, "cylinder": Cylinder}
 BASE_COLUMNS = ("t_s", "x_m", "y_m", "z_m", "yaw_rad", "U_V")
 OPTIONAL_NUMERIC_COLUMNS = ("temp_C", "sigma_S_per_m")
 PASS_COLUMN = "pass"
@@ -168,6 +173,7 @@ def interpret_meta(meta: dict, file, folder: str | Path | None = None, line: int
             raise BenchLogError(file, line, f"meta {key!r} must be a finite number, found {meta[key]!r}")
 
     tank = _interpret_tank(meta, file, line)
+    logged_objects(meta, file, line)   # refused here, at the read, if malformed
 
     sigma = meta["sigma_S_per_m"]
     if not (_number(sigma) and sigma > 0):
@@ -219,6 +225,62 @@ def _interpret_tank(meta: dict, file, line: int) -> Tank | CylinderTank | None:
         return CylinderTank(r_top, size[2], meta.get("water_depth_m"), r_floor)
     except ValueError as exc:
         raise BenchLogError(file, line, f"meta: {exc}") from None
+
+
+def logged_objects(meta: dict, file="", line: int = META_LINE) -> tuple:
+    """The fixed objects of the meta line's ``objects`` list (none where it is absent), checked.
+
+    Each entry is ``{"shape": "sphere" | "box" | "cylinder", "centre_m": [x, y, z], "conductivity_S_per_m": S
+    or "conducting" / "insulating", "name": ..., and the shape's sizes}``, as :func:`objects_meta` writes it.
+
+    >>> logged_objects({"objects": [{"shape": "sphere", "centre_m": [0.1, 0, 0], "radius_m": 0.02,
+    ...                              "conductivity_S_per_m": "conducting"}]})[0].is_conducting
+    True
+    """
+    entries = meta.get(OBJECTS_META_KEY)
+    if entries is None:
+        return ()
+    if not isinstance(entries, list):
+        raise BenchLogError(file, line, f"meta {OBJECTS_META_KEY!r} must be a list of objects, found {entries!r}")
+    objects = []
+    for i, entry in enumerate(entries, start=1):
+        where = f"meta {OBJECTS_META_KEY!r} entry {i}"
+        shape = entry.get("shape") if isinstance(entry, dict) else None
+        if shape not in _OBJECT_SHAPES:
+            raise BenchLogError(file, line, f"{where}: 'shape' must be one of {', '.join(_OBJECT_SHAPES)}, found "
+                                            f"{shape!r}")
+        cls = _OBJECT_SHAPES[shape]
+        allowed = {f.name for f in fields(cls)}
+        unknown = sorted(set(entry) - allowed - {"shape"})
+        if unknown or "centre_m" not in entry:
+            what = f"unknown key(s) {', '.join(map(repr, unknown))}" if unknown else "no 'centre_m'"
+            raise BenchLogError(file, line, f"{where} ({shape}) has {what}; keys: {', '.join(sorted(allowed))}")
+        sizes = [k for k in ("radius_m", "height_m", "size_m") if k in allowed]
+        for k in sizes:
+            v = entry.get(k)
+            values = v if isinstance(v, list) else [v]
+            if v is None or not values or not all(_number(u) and u > 0 for u in values):
+                raise BenchLogError(file, line, f"{where} ({shape}): {k!r} must be given as positive length(s) in "
+                                                f"m, found {v!r}")
+        try:
+            objects.append(cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in entry.items()
+                                  if k != "shape"}))
+        except (TypeError, ValueError) as exc:
+            raise BenchLogError(file, line, f"{where} ({shape}): {exc}") from None
+    return tuple(objects)
+
+
+def objects_meta(objects) -> list:
+    """The meta line's ``objects`` list of fixed objects (the inverse of :func:`logged_objects`; JSON has no
+    infinity: a perfect conductor is written ``"conducting"``)."""
+    out = []
+    for obj in objects:
+        entry = {"shape": type(obj).__name__.lower(),
+                 **{k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(obj).items()}}
+        if math.isinf(obj.conductivity_S_per_m):
+            entry["conductivity_S_per_m"] = "conducting"
+        out.append(entry)
+    return out
 
 
 def tank_meta(tank: Tank | CylinderTank | None) -> dict:
