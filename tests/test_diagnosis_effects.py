@@ -86,6 +86,25 @@ def test_stand_in_is_a_conductance_and_walls_raise_resistance(sim, setup):
     assert I[1].sum() < I[0].sum()  # more so near a wall
 
 
+def test_the_effect_models_take_the_balls_and_leave_a_pole_or_a_box_to_the_baseline(setup, trajectory):
+    """The PSM's object term is a ball's dipole: a pole or a box in the scene (a tank map's fixed objects, a log's
+    meta line) is left out of the effect model, whose changes are then those without it, not refused."""
+    from electrosense.meshes.objects import Box, Cylinder, Sphere
+    from electrosense.validation.diagnosis.forward import PSMEffectModel
+    from electrosense.validation.diagnosis.pipeline import default_effect_model_from
+
+    poses = trajectory[0][:24]   # the first pass: y = 0, z = 0
+    ball = Sphere((0.0, 0.08, 0.0), np.inf, radius_m=0.02)
+    others = (Cylinder((0.2, -0.15, 0.0), 0.0, radius_m=0.01, height_m=0.05),
+              Box((-0.2, -0.15, 0.0), 0.0, size_m=(0.03, 0.03, 0.03)))
+    for model in (PointElectrodeSimulator(setup.sensor, setup.sigma_S_per_m), PSMEffectModel(setup.sensor,
+                  setup.sigma_S_per_m), default_effect_model_from(setup.sensor, setup.sigma_S_per_m,
+                                                                  PSMEffectModel(setup.sensor, 1.0).model)):
+        with_ball = model(poses, setup.tank, (ball,))
+        assert np.array_equal(model(poses, setup.tank, (ball, *others)), with_ball)
+        assert not np.allclose(with_ball, model(poses, setup.tank, ()), rtol=1e-6)
+
+
 def test_sphere_dipole_strength_matches_its_parameter():
     for m in (2e-6, -3e-6):
         sphere = object_sphere((0.1, 0.0, 0.0, m), 0.0354)

@@ -93,15 +93,14 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
             tank_map = map_option(map_file)
             obs = log_in_map_scene(tank_map, obs)   # the map's fixed objects where the log lists none
             baseline = map_baseline(obs, tank_map)
-            others = [f"object {i} ({type(o).__name__.lower()})" for i, o in enumerate(obs.objects, start=1)
-                      if type(o).__name__ != "Sphere"]
-            if others:   # the diagnosis's effect model, the PSM with Kelvin spheres, has balls only
-                raise ValueError(f"the map's fixed {', '.join(others)} cannot enter the diagnosis's effect model (the "
-                                 "PSM: balls only); `esense validate --map` and `esense localise --map` take this map")
         except ValueError as exc:
             raise click.BadParameter(str(exc), param_hint="--map") from None
         model = "map"
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
+    left_out = [f"{i} ({o.label})" for i, o in enumerate(obs.objects, start=1) if type(o).__name__ != "Sphere"]
+    if left_out:   # effect_objects: the PSM's effect model has balls only
+        click.echo(f"note: object(s) {', '.join(left_out)} in the baseline, left out of the effect model (the PSM's: "
+                   "balls only), whose changes are computed without them")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,
                       rules=SelectionRules(max_effects=max_effects), split_with_bem=split_poses, psm_model=psm_model,
                       model_error=model_error, bem_correction_poses=bem_correction_poses,

@@ -514,6 +514,7 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     own change of K with pose is computed too (:mod:`.pose_gradient`, cached with the anchors), as
     ``pose_gradient`` of the result.
     """
+    from electrosense.validation.diagnosis.forward import effect_objects
     from electrosense.validation.diagnosis.where import place_labels
     from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
 
@@ -590,7 +591,8 @@ def anchored_baseline(obs, noise: float, target_factor: float = 1.0 / 3.0, psm_m
     psm_poses = np.vstack([obs.poses[ok], cached_poses[extra]])
     K_psm_all = np.zeros((0, n, n))
     if len(psm_poses):
-        ev = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=model, poses=psm_poses)
+        # the balls in the PSM (effect_objects); a pole or a box is in the BEM alone, its change in the ratio
+        ev = pose_evaluator("psm", sensor, tank, 1.0, effect_objects(objects), psm_model=model, poses=psm_poses)
         K_psm_all = ev.conductance(psm_poses).K_S
         K_psm[ok] = K_psm_all[: int(ok.sum())]
     sweep = None

@@ -154,6 +154,18 @@ IMAGE_CHANGE_TOLERANCE = 1e-2
 IMAGE_PROBE_STEP_M = 0.01
 
 
+def effect_objects(objects) -> tuple:
+    """The objects an effect model takes: the balls (the PSM's dipole term, Kelvin's spheres). A box or a pole is
+    left out of the effect model, whose changes are then computed without it; the baseline (the BEM, a tank map)
+    carries it. A baseline of the PSM itself refuses it.
+
+    >>> from electrosense.meshes.objects import Cylinder
+    >>> [type(o).__name__ for o in effect_objects((Sphere((0, 0, 0), radius_m=0.02), Cylinder((0.2, 0, 0))))]
+    ['Sphere']
+    """
+    return tuple(o for o in objects if isinstance(o, Sphere))
+
+
 @dataclass
 class PSMEffectModel:
     """The PSM as effect model: :func:`electrosense.psm.conductance` with a fixed image series.
@@ -254,6 +266,7 @@ class PSMEffectModel:
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
         self.calls += 1
         poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        objects = effect_objects(objects)
         if self.sensor.has_sectors:   # the sector PSM (psm.sectors): a fixed image series already
             from electrosense.psm.sectors import sector_conductance
 
@@ -295,6 +308,7 @@ class PointElectrodeSimulator:
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
         self.calls += 1
         poses = np.asarray(poses, dtype=float).reshape(-1, 4)
+        objects = effect_objects(objects)
         n = self.sensor.n_electrodes
         c = sensor_to_tank(self.sensor.electrode_centres_m, poses)  # (P, n, 3)
         d = c[:, :, None, :] - c[:, None, :, :]
@@ -395,6 +409,7 @@ class CompositeEffectModel:
     def __call__(self, poses, tank: Tank | None, objects=(), contact_impedance_ohm_m2=None) -> np.ndarray:
         self.calls += 1
         K = self._memo(self.psm, poses, tank, contact_impedance_ohm_m2)
+        objects = effect_objects(objects)
         if not objects:
             return K
         ratio = self.points(poses, tank, tuple(objects)) / self._memo(self.points, poses, tank, None)

@@ -657,7 +657,7 @@ def _prior_noise(obs: Observations, psm_model=None) -> float:
     differences; where the PSM refuses every pose, the log of the currents is used.
     """
     from electrosense.validation.diagnosis.anchored import psm_usable
-    from electrosense.validation.diagnosis.forward import geometric_psm, receiver_currents
+    from electrosense.validation.diagnosis.forward import effect_objects, geometric_psm, receiver_currents
     from electrosense.validation.simulation.models import calibrated_psm, pose_evaluator
 
     model = _load(psm_model) or calibrated_psm(obs.sensor)
@@ -666,7 +666,8 @@ def _prior_noise(obs: Observations, psm_model=None) -> float:
         model = geometric_psm(obs.sensor, model)
         ok = psm_usable(model, obs.poses, obs.tank)
     if ok.sum() >= 8:
-        K = pose_evaluator("psm", obs.sensor, obs.tank, obs.sigma_S_per_m, tuple(obs.objects), psm_model=model,
+        # the balls only (effect_objects): a pole or a box left out changes the PSM smoothly along a pass
+        K = pose_evaluator("psm", obs.sensor, obs.tank, obs.sigma_S_per_m, effect_objects(obs.objects), psm_model=model,
                            poses=obs.poses[ok]).conductance(obs.poses[ok]).K_S
         r = np.zeros_like(obs.currents_A)
         r[ok] = obs.currents_A[ok] / (receiver_currents(K, obs.emitter) * obs.U_V[ok, None]) - 1.0
