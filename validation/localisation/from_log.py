@@ -204,13 +204,18 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
                                      f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
     models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
+    not_balls = [f"{o.label}" for o in obs.objects if type(o).__name__ != "Sphere"]
     if with_psm and not psm_has_images(obs.tank):
         with_psm = False
         result["psm_left_out"] = f"the PSM's images are a box's: it has no model of a {type(obs.tank).__name__}"
         say(result["psm_left_out"])
+    elif with_psm and not_balls:
+        with_psm = False
+        result["psm_left_out"] = f"the PSM's object term is a ball's: it has no model of the {', '.join(not_balls)}"
+        say(result["psm_left_out"])
     if with_psm:
         psm = calibrated_psm(obs.sensor) if psm is None else psm
-        models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m)
+        models["psm"] = psm_currents(psm, obs.sensor, obs.tank, z_m, obs.sigma_S_per_m, tuple(obs.objects))
     for name, model in models.items():
         say(f"tracking with the {name}")
         error = None
@@ -260,7 +265,7 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
     base = -tank_map.conductance(obs.poses, obs.sigma_S_per_m)[:, rec, e]
     models = {"map": field_model(base, field, obs.poses, obs.tank, obs.sensor)}
     if psm is not None:
-        models["psm"] = psm_model(psm, obs.sensor, obs.tank, obs.poses, obs.sigma_S_per_m)
+        models["psm"] = psm_model(psm, obs.sensor, obs.tank, obs.poses, obs.sigma_S_per_m, tuple(obs.objects))
     out = {"method": OBJECT_METHOD, "false_alarm": FALSE_ALARM,
            "z_m": float(np.median(obs.poses[:, 2])) if z_m is None else float(z_m),
            "true_centre_m": None if true_centre_m is None else [float(v) for v in true_centre_m]}

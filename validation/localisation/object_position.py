@@ -89,15 +89,15 @@ def field_model(base_currents, field, poses, tank, sensor):
     return currents
 
 
-def psm_model(psm, sensor, tank, poses, sigma_S_per_m: float):
-    """The same from the PSM, the sphere in its scene."""
+def psm_model(psm, sensor, tank, poses, sigma_S_per_m: float, fixed_objects=()):
+    """The same from the PSM, the sphere in its scene beside the ``fixed_objects`` (balls: the PSM's)."""
     from electrosense.psm import conductance
 
     e, rec = emitter_and_receivers(sensor)
 
     def currents(theta):
         sphere = None if theta is None else object_sphere(np.asarray(theta, float), sigma_S_per_m)
-        objects = () if sphere is None else (sphere,)
+        objects = tuple(fixed_objects) + (() if sphere is None else (sphere,))
         return -conductance(psm, poses, sigma_S_per_m, tank=tank, objects=objects, sensor=sensor).K_S[:, rec, e]
 
     return currents

@@ -308,6 +308,18 @@ def _cost(model, s, currents, w, t_s, motion, m0, P0inv):
     return total, chi2, I, J
 
 
+def _within_the_model(model, before: np.ndarray, after: np.ndarray, halvings: int = 12) -> np.ndarray:
+    """The state ``after``, or, where the model refuses its pose (beyond a wall: a model that misfits by far more
+    than the noise pulls an update there), the farthest point towards it from ``before`` that the model takes,
+    halving the update up to ``halvings`` times; ``before`` if none."""
+    step = after - before
+    for k in range(halvings + 1):
+        trial = before + 0.5**k * step
+        if model(trial[None, :3]) is not None:
+            return trial
+    return before
+
+
 def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2, round_tank: bool = False):
     """The first iterate: an iterated extended Kalman filter forward pass (each update Gauss-Newton on the
     sample's currents and the predicted state, up to ``inner`` times), from the per-sample maximum likelihood
@@ -316,14 +328,18 @@ def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2,
     first = track(model, currents[:1], start, noise_rel if np.ndim(noise_rel) == 0 else noise_rel[:1]).poses[0]
     q0 = np.asarray(start, float) if not np.isfinite(first).all() or round_tank else first
     m, C = first_state_prior(q0, round_tank)
-    H, y = [], []
+    H, y, filtered = [], [], []
     for t in range(len(currents)):
         if t:
             F, Q = motion.transition(t_s[t] - t_s[t - 1])
             m, C = F @ m, F @ C @ F.T + Q
+        res = model(m[None, :3])
+        if res is None and filtered:   # the prediction runs beyond a wall: from the last state, at rest
+            m = np.r_[filtered[-1][:3], np.zeros(3)]
+            res = model(m[None, :3])
         m_pred, C_pred, q, Ht, yt = m, C, m[:3], None, None
-        for _ in range(inner):
-            res = model(q[None])
+        for k in range(inner):
+            res = res if k == 0 else model(q[None])
             if res is None:
                 break
             A = w[t][:, None] * res[1][0]
@@ -340,12 +356,17 @@ def _filter_init(model, currents, noise_rel, t_s, start, motion, inner: int = 2,
             Hs = np.c_[Ht, np.zeros_like(Ht)]
             S = Hs @ C_pred @ Hs.T + np.eye(len(yt))
             K = np.linalg.solve(S, Hs @ C_pred).T
-            m = m_pred + K @ (yt - Hs @ m_pred)
+            m = _within_the_model(model, m_pred, m_pred + K @ (yt - Hs @ m_pred))
             A_ = np.eye(6) - K @ Hs
             C = A_ @ C_pred @ A_.T + K @ K.T
         H.append(Ht)
         y.append(yt)
+        filtered.append(m)
     ms, _ = rts_smoother(H, y, t_s, motion, *first_state_prior(q0, round_tank))
+    # the smoother of linearisations can carry a state where the model refuses it: the filter's state there
+    I = _model_at(model, ms[:, :3])[0]
+    refused = np.isnan(I).any(axis=1) if I.shape[1] else np.ones(len(ms), bool)
+    ms[refused] = np.asarray(filtered)[refused]
     return ms
 
 
@@ -380,7 +401,9 @@ def _gauss_newton(model, s, currents, w, t_s, motion, max_iter, tol, prior=None)
         while alpha > 1e-3:
             trial = s + alpha * step
             c_new, chi2_new, I_new, J_new = _cost(model, trial, currents, w, t_s, motion, m0, P0inv)
-            if c_new <= cost:
+            # never a step that takes more poses where the model refuses them: where a model misfits by more than
+            # the refusal's charge (the PSM a few per cent off, hundreds of sigma), the track would leave the tank
+            if c_new <= cost and np.isnan(chi2_new).sum() <= np.isnan(chi2).sum():
                 accepted = True
                 break
             alpha *= 0.5

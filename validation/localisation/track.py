@@ -176,14 +176,18 @@ def map_currents(tank_map, z_m: float, sigma_S_per_m: float):
 
 def psm_currents(psm, sensor, tank, z_m: float, sigma_S_per_m: float, objects=()):
     """A :func:`track` model from the PSM (complete images): receiver currents per volt and their analytic
-    Jacobian; None where the PSM refuses the pose (a sphere through a wall)."""
+    Jacobian; None where the sensor is not wholly in the water (the PSM's images are a box's and go on beyond
+    its walls: a track that misfits could leave the tank) or the PSM refuses the pose (a sphere through a wall)."""
     from electrosense.psm import conductance, receiver_current_jacobian
+    from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     e, rec = emitter_and_receivers(sensor)
 
     def model(q):
         q = np.atleast_2d(q)
         poses = np.c_[q[:, :2], np.full(len(q), z_m), q[:, 2]]
+        if tank is not None and not np.all(sensor_wall_gap_m(sensor, tank, poses, objects) > 0):
+            return None
         try:
             K = conductance(psm, poses, sigma_S_per_m, tank=tank, objects=tuple(objects), sensor=sensor).K_S
             J = receiver_current_jacobian(psm, poses, sigma_S_per_m, tank=tank, objects=tuple(objects), sensor=sensor)
