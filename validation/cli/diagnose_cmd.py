@@ -97,8 +97,10 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
             raise click.BadParameter(str(exc), param_hint="--map") from None
         model = "map"
     click.echo(f"{obs.n_poses} samples, {len(set(obs.passes.tolist()))} pass(es); baseline {model}")
-    left_out = [f"{i} ({o.label})" for i, o in enumerate(obs.objects, start=1) if type(o).__name__ != "Sphere"]
-    if left_out:   # effect_objects: the PSM's effect model has balls only
+    from electrosense.validation.diagnosis.forward import effect_objects
+
+    left_out = [f"{i} ({o.label})" for i, o in enumerate(obs.objects, start=1) if o not in effect_objects(obs.objects)]
+    if left_out:
         click.echo(f"note: object(s) {', '.join(left_out)} in the baseline, left out of the effect model (the PSM's: "
                    "balls only), whose changes are computed without them")
     d = run_diagnosis(obs, model=model, effects=names, model_options=base_options,

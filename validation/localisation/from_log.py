@@ -183,6 +183,7 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     ``"object"``."""
     from electrosense.psm.images import has_images as psm_has_images
     from electrosense.validation.comparison.metrics import noise_level
+    from electrosense.validation.diagnosis.forward import effect_objects
     from electrosense.validation.simulation.models import calibrated_psm
     from electrosense.validation.simulation.tank_map import log_in_map_scene
 
@@ -204,7 +205,7 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
                                      f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
     models = {"map": map_currents(tank_map, z_m, obs.sigma_S_per_m)}
     result = {"noise_rel": float(noise_rel), "z_m": z_m, "tracks": {}, "motion": motion}
-    not_balls = [f"{o.label}" for o in obs.objects if type(o).__name__ != "Sphere"]
+    not_balls = [o.label for o in obs.objects if o not in effect_objects(obs.objects)]   # the PSM's: balls only
     if with_psm and not psm_has_images(obs.tank):
         with_psm = False
         result["psm_left_out"] = f"the PSM's images are a box's: it has no model of a {type(obs.tank).__name__}"
