@@ -255,13 +255,14 @@ def logged_objects(meta: dict, file="", line: int = META_LINE) -> tuple:
         if unknown or "centre_m" not in entry:
             what = f"unknown key(s) {', '.join(map(repr, unknown))}" if unknown else "no 'centre_m'"
             raise BenchLogError(file, line, f"{where} ({shape}) has {what}; keys: {', '.join(sorted(allowed))}")
-        sizes = [k for k in ("radius_m", "height_m", "size_m") if k in allowed]
-        for k in sizes:
+        for k, n in (("radius_m", 1), ("height_m", 1), ("size_m", 3)):   # the shape's sizes, each given
+            if k not in allowed:
+                continue
             v = entry.get(k)
-            values = v if isinstance(v, list) else [v]
-            if v is None or not values or not all(_number(u) and u > 0 for u in values):
-                raise BenchLogError(file, line, f"{where} ({shape}): {k!r} must be given as positive length(s) in "
-                                                f"m, found {v!r}")
+            values = v if n > 1 and isinstance(v, list) else [v]
+            if len(values) != n or not all(_number(u) and u > 0 for u in values):
+                what = "a positive length" if n == 1 else f"{n} positive lengths"
+                raise BenchLogError(file, line, f"{where} ({shape}): {k!r} must be {what} in m, found {v!r}")
         try:
             objects.append(cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in entry.items()
                                   if k != "shape"}))
