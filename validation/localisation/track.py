@@ -176,8 +176,9 @@ def map_currents(tank_map, z_m: float, sigma_S_per_m: float):
 
 def psm_currents(psm, sensor, tank, z_m: float, sigma_S_per_m: float, objects=()):
     """A :func:`track` model from the PSM (complete images): receiver currents per volt and their analytic
-    Jacobian; None where the sensor is not wholly in the water (the PSM's images are a box's and go on beyond
-    its walls: a track that misfits could leave the tank) or the PSM refuses the pose (a sphere through a wall)."""
+    Jacobian; NaN rows where the sensor is not wholly in the water (the PSM's images are a box's and go on beyond
+    its walls: a track that misfits could leave the tank), None where every pose is out or the PSM refuses one
+    (a sphere through a wall)."""
     from electrosense.psm import conductance, receiver_current_jacobian
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
@@ -186,8 +187,16 @@ def psm_currents(psm, sensor, tank, z_m: float, sigma_S_per_m: float, objects=()
     def model(q):
         q = np.atleast_2d(q)
         poses = np.c_[q[:, :2], np.full(len(q), z_m), q[:, 2]]
-        if tank is not None and not np.all(sensor_wall_gap_m(sensor, tank, poses, objects) > 0):
+        inside = np.ones(len(q), bool) if tank is None else sensor_wall_gap_m(sensor, tank, poses, objects) > 0
+        if not inside.any():
             return None
+        if not inside.all():   # one call for the poses in the water (not one per pose: a line search's trials)
+            res = model(q[inside])
+            if res is None:
+                return None
+            I, J = np.full((len(q), len(rec)), np.nan), np.full((len(q), len(rec), 3), np.nan)
+            I[inside], J[inside] = res
+            return I, J
         try:
             K = conductance(psm, poses, sigma_S_per_m, tank=tank, objects=tuple(objects), sensor=sensor).K_S
             J = receiver_current_jacobian(psm, poses, sigma_S_per_m, tank=tank, objects=tuple(objects), sensor=sensor)
