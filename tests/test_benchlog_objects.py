@@ -2,6 +2,7 @@
 refused where malformed (line 2, the entry named), and a tank map's fixed objects given to a log that lists
 none, while a log that lists others is refused."""
 import json
+import re
 from types import SimpleNamespace
 
 import numpy as np
@@ -89,3 +90,38 @@ def test_a_log_takes_the_maps_fixed_objects_unless_it_lists_others(tmp_path):
         log_in_map_scene(SimpleNamespace(**{**vars(tank_map), "tank": Tank((0.8, 0.6, 0.5))}), bare)
     with pytest.raises(DiagnosisInputError, match="disagree on the objects"):
         from_bench_logs([read_bench_log(listed), read_bench_log(tmp_path / "bare.csv")])
+
+
+def test_validate_simulates_the_objects_a_log_lists_and_leaves_the_psm_out_beside_a_pole(tmp_path):
+    """A PSM sweep of a scene with a ball, validated with the PSM: the ball read back from the log (before, it
+    was left out and the log differed from its own model); a log that lists a pole refuses the PSM named in
+    --models, in one line."""
+    from click.testing import CliRunner
+
+    from electrosense.validation.cli import main
+
+    scene = tmp_path / "bench.toml"
+    scene.write_text('[tank]\nsize_m = [0.8, 0.6, 0.4]\n[sensor]\npreset = "angels-4"\npose = [0, 0, 0, 0]\n'
+                     '[[objects]]\nshape = "sphere"\ncentre_m = [0.0, 0.09, 0.0]\nradius_m = 0.02\n'
+                     'material = "conducting"\n')
+    log = tmp_path / "ball.csv"
+    run = CliRunner().invoke(main, ["sweep", "--model", "psm", "--scene", str(scene), "--from", "-0.1,0", "--to",
+                                    "0.1,0", "--steps", "12", "--quiet", "-o", str(log)])
+    assert run.exit_code == 0, run.output
+    run = CliRunner().invoke(main, ["validate", str(log), "--models", "psm", "--no-potential", "-o",
+                                    str(tmp_path / "v")])
+    assert run.exit_code == 0, run.output
+    rms = [float(v) for v in re.findall(r'"rms": ([0-9.e+-]+)', (tmp_path / "v" / "metrics.json").read_text())]
+    assert rms and max(rms) < 1e-9                  # the log's own model: its ball simulated
+    lines = log.read_text().splitlines()
+    meta = json.loads(lines[1][len("# meta: "):])
+    del meta["objects"]
+    (tmp_path / "bare.csv").write_text("\n".join([lines[0], "# meta: " + json.dumps(meta), *lines[2:]]) + "\n")
+    run = CliRunner().invoke(main, ["validate", str(tmp_path / "bare.csv"), "--models", "psm", "--no-potential",
+                                    "-o", str(tmp_path / "b")])
+    rms = [float(v) for v in re.findall(r'"rms": ([0-9.e+-]+)', (tmp_path / "b" / "metrics.json").read_text())]
+    assert run.exit_code == 0 and max(rms) > 1e-4   # the ball 5 cm from the path is seen: not listed, not simulated
+    pole = {**BASE, "objects": objects_meta((Cylinder((0.2, 0.2, 0.0), radius_m=0.01, height_m=0.2),))}
+    other = write_bench_log(tmp_path / "pole.csv", pole, _frame())
+    run = CliRunner().invoke(main, ["validate", str(other), "--models", "psm", "-o", str(tmp_path / "w")])
+    assert run.exit_code != 0 and "leave psm out of --models" in run.output and "Traceback" not in run.output

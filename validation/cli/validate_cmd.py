@@ -28,6 +28,14 @@ def _parse_models(text: str) -> tuple[str, ...]:
     return models
 
 
+def objects_of_log(log, objects=(), tank_map=None) -> tuple:
+    """The objects in the tank of ``log``: those given (a scene file), else those its meta line lists (``esense
+    sweep`` of a scene), else the tank map's fixed objects."""
+    from electrosense.validation.bench.log.header import logged_objects
+
+    return tuple(objects) or logged_objects(log.meta, getattr(log, "path", "")) or tuple(getattr(tank_map, "objects", ()))
+
+
 def validate_logs(logs, models, psm=None, conductivity_correction=False, objects=(), stride=1, near_wall_m=None,
                   near_object_m=None, edge_length_m=None, show_progress=True, bar=None, tank_map=None):
     """Validate already-read logs (BenchLog objects); return the list of LogValidation results.
@@ -47,7 +55,8 @@ def validate_logs(logs, models, psm=None, conductivity_correction=False, objects
         if stride > 1:
             log = _every(log, stride)
         results.append(validate_log(
-            log, models, conductivity_correction=conductivity_correction, objects=objects,
+            log, models, conductivity_correction=conductivity_correction,
+            objects=objects_of_log(log, objects, tank_map),
             near_wall_m=NEAR_WALL_M if near_wall_m is None else near_wall_m,
             near_object_m=NEAR_OBJECT_M if near_object_m is None else near_object_m,
             evaluators=evaluators, progress=show_progress and "bem" in models,
@@ -125,7 +134,7 @@ def print_summary(results, paths, echo=click.echo) -> None:
               help="Fit the paper's one-factor conductivity correction per model and report every metric after it.")
 @click.option("--scene", "scene_file", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Scene file (TOML) whose objects are in the tank during the logs (simulated, and used for "
-                   "the 'near an object' region).")
+                   "the 'near an object' region); default: the objects each log's meta line lists, else the map's.")
 @click.option("--edge-length", type=finite_float(positive=True), default=None,
               help="BEM sensor mesh edge length far from the electrode edges (m); default: the mesher's.")
 @click.option("--stride", type=click.IntRange(min=1), default=1, show_default=True,
@@ -169,14 +178,6 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
     for log in read:
         for w in log.warnings:
             click.echo(f"warning: {log.path.name}: {w}", err=True)
-    curved = [log.path.name for log in read if not has_images(log.tank)]
-    if curved and "psm" in model_names:
-        if models is not None:
-            raise click.BadParameter(f"the PSM's images are a box's, and {', '.join(curved)} logged a cylindrical "
-                                     "tank: leave psm out of --models", param_hint="--models")
-        model_names = tuple(m for m in model_names if m != "psm")
-        click.echo(f"note: {', '.join(curved)}: a cylindrical tank, which the PSM (a box's images) cannot "
-                   f"simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} only", err=True)
     objects = ()
     if scene_file is not None:
         from electrosense.meshes.scene_file import load_scene
@@ -185,9 +186,29 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
             objects = tuple(load_scene(scene_file).objects)
         except ValueError as exc:
             raise click.ClickException(f"{scene_file}: {exc}") from None
-    if tank_map is not None and not objects and tank_map.objects:   # the map's scene, its fixed objects in it
-        objects = tuple(tank_map.objects)
-        click.echo(f"note: the map's {len(objects)} fixed object(s) stand in the tank of every log", err=True)
+    curved = [log.path.name for log in read if not has_images(log.tank)]
+    if curved and "psm" in model_names:
+        if models is not None:
+            raise click.BadParameter(f"the PSM's images are a box's, and {', '.join(curved)} logged a cylindrical "
+                                     "tank: leave psm out of --models", param_hint="--models")
+        model_names = tuple(m for m in model_names if m != "psm")
+        click.echo(f"note: {', '.join(curved)}: a cylindrical tank, which the PSM (a box's images) cannot "
+                   f"simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} only", err=True)
+    from electrosense.validation.diagnosis.forward import effect_objects
+
+    in_tank = {log.path.name: objects_of_log(log, objects, tank_map) for log in read}
+    not_balls = [name for name, objs in in_tank.items() if len(effect_objects(objs)) < len(objs)]
+    if not_balls and "psm" in model_names:
+        if models is not None:
+            raise click.BadParameter(f"the PSM's object term is a ball's, and {', '.join(not_balls)} has a pole or a "
+                                     "box in the tank: leave psm out of --models", param_hint="--models")
+        model_names = tuple(m for m in model_names if m != "psm")
+        click.echo(f"note: {', '.join(not_balls)}: a pole or a box in the tank, which the PSM (a ball's object "
+                   f"term) cannot simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} "
+                   "only", err=True)
+    if tank_map is not None and not objects and tank_map.objects:   # validate_logs: the map's, where a log lists none
+        click.echo(f"note: the map's {len(tank_map.objects)} fixed object(s) stand in the tank of every log that "
+                   "lists none", err=True)
     if psm_file is not None and "psm" not in model_names:
         raise click.BadParameter("--psm is given but psm is not among --models", param_hint="--psm")
     if offscreen_backend() is None:  # EGL or OSMesa, chosen once for every picture
