@@ -530,6 +530,10 @@ def test_a_map_with_a_fixed_object_regresses_on_its_images_and_a_file_without_th
     assert np.abs(m.leave_one_out).max() < 0.1 * np.abs(np.expm1(plain.leave_one_out[:, m._rec])).max()
     _assert_pose_jacobian(m, P[:6] + [0.003, -0.002, 0.0, 0.04])
     path = m.save(tmp_path / "ball.npz")
+    from electrosense.validation.cli import main
+
+    shown = CliRunner().invoke(main, ["map", "info", str(path)])   # the object named, its size and material
+    assert shown.exit_code == 0 and "object 1 (" in shown.output and "radius_m" in shown.output, shown.output
     with np.load(path) as z:
         arrays = dict(z)
     meta = json.loads(str(arrays["meta"]))

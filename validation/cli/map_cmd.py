@@ -149,9 +149,16 @@ def info(map_file):
     last = m.history[-1] if m.history else {}
     click.echo(f"sensor {m.sensor.name} ({m.sensor.n_electrodes} electrodes), tank {meta['tank']}, "
                f"{len(m.objects)} fixed object(s)")
+    for i, o in enumerate(m.objects, start=1):
+        material = "conducting" if o.is_conducting else "insulating" if o.is_insulating else \
+            f"{o.conductivity_S_per_m:g} S/m"
+        size = {k: v for k, v in vars(o).items() if k in ("radius_m", "height_m", "size_m", "yaw_rad")}
+        click.echo(f"  object {i} ({o.label}): {material}, centre {tuple(round(c, 4) for c in o.centre_m)} m, "
+                   + ", ".join(f"{k} {v}" for k, v in size.items()))
     click.echo(f"z = {meta['z_m']} m, closest {1e3 * m.wall_gap_m:g} mm to a wall; {len(m.nodes)} BEM poses "
                f"(sensor mesh {m.coarse_factor:.3g}x the reference's), {len(m.ref_index)} on the reference mesh; "
-               f"sigma {m.sigma_S_per_m} S/m")
+               + (f"sigma {m.sigma_S_per_m:g} S/m" if m.sigma_S_per_m is not None
+                  else "no conductivity recorded (K kept at 1 S/m: a log's or --sigma scales it)"))
     if last:
         click.echo(f"estimated error RMS {100 * last['rms_error']:.4f} %, max {100 * last['max_error']:.4f} %; built in "
                    f"{last['seconds']:.0f} s wall, {last.get('cpu_seconds', float('nan')):.0f} s CPU")
