@@ -28,6 +28,19 @@ def _parse_models(text: str) -> tuple[str, ...]:
     return models
 
 
+def _without_the_psm(model_names: tuple, named: bool, logs: list, why: str) -> tuple:
+    """``model_names`` without the PSM where ``logs`` hold what it cannot simulate (``why``): said, or refused where
+    ``--models`` named it (``named``)."""
+    if not logs or "psm" not in model_names:
+        return model_names
+    if named:
+        raise click.BadParameter(f"{', '.join(logs)}: {why}: leave psm out of --models", param_hint="--models")
+    kept = tuple(m for m in model_names if m != "psm")
+    click.echo(f"note: {', '.join(logs)}: {why}: comparing with the {' and the '.join(m.upper() for m in kept)} only",
+               err=True)
+    return kept
+
+
 def objects_of_log(log, objects=(), tank_map=None) -> tuple:
     """The objects in the tank of ``log``: those given (a scene file), else those its meta line lists (``esense
     sweep`` of a scene), else the tank map's fixed objects."""
@@ -186,26 +199,15 @@ def validate(logs, models, map_file, psm_file, conductivity_correction, scene_fi
             objects = tuple(load_scene(scene_file).objects)
         except ValueError as exc:
             raise click.ClickException(f"{scene_file}: {exc}") from None
-    curved = [log.path.name for log in read if not has_images(log.tank)]
-    if curved and "psm" in model_names:
-        if models is not None:
-            raise click.BadParameter(f"the PSM's images are a box's, and {', '.join(curved)} logged a cylindrical "
-                                     "tank: leave psm out of --models", param_hint="--models")
-        model_names = tuple(m for m in model_names if m != "psm")
-        click.echo(f"note: {', '.join(curved)}: a cylindrical tank, which the PSM (a box's images) cannot "
-                   f"simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} only", err=True)
     from electrosense.validation.diagnosis.forward import effect_objects
 
+    curved = [log.path.name for log in read if not has_images(log.tank)]
+    model_names = _without_the_psm(model_names, models is not None, curved,
+                                   "a cylindrical tank, which the PSM (a box's images) cannot simulate")
     in_tank = {log.path.name: objects_of_log(log, objects, tank_map) for log in read}
     not_balls = [name for name, objs in in_tank.items() if len(effect_objects(objs)) < len(objs)]
-    if not_balls and "psm" in model_names:
-        if models is not None:
-            raise click.BadParameter(f"the PSM's object term is a ball's, and {', '.join(not_balls)} has a pole or a "
-                                     "box in the tank: leave psm out of --models", param_hint="--models")
-        model_names = tuple(m for m in model_names if m != "psm")
-        click.echo(f"note: {', '.join(not_balls)}: a pole or a box in the tank, which the PSM (a ball's object "
-                   f"term) cannot simulate: comparing with the {' and the '.join(m.upper() for m in model_names)} "
-                   "only", err=True)
+    model_names = _without_the_psm(model_names, models is not None, not_balls,
+                                   "a pole or a box in the tank, which the PSM (a ball's object term) cannot simulate")
     if tank_map is not None and not objects and tank_map.objects:   # validate_logs: the map's, where a log lists none
         click.echo(f"note: the map's {len(tank_map.objects)} fixed object(s) stand in the tank of every log that "
                    "lists none", err=True)
