@@ -125,3 +125,18 @@ def test_validate_simulates_the_objects_a_log_lists_and_leaves_the_psm_out_besid
     other = write_bench_log(tmp_path / "pole.csv", pole, _frame())
     run = CliRunner().invoke(main, ["validate", str(other), "--models", "psm", "-o", str(tmp_path / "w")])
     assert run.exit_code != 0 and "leave psm out of --models" in run.output and "Traceback" not in run.output
+
+
+def test_diagnose_refuses_a_psm_baseline_for_a_log_that_lists_a_pole(tmp_path):
+    """The PSM as the diagnosis's baseline cannot hold a pole the log lists: refused in one line, naming the
+    object and what to use instead, before any simulation."""
+    from click.testing import CliRunner
+
+    from electrosense.validation.cli import main
+
+    pole = {**BASE, "objects": objects_meta((Cylinder((0.2, 0.2, 0.0), name="PVC pole", radius_m=0.01,
+                                                      height_m=0.2),))}
+    log = write_bench_log(tmp_path / "pole.csv", pole, _frame())
+    run = CliRunner().invoke(main, ["diagnose", str(log), "--model", "psm", "-o", str(tmp_path / "d")])
+    assert run.exit_code == 2 and "object(s) 1 (PVC pole)" in run.output and "--model anchored" in run.output, \
+        run.output

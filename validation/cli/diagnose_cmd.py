@@ -100,6 +100,9 @@ def diagnose(logs, model, effects, outdir, psm_model, edge_length_m, split_poses
     from electrosense.validation.diagnosis.forward import effect_objects
 
     left_out = [f"{i} ({o.label})" for i, o in enumerate(obs.objects, start=1) if o not in effect_objects(obs.objects)]
+    if left_out and model == "psm":   # the baseline itself is the PSM
+        raise click.BadParameter(f"the PSM cannot hold object(s) {', '.join(left_out)} (its object term is a ball's): "
+                                 "diagnose with --model anchored (the BEM) or --map", param_hint="--model")
     if left_out:
         click.echo(f"note: object(s) {', '.join(left_out)} in the baseline, left out of the effect model (the PSM's: "
                    "balls only), whose changes are computed without them")
