@@ -36,7 +36,7 @@ from electrosense.psm.model import PolySphericalModel
 from electrosense.psm.objects import object_terms
 from electrosense.psm.potential_coefficients import potential_coefficients
 
-__all__ = ["conductance", "conductance_array", "sphere_centres_m", "boundary_probe_indices", "PlacementError", "MAX_IMAGE_SHELLS"]
+__all__ = ["conductance", "conductance_array", "sphere_centres_m", "placement_fits", "boundary_probe_indices", "PlacementError", "MAX_IMAGE_SHELLS"]
 
 #: the complete series gives up (with an error) beyond this many shells
 MAX_IMAGE_SHELLS = 16
@@ -58,30 +58,62 @@ def sphere_centres_m(model: PolySphericalModel, poses: np.ndarray) -> np.ndarray
     return X
 
 
+def _placement_gaps(model, X, tank, obj_centres, obj_radii):
+    """The gaps (m) that decide a placement: each sphere's to each boundary of the water (P, n, 6), each
+    object's (O, 6) and each sphere's clearance from each object (P, n, O); ``None`` where there is none."""
+    Xr = X.real
+    wall = obj_wall = clearance = None
+    if tank is not None:
+        wall = tank.distance_to_boundary_m(Xr) - model.radii_m[None, :, None]
+        if obj_centres.size:
+            obj_wall = tank.distance_to_boundary_m(obj_centres) - obj_radii[:, None]
+    if obj_centres.size:
+        d = np.linalg.norm(Xr[:, :, None, :] - obj_centres[None, None], axis=-1)
+        clearance = d - model.radii_m[None, :, None] - obj_radii[None, None, :]
+    return wall, obj_wall, clearance
+
+
+def placement_fits(model: PolySphericalModel, poses: np.ndarray, tank=None, objects=()) -> np.ndarray:
+    """(P,) bool: the poses where every sphere of the model is in the water and clear of every object (those
+    :func:`conductance` computes; the others it refuses with a :class:`PlacementError`).
+
+    >>> from electrosense.psm import PolySphericalModel
+    >>> from electrosense.meshes.tank import Tank
+    >>> m = PolySphericalModel(radii_m=[0.01, 0.01], centres_m=[[-0.05, 0, 0], [0.05, 0, 0]], emitter=1)
+    >>> placement_fits(m, np.array([[0.0, 0, 0, 0], [0.46, 0, 0, 0]]), Tank((1.0, 1.0, 1.0))).tolist()
+    [True, False]
+    """
+    poses = np.asarray(poses, float).reshape(-1, 4)
+    obj_centres, obj_radii, _ = object_terms(tuple(objects), 1.0)
+    wall, obj_wall, clearance = _placement_gaps(model, sphere_centres_m(model, poses), tank, obj_centres, obj_radii)
+    fits = np.ones(len(poses), bool)
+    if obj_wall is not None and np.any(obj_wall < 0):
+        fits[:] = False
+    if wall is not None:
+        fits &= (wall >= 0).all(axis=(1, 2))
+    if clearance is not None:
+        fits &= (clearance > 0).all(axis=(1, 2))
+    return fits
+
+
 def _check_placement(model, X, tank, obj_centres, obj_radii):
     Xr = X.real
-    if tank is not None:
-        gap = tank.distance_to_boundary_m(Xr) - model.radii_m[None, :, None]  # (P, n, 6)
-        if np.any(gap < 0):
-            ip, k, b = np.unravel_index(np.argmin(gap), gap.shape)
-            raise PlacementError(
-                f"pose {ip} (x, y, z = {Xr[ip].mean(0).round(4).tolist()} m): sphere {k + 1} of the PSM "
-                f"(radius {model.radii_m[k] * 1e3:.2f} mm) reaches {-gap[ip, k, b] * 1e3:.2f} mm beyond the "
-                f"{TANK_REGIONS[b]} boundary of the water; the PSM's wall images do not hold where its spheres "
-                "cross a wall (the sensor itself may be in the water): a tank map (esense map build, then "
-                "--model map or --map FILE) reaches 5 mm from a wall"
-            )
-        if obj_centres.size:
-            ogap = tank.distance_to_boundary_m(obj_centres) - obj_radii[:, None]
-            if np.any(ogap < 0):
-                o, b = np.unravel_index(np.argmin(ogap), ogap.shape)
-                raise PlacementError(f"object {o + 1} reaches beyond the {TANK_REGIONS[b]} boundary of the water")
-    if obj_centres.size:
-        d = np.linalg.norm(Xr[:, :, None, :] - obj_centres[None, None], axis=-1)  # (P, n, O)
-        clearance = d - model.radii_m[None, :, None] - obj_radii[None, None, :]
-        if np.any(clearance <= 0):
-            ip, k, o = np.unravel_index(np.argmin(clearance), clearance.shape)
-            raise PlacementError(f"pose {ip}: object {o + 1} overlaps sphere {k + 1} of the PSM")
+    gap, ogap, clearance = _placement_gaps(model, X, tank, obj_centres, obj_radii)
+    if gap is not None and np.any(gap < 0):
+        ip, k, b = np.unravel_index(np.argmin(gap), gap.shape)
+        raise PlacementError(
+            f"pose {ip} (x, y, z = {Xr[ip].mean(0).round(4).tolist()} m): sphere {k + 1} of the PSM "
+            f"(radius {model.radii_m[k] * 1e3:.2f} mm) reaches {-gap[ip, k, b] * 1e3:.2f} mm beyond the "
+            f"{TANK_REGIONS[b]} boundary of the water; the PSM's wall images do not hold where its spheres "
+            "cross a wall (the sensor itself may be in the water): a tank map (esense map build, then "
+            "--model map or --map FILE) reaches 5 mm from a wall"
+        )
+    if ogap is not None and np.any(ogap < 0):
+        o, b = np.unravel_index(np.argmin(ogap), ogap.shape)
+        raise PlacementError(f"object {o + 1} reaches beyond the {TANK_REGIONS[b]} boundary of the water")
+    if clearance is not None and np.any(clearance <= 0):
+        ip, k, o = np.unravel_index(np.argmin(clearance), clearance.shape)
+        raise PlacementError(f"pose {ip}: object {o + 1} overlaps sphere {k + 1} of the PSM")
 
 
 def _series_ohm(model, contact_impedance_ohm_m2, sensor):

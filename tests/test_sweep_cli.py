@@ -207,3 +207,43 @@ def test_ctrl_c_on_a_sweep_with_workers_is_one_clean_line_and_resumable(tmp_path
     assert "interrupted (Ctrl-C)" in output and "run the same command again to resume" in output
     assert store.exists() and not out.exists()
     assert open_sweep(store).sizes["pose"] == 1200 * 1200
+
+
+def test_skip_blocked_leaves_out_the_poses_the_model_does_not_reach_and_keeps_the_rest_exact(tmp_path, psm_file):
+    """A grid over a tank with a ball, wall to wall: refused whole by default (naming --skip-blocked); with
+    --skip-blocked the poses where the sensor or the PSM's spheres cross a wall or the ball are NaN in the store,
+    the others exactly the PSM's, the scene file's sensor height taken, and the plot drawn with them blank."""
+    import xarray as xr
+
+    from electrosense.meshes import preset
+    from electrosense.meshes.objects import Sphere
+    from electrosense.meshes.tank import Tank
+    from electrosense.validation.simulation.models import PSMEvaluator, poses_reached
+    from electrosense.validation.simulation.sweep.grid import parse_grid
+
+    scene = tmp_path / "ball.toml"
+    scene.write_text('[tank]\nsize_m = [0.6, 0.5, 0.4]\n[sensor]\npreset = "angels-4"\npose = [0, 0, -0.04, 0]\n'
+                     '[[objects]]\nshape = "sphere"\ncentre_m = [0.1, 0.05, -0.04]\nradius_m = 0.03\n'
+                     'material = "conducting"\n[water]\nsigma_S_per_m = 0.05\n')
+    grid = "-0.3:0.3:25,-0.25:0.25:21"
+    args = ("--model", "psm", "--psm", psm_file, "--scene", scene, "--grid", grid, "--yaw", 0.4, "--workers", 1,
+            "--quiet")
+    refused = _run(*args, "-o", tmp_path / "all.nc")
+    assert refused.exit_code != 0 and "--skip-blocked" in refused.output and "Traceback" not in refused.output
+    out, png = tmp_path / "skip.nc", tmp_path / "skip.png"
+    r = _run(*args, "--skip-blocked", "--plot", png, "-o", out)
+    assert r.exit_code == 0, r.output
+    ds = xr.open_dataset(out)
+    poses = parse_grid(grid, yaw_rad=0.4, z_m=-0.04).poses
+    np.testing.assert_allclose(np.c_[ds.x_m, ds.y_m, ds.z_m, ds.yaw_rad], poses)
+    model = psm.PolySphericalModel.load(psm_file)
+    tank, ball = Tank((0.6, 0.5, 0.4)), Sphere((0.1, 0.05, -0.04), float("inf"), radius_m=0.03)
+    evaluator = PSMEvaluator(model, 0.05, tank, (ball,))
+    reached, _ = poses_reached(evaluator, preset("angels-4"), tank, (ball,), poses)
+    assert 0 < (~reached).sum() < len(poses) and f"{(~reached).sum()} of {len(poses)} poses left out" in r.output
+    K = ds.K_S.values
+    assert np.isnan(K[~reached]).all() and np.isfinite(K[reached]).all() and ds.computed.values.all()
+    assert int(ds.attrs["blocked_poses"]) == (~reached).sum()
+    direct = psm.conductance(model, poses[reached], 0.05, tank=tank, objects=(ball,))
+    np.testing.assert_allclose(ds.I_A.values[reached], direct.receiver_currents_A(1.0), rtol=1e-10)
+    assert png.exists()

@@ -673,7 +673,21 @@ def test_sweep_with_the_map_and_map_info(built, tmp_path):
                                     "0.5,0", "--steps", "5", "-o", str(off), "--quiet"])
     assert res.exit_code != 0 and "Traceback" not in res.output, res.output
     assert "pose 0 (x -0.5 m" in res.output and "beyond a wall" in res.output and "4 of 5 poses" in res.output
+    assert "--skip-blocked" in res.output
     assert not list(tmp_path.glob("off.csv*"))
+    # or left out where asked: the one pose the map reaches written, its index kept, the others named
+    res = CliRunner().invoke(main, ["sweep", "--model", "map", "--map", str(path), "--from", "-0.5,0", "--to",
+                                    "0.5,0", "--steps", "5", "--skip-blocked", "-o", str(off), "--quiet"])
+    assert res.exit_code == 0 and "4 of 5 poses left out" in res.output, res.output
+    from electrosense.bem.conductance import ConductanceMatrix
+    from electrosense.validation.bench.log import read_bench_log
+
+    log = read_bench_log(off)
+    assert log.t_s.tolist() == [2.0] and np.allclose(log.poses[0, :2], 0.0)
+    assert "left out (--skip-blocked)" in log.meta["notes"]
+    m, _ = built
+    direct = ConductanceMatrix(m.conductance(log.poses, 0.05), m.sensor.emitter, 0.05).receiver_currents_A(1.0)
+    np.testing.assert_allclose(log.currents_A, direct, rtol=1e-12)
     bad = tmp_path / "bad.npz"
     bad.write_text("not a map")
     res = CliRunner().invoke(main, ["map", "info", str(bad)])

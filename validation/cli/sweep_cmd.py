@@ -66,14 +66,15 @@ def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: in
         return open_()
 
 
-def _bench_log_frame(C, poses):
-    """The bench-log table of a sweep: t_s (pose index), pose, U_V = 1, I<k>_A, R<k>_ohm."""
+def _bench_log_frame(C, poses, index=None):
+    """The bench-log table of a sweep: t_s (the pose's ``index`` in the sweep, default 0, 1, ...), pose, U_V = 1,
+    I<k>_A, R<k>_ohm."""
     import pandas as pd
 
     from electrosense.validation.bench.log.writer import bench_log_table
 
     I = C.receiver_currents_A(1.0)
-    table = bench_log_table(poses, 1.0, I, C.receivers)
+    table = bench_log_table(poses, 1.0, I, C.receivers, t_s=None if index is None else [float(i) for i in index])
     table.update({f"R{k}_ohm": 1.0 / I[:, j] for j, k in enumerate(C.receivers)})
     return pd.DataFrame(table)
 
@@ -93,7 +94,8 @@ def _bench_log_frame(C, poses):
 @click.option("--grid", "grid_text", help="Grid X0:X1:NX,Y0:Y1:NY[,YAW0:YAW1:NYAW] (m, m, rad; ends included).")
 @click.option("--yaw", type=finite_float(), default=0.0, show_default=True, help="Heading in rad (line; grid without a yaw axis).")
 @click.option("--z", "z_m", type=finite_float(), default=None,
-              help="Height of the sensor centre in m (tank frame); default 0, or the map's depth.")
+              help="Height of the sensor centre in m (tank frame); default: the scene file's sensor height, the "
+                   "map's depth, else 0.")
 @click.option("--images", type=click.Choice(["complete", "paper8", "none"]), default="complete", show_default=True,
               help="PSM tank images.")
 @click.option("--tank-edge-length", "tank_edge_length_m", type=finite_float(positive=True),
@@ -111,6 +113,10 @@ def _bench_log_frame(C, poses):
 @click.option("--overwrite", is_flag=True,
               help="Replace an existing output: a .csv/.nc file, or a .zarr store of another sweep (a store of the "
                    "same sweep is resumed without it).")
+@click.option("--skip-blocked", is_flag=True,
+              help="Leave out the poses the model does not reach (the sensor beyond a wall or into an object, the "
+                   "PSM's spheres across a wall, closer to a wall than a map reaches) instead of refusing the "
+                   "sweep: NaN in the store, blank in the plot, no row in a bench log; their count said.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("-o", "--output", required=True, type=click.Path(),
               help="out.csv (bench log with R<k>_ohm columns), out.zarr (resumable store) or out.nc (netCDF).")
@@ -177,6 +183,8 @@ def _sweep(o):
         scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
                                              default_tank=Tank(NOMINAL_TANK_M))
         sensor, tank, objects = scene.sensor, scene.tank, tuple(scene.objects)
+        if o.z_m is None and o.scene_file:
+            o.z_m = scene.pose.z_m     # the scene's sensor height, as `esense map build --scene` takes it
     o.z_m = 0.0 if o.z_m is None else o.z_m
 
     grid = None
@@ -233,8 +241,18 @@ def _sweep(o):
         workers = 1
     n_workers = workers or local_cores()
     # the model is set up (and may refuse) before any store exists, so a refusal leaves nothing behind
-    evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
-                               poses=poses, **bem_options, **({"tank_map": tank_map} if model == "map" else {}))
+    try:
+        evaluator = pose_evaluator(model, sensor, tank, sigma, objects, psm_file, contact_impedance, images,
+                                   poses=poses, skip_blocked=o.skip_blocked, **bem_options,
+                                   **({"tank_map": tank_map} if model == "map" else {}))
+    except ValueError as exc:   # a pose the model does not reach (ModelError, PlacementError, the scene's check)
+        hint = "" if o.skip_blocked else " (--skip-blocked leaves out the poses the model does not reach)"
+        raise click.ClickException(f"{exc}{hint}") from None
+    n_blocked = getattr(evaluator, "n_blocked", 0)
+    if n_blocked:
+        click.echo(f"{n_blocked} of {len(poses)} poses left out (NaN), where the model does not reach: "
+                   f"{evaluator.why}")
+        attrs["blocked_poses"] = n_blocked
     chunk_poses = o.chunk_poses or default_chunk_poses(len(poses), n_workers)
     with ctrl_c_held() as release:   # a store is written whole; a Ctrl-C meanwhile is raised after it
         store = _open_store(store_path, poses, sensor, identity, chunk_poses, attrs, ours=final is not None,
@@ -249,12 +267,12 @@ def _sweep(o):
         click.echo(f"{model.upper()}: {sensor.name}, {where}, "
                    f"sigma {sigma:g} S/m, {n_left} poses to compute")
         result = run_sweep(evaluator, poses, store, scheduler=o.scheduler, workers=workers, progress=not o.quiet)
-        C = result.conductance
+        C, reached = result.conductance, result.reached
         click.echo(f"computed {result.n_computed} poses in {result.seconds:.1f} s "
                    f"({result.poses_per_s:.3g} poses/s, {result.workers} worker{'s' if result.workers > 1 else ''})")
     else:
         click.echo(f"{store_path}: all {len(poses)} poses already computed")
-        C = store.conductance(sigma)
+        C, reached = store.conductance(sigma, reached_only=True), store.reached
 
     # ------------------------------------------------------------ the output
     if out.suffix == ".csv":
@@ -274,7 +292,11 @@ def _sweep(o):
         }
         if objects:
             meta[OBJECTS_META_KEY] = objects_meta(objects)
-        write_bench_log(out, meta, _bench_log_frame(C, poses), overwrite=o.overwrite)
+        if not reached.all():
+            meta["notes"] += (f"; {int((~reached).sum())} poses the model does not reach left out "
+                              "(--skip-blocked): t_s keeps every pose's index")
+        write_bench_log(out, meta, _bench_log_frame(C, poses[reached], reached.nonzero()[0]),
+                        overwrite=o.overwrite)
     elif out.suffix == ".nc":
         export_netcdf(store_path, out)
     if o.plot_png:

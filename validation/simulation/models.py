@@ -51,6 +51,9 @@ __all__ = [
     "ModelError",
     "PSMEvaluator",
     "SectorPSMEvaluator",
+    "PartialConductance",
+    "WhereItReaches",
+    "poses_reached",
     "calibrated_sector_psm",
     "pose_evaluator",
     "simulate",
@@ -394,6 +397,7 @@ def pose_evaluator(
     images: str = "complete",
     poses=None,
     prepare: bool = True,
+    skip_blocked: bool = False,
     **bem_options,
 ):
     """The pose-invariant part of a model run: an object with ``.conductance(poses) -> ConductanceMatrix``.
@@ -409,7 +413,24 @@ def pose_evaluator(
     of them, so that every chunk, on any worker, is computed exactly as one
     call over all poses would. ``prepare=False`` leaves the BEM's blocks to
     its first call (for a single call over all poses).
+
+    ``skip_blocked=True`` (with ``poses``): where the model does not reach a pose (:func:`poses_reached`:
+    the sensor beyond a wall or into an object, the PSM's spheres across a wall, a map's gap), the pose is
+    left out rather than refused: the evaluator is prepared for the poses it reaches and wrapped in
+    :class:`WhereItReaches`, whose matrices are NaN at the others.
     """
+    if skip_blocked and poses is not None:
+        common = dict(contact_impedance_ohm_m2=contact_impedance_ohm_m2, images=images, **bem_options)
+        P = poses_array(poses)
+        # the BEM's reach is the scene's; the PSM's and a map's are their own (the PSM's calibration is cached)
+        probe = None if model == "bem" else pose_evaluator(model, sensor, tank, sigma_S_per_m, objects, psm_model,
+                                                           poses=None, **common)
+        reached, why = poses_reached(probe, sensor, tank, objects, P)
+        if not reached.any():
+            raise ModelError(f"the model reaches none of the {len(P)} poses: {why}")
+        inner = pose_evaluator(model, sensor, tank, sigma_S_per_m, objects, psm_model, poses=P[reached],
+                               prepare=prepare, **common)
+        return WhereItReaches(inner, sensor, tank, tuple(objects), int(np.count_nonzero(~reached)), why)
     if not (np.isfinite(sigma_S_per_m) and sigma_S_per_m > 0):
         raise ModelError(f"sigma_S_per_m must be a positive conductivity, got {sigma_S_per_m}")
     code_version()  # pin the model code's version now, as it is loaded; dask workers must run the same
@@ -474,6 +495,84 @@ def pose_evaluator(
                 raise ModelError(why)
         return MapEvaluator(tank_map, float(sigma_S_per_m))
     raise ModelError(f"unknown model {model!r}; known: {', '.join(MODELS)}")
+
+
+def poses_reached(evaluator, sensor: SensorDescription, tank: Tank | None, objects, poses) -> tuple[np.ndarray, str]:
+    """(P,) bool: the poses ``evaluator``'s model computes, and why the first other is not reached ("" if all are).
+
+    Every model needs the sensor in the water and clear of every object (:func:`electrosense.meshes.scene_mesh.
+    scene_problems`, what the BEM checks at each pose; ``evaluator`` ``None`` is the BEM); the PSM also its
+    spheres in the water and clear of the objects (:func:`electrosense.psm.conductance.placement_fits`); a
+    tank map its depth and the wall gap it was built for (:meth:`TankMap.covers`).
+
+    >>> from electrosense.meshes.sensor import preset
+    >>> poses = np.array([[0.0, 0, 0, 0], [0.45, 0, 0, 0]])
+    >>> poses_reached(None, preset("angels-2"), Tank((1.0, 1.0, 1.0)), (), poses)[0].tolist()
+    [True, False]
+    """
+    from electrosense.meshes.pose import Pose
+    from electrosense.meshes.scene import Scene
+    from electrosense.meshes.scene_mesh import scene_problems
+
+    P = poses_array(poses)
+    objects = tuple(objects)
+    inner = getattr(evaluator, "tank_map", None)
+    if inner is not None:
+        return inner.covers(P)
+    problems = [scene_problems(Scene(sensor, Pose.from_array(p), tank, objects)) for p in P]
+    reached = np.array([not q for q in problems], bool)
+    why = next((f"pose {i}: {'; '.join(q)}" for i, q in enumerate(problems) if q), "")
+    if isinstance(evaluator, PSMEvaluator):
+        from electrosense.psm.conductance import placement_fits
+
+        spheres = placement_fits(evaluator.model, P, tank, objects)
+        if not why and not spheres.all():
+            i = int(np.argmin(spheres))
+            why = f"pose {i}: a sphere of the PSM crosses a wall or touches an object (its wall images do not hold there)"
+        reached &= spheres
+    return reached, why
+
+
+@dataclass(frozen=True)
+class WhereItReaches:
+    """A model's evaluator at the poses it reaches; NaN matrices at the others (``esense sweep --skip-blocked``).
+
+    ``.conductance(poses)`` gives an object with ``K_S`` (P, n, n; NaN rows where the model does not reach the
+    pose: :func:`poses_reached`), ``emitter``, ``sigma_S_per_m`` and ``info``: what a sweep's runner stores. It
+    is not a :class:`ConductanceMatrix`, which holds finite matrices only.
+    """
+
+    evaluator: object
+    sensor: SensorDescription
+    tank: Tank | None
+    objects: tuple = ()
+    n_blocked: int = 0      #: poses of the sweep it was made for that the model does not reach
+    why: str = ""           #: why the first of them is not reached
+
+    @property
+    def sigma_S_per_m(self) -> float:
+        return self.evaluator.sigma_S_per_m
+
+    def conductance(self, poses, progress: bool = False) -> "PartialConductance":
+        P = poses_array(poses)
+        reached, _ = poses_reached(self.evaluator, self.sensor, self.tank, self.objects, P)
+        n = self.sensor.n_electrodes
+        K = np.full((len(P), n, n), np.nan)
+        info = {}
+        if reached.any():
+            C = self.evaluator.conductance(P[reached])
+            K[reached], info = C.K_S, C.info
+        return PartialConductance(K, self.sensor.emitter, float(self.sigma_S_per_m), info)
+
+
+@dataclass(frozen=True)
+class PartialConductance:
+    """Conductance matrices (P, n, n) with NaN rows where a model did not reach the pose (:class:`WhereItReaches`)."""
+
+    K_S: np.ndarray
+    emitter: int
+    sigma_S_per_m: float
+    info: dict = field(default_factory=dict, compare=False)
 
 
 def simulate(

@@ -273,12 +273,13 @@ def _plain_info(info: dict) -> dict:
 class SweepResult:
     """What a sweep gives back."""
 
-    conductance: ConductanceMatrix  #: batch shape (P,)
+    conductance: ConductanceMatrix  #: batch shape (P,), or (reached poses,) where ``reached`` is not all True
     n_computed: int  #: poses computed by this run
     n_resumed: int  #: poses found already computed in the store
     seconds: float
     workers: int  #: 1 for an in-process run
     info: dict = field(default_factory=dict)  #: the model's info from the first computed block
+    reached: np.ndarray | None = None  #: (P,) bool, the poses the model reached (a ``skip_blocked`` evaluator)
 
     @property
     def poses_per_s(self) -> float:
@@ -379,10 +380,12 @@ def _run(evaluator, poses, store, client, chunk_poses, target_task_s, progress) 
     if sigma is None:
         raise ValueError("the evaluator has no sigma_S_per_m and nothing was computed to learn it from")
     if store is not None:
-        conductance = store.conductance(float(sigma))
+        reached = store.reached
+        conductance = store.conductance(float(sigma), reached_only=True)
     else:
-        conductance = ConductanceMatrix(state["K_all"], state["meta"]["emitter"], float(sigma), info)
-    return SweepResult(conductance, n_todo, P - n_todo, time.perf_counter() - t0, n_workers, info)
+        reached = np.isfinite(state["K_all"]).all(axis=(1, 2))
+        conductance = ConductanceMatrix(state["K_all"][reached], state["meta"]["emitter"], float(sigma), info)
+    return SweepResult(conductance, n_todo, P - n_todo, time.perf_counter() - t0, n_workers, info, reached)
 
 
 def _run_on_dask(client, evaluator, poses, pending, n_workers, target_task_s, land) -> None:

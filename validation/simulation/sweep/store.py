@@ -24,6 +24,10 @@ dimensions ``pose``, ``electrode`` (1..n, the current's electrode),
 * ``R_ohm`` (pose, receiver): U / I (ohm);
 * ``computed`` (pose): 1 where the pose's chunk has been computed.
 
+A sweep run with ``--skip-blocked`` holds NaN in ``K_S``, ``I_A`` and ``R_ohm`` at the poses its model
+does not reach (the sensor beyond a wall or into an object...), computed all the same; the attribute
+``blocked_poses`` counts them (:attr:`SweepStore.reached`).
+
 Attributes: ``format`` (``"esense-sweep 1"``), ``model``, ``sensor``,
 ``tank_m``, ``water_depth_m``, ``objects``, ``sigma_S_per_m``, ``emitter``,
 ``model_options`` (mesh parameters, PSM images...), ``mesh`` (what the model
@@ -240,8 +244,10 @@ class SweepStore:
         stop = start + len(K)
         if start % self.chunk_poses or not (stop == self.n_poses or stop % self.chunk_poses == 0):
             raise StoreError(f"poses {start}:{stop} do not cover whole chunks of {self.chunk_poses} poses")
-        C = ConductanceMatrix(K, self.emitter, 1.0)
-        I = C.receiver_currents_A(1.0)
+        reached = np.isfinite(K).all(axis=(1, 2))     # NaN rows: poses the model did not reach (--skip-blocked)
+        I = np.full((len(K), K.shape[1] - 1), np.nan)
+        if reached.any():
+            I[reached] = ConductanceMatrix(K[reached], self.emitter, 1.0).receiver_currents_A(1.0)
         group = self._group()
         group["K_S"][start:stop] = K
         group["I_A"][start:stop] = I
@@ -261,13 +267,27 @@ class SweepStore:
         """The store as an ``xarray.Dataset`` (lazy)."""
         return open_sweep(self.path)
 
-    def conductance(self, sigma_S_per_m: float) -> ConductanceMatrix:
-        """All matrices as one ConductanceMatrix of batch shape (P,); the sweep must be complete."""
+    @property
+    def reached(self) -> np.ndarray:
+        """(P,) bool: the computed poses the model reached (finite matrices; a ``--skip-blocked`` sweep leaves
+        NaN at the others)."""
+        K = np.asarray(self._group("r")["K_S"][:])
+        return self.computed & np.isfinite(K).all(axis=(1, 2))
+
+    def conductance(self, sigma_S_per_m: float, reached_only: bool = False) -> ConductanceMatrix:
+        """All matrices as one ConductanceMatrix of batch shape (P,); the sweep must be complete. A sweep with
+        poses its model did not reach is refused unless ``reached_only``, which gives those it reached
+        (:attr:`reached`) in pose order."""
         group = self._group("r")
         done = np.asarray(group["computed"][:]).astype(bool)
         if not done.all():
             raise StoreError(f"{self.path}: {np.count_nonzero(~done)} of {done.size} poses are not computed yet")
-        return ConductanceMatrix(np.asarray(group["K_S"][:]), self.emitter, sigma_S_per_m, self.attrs)
+        K = np.asarray(group["K_S"][:])
+        reached = np.isfinite(K).all(axis=(1, 2))
+        if not reached.all() and not reached_only:
+            raise StoreError(f"{self.path}: the model did not reach {np.count_nonzero(~reached)} of {reached.size} "
+                             "poses (NaN); take the others with reached_only=True")
+        return ConductanceMatrix(K[reached], self.emitter, sigma_S_per_m, self.attrs)
 
 
 def open_sweep(path):
