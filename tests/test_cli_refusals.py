@@ -78,3 +78,21 @@ def test_a_mesh_whose_shells_intersect_is_refused(tmp_path):
 def test_bench_sim_names_the_option(tmp_path, args, option):
     r = _run("bench-sim", "-o", tmp_path / "r.csv", "--path", "wall-to-wall:5", *args)
     assert r.exit_code != 0 and option in r.output and not (tmp_path / "r.csv").exists(), r.output
+
+
+def test_a_study_that_needs_an_extra_is_refused_before_any_work(tmp_path, monkeypatch):
+    """`esense study tank_map` runs `esense sweep` for its speed check: on a base install (no dask, zarr) it used to
+    build its map and check it for nine minutes, then end in an internal error with its figures lost."""
+    import importlib.util
+
+    import electrosense.validation.studies.tank_map as study
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "zarr" else real(name, *a))
+    monkeypatch.setattr(study, "main", lambda argv=None: pytest.fail("the study started"))
+    for cmd in (("study", "tank_map", "-o", tmp_path / "s"), ("sweep", "--model", "psm", "--sensor", "angels-2",
+                                                              "--from", "0,0", "--to", "0.1,0", "--steps", 2,
+                                                              "-o", tmp_path / "s.csv")):
+        r = _run(*cmd)
+        assert r.exit_code != 0 and "needs zarr: pip install 'electrosense[sweep]'" in r.output, r.output
+    assert not list(tmp_path.iterdir())

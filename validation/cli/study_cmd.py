@@ -6,6 +6,8 @@ import pkgutil
 
 import click
 
+from electrosense.validation.cli._extras import require_extra
+
 
 def _names() -> list[str]:
     import electrosense.validation.studies as studies
@@ -43,5 +45,8 @@ def study(name, args, list_):
     for n in names:
         if n not in available:
             raise click.BadParameter(f"unknown study {n!r}; known: {', '.join(available)}", param_hint="NAME")
+        module = importlib.import_module(f"electrosense.validation.studies.{n}")
+        for extra in getattr(module, "NEEDS_EXTRAS", ()):   # checked before any work, not where first used
+            require_extra(extra, f"esense study {n}")
         click.echo(f"== {n}")
-        importlib.import_module(f"electrosense.validation.studies.{n}").main(list(args))
+        module.main(list(args))

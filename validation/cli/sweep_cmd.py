@@ -129,14 +129,12 @@ def sweep(**options):
 
     Example: esense sweep --model psm --sensor angels-4 --from -0.4,0 --to 0.4,0 --steps 161 -o sweep.csv
     """
-    import importlib.util
     from types import SimpleNamespace
 
+    from electrosense.validation.cli._extras import require_extra
     from electrosense.validation.simulation.sweep.grid import GridError
 
-    missing = [m for m in ("dask", "distributed", "xarray", "zarr") if importlib.util.find_spec(m) is None]
-    if missing:
-        raise click.ClickException(f"esense sweep needs {', '.join(missing)}: pip install 'electrosense[sweep]'")
+    require_extra("sweep", "esense sweep")
     try:
         _sweep(SimpleNamespace(**options))
     except KeyboardInterrupt:

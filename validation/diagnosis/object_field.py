@@ -14,7 +14,8 @@ point-electrode model's Kelvin images have neither), and the tank's walls
 add their mirror images: at a point ``p`` of a box the field of the sensor
 is that of unbounded water at ``p`` plus at each of ``p``'s reflections in
 the six walls (a Neumann wall reflects the field point), the first
-reflections only. What is neglected: the sensor's own reaction to the
+reflections only; in a round tank the floor's, the free surface's and the
+curved wall's, taken as its tangent plane where ``p``'s radius meets it. What is neglected: the sensor's own reaction to the
 object's field and to the walls' reflections (higher order in the object's
 and the wall's distance), and degrees ``l >= 3`` of the sphere.
 
@@ -42,21 +43,38 @@ from electrosense.meshes.tank import Tank
 __all__ = ["ObjectField", "wall_reflections", "sensor_object_field"]
 
 
-def wall_reflections(tank: Tank | None, points_m: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``[(reflected points (..., 3), reflection matrix (3, 3)), ...]``: the points themselves (identity) and
-    their mirror images in the six faces of a box tank (the first reflections of a Neumann box)."""
-    p = np.asarray(points_m, float)
-    out = [(p, np.eye(3))]
+def wall_reflections(tank, points_m: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``[(reflected points (G, 3), reflection matrices (G, 3, 3)), ...]``: the points (G, 3) themselves (identity)
+    and their first mirror images in the tank's boundaries: a box's six faces; a round tank's floor, free surface
+    and curved wall, the wall as its vertical tangent plane where the point's radius meets it (radius at the
+    point's height: a tapered wall's tilt is neglected).
+
+    >>> from electrosense.meshes.cylinder_tank import CylinderTank
+    >>> q, M = wall_reflections(CylinderTank(0.2, 0.3), np.array([[0.1, 0.1, 0.0]]))[1]
+    >>> q.round(4).tolist(), M[0].round(4).tolist()[0]
+    [[0.1828, 0.1828, 0.0]], [0.0, -1.0, 0.0]]
+    """
+    p = np.asarray(points_m, float).reshape(-1, 3)
+    eye = np.broadcast_to(np.eye(3), (len(p), 3, 3))
+    out = [(p, eye)]
     if tank is None:
         return out
     lo, hi = tank.water_bounds_m
-    for axis in range(3):
+    if hasattr(tank, "radius_at"):      # a round tank: the curved wall, then the floor and the free surface
+        rho = np.maximum(np.hypot(p[:, 0], p[:, 1]), 1e-12)
+        n = np.column_stack([p[:, 0] / rho, p[:, 1] / rho, np.zeros(len(p))])       # the wall's normal there
+        gap = np.asarray(tank.radius_at(p[:, 2]), float) - rho
+        out.append((p + 2.0 * gap[:, None] * n, np.eye(3) - 2.0 * np.einsum("gi,gj->gij", n, n)))
+        axes = (2,)
+    else:
+        axes = (0, 1, 2)
+    for axis in axes:
         M = np.eye(3)
         M[axis, axis] = -1.0
         for plane in (lo[axis], hi[axis]):
             q = p.copy()
-            q[..., axis] = 2 * plane - p[..., axis]
-            out.append((q, M))
+            q[:, axis] = 2 * plane - p[:, axis]
+            out.append((q, np.broadcast_to(M, (len(p), 3, 3))))
     return out
 
 
@@ -80,10 +98,10 @@ class ObjectField:
         for q, M in wall_reflections(tank, pts):
             local = np.einsum("pji,pgj->pgi", R, q[None, :, :] - t[:, None, :])   # R^T (q - t): the sensor's frame
             gl, Hl = self.field.derivatives(local.reshape(-1, 3))
-            A = np.einsum("ab,pbc->pac", M, R)   # d/dp of the reflected point, then to the tank frame
-            g += np.einsum("pac,pgnc->pgna", A, gl.reshape(P, G, n, 3))
+            A = np.einsum("gab,pbc->pgac", M, R)   # d/dp of the reflected point, then to the tank frame
+            g += np.einsum("pgac,pgnc->pgna", A, gl.reshape(P, G, n, 3))
             if hessian:
-                H += np.einsum("pac,pgncd,pbd->pgnab", A, Hl.reshape(P, G, n, 3, 3), A)
+                H += np.einsum("pgac,pgncd,pgbd->pgnab", A, Hl.reshape(P, G, n, 3, 3), A)
         return g, H
 
     def __call__(self, poses: np.ndarray, tank: Tank | None, spheres) -> np.ndarray:

@@ -271,8 +271,8 @@ def object_summary(obs, tank_map, psm, currents, noise_rel: float, z_m: float | 
            "z_m": float(np.median(obs.poses[:, 2])) if z_m is None else float(z_m),
            "true_centre_m": None if true_centre_m is None else [float(v) for v in true_centre_m]}
     if hasattr(obs.tank, "radius_m"):
-        out["note"] = ("the object's field takes a box's wall reflections (its bounding box's here): in a cylinder "
-                       "it is approximate where the object is near the curved wall")
+        out["note"] = ("the object's field takes the curved wall's reflection in its tangent plane where the "
+                       "object's radius meets it (first reflections only, as a box's walls)")
     for name, model in models.items():
         say(f"looking for an object with the {name}")
         try:

@@ -32,6 +32,9 @@ import time
 
 import numpy as np
 
+#: what the study needs beyond the base install (dask and the sweep's store): checked before any work
+NEEDS_EXTRAS = ("sweep",)
+
 TARGET_SPEEDUP_2 = 1.8
 TARGET_OVERHEAD = 0.20
 from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M  # noqa: E402

@@ -39,6 +39,9 @@ one_thread_environment()
 
 import numpy as np  # noqa: E402
 
+#: what the study needs beyond the base install (its speed check runs `esense sweep`): checked before the build
+NEEDS_EXTRAS = ("sweep",)
+
 GOALS = {"rms": 1.7e-4, "max": 5e-4, "build_s": 300.0, "poses_per_s": 1e4, "loc_over_crb": 1.5, "loc_rms_m": 1e-3}
 #: radius (m) of the conducting ball the object pass goes by (meshed in the virtual bench's BEM)
 BALL_M = 0.015
