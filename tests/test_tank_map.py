@@ -287,17 +287,29 @@ def test_the_map_is_the_bem_at_its_nodes_and_survives_its_file(built):
     # of the sensor-tank coupling; the BEM's own truncation a few parts in a million away
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import (
+        IMAGE_FACES_WITHIN_M,
         MAP_COUPLING_TOL,
         REFERENCE_TANK_GRADING,
         image_faces_near,
     )
 
+    def again_meta(p):
+        with np.load(p) as z:
+            return json.loads(str(z["meta"]))
+
     assert m.bem_options == {**OPTIONS, "tank_grading": REFERENCE_TANK_GRADING}
-    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, **m.bem_options)
-    K_user = user.conductance(m.nodes[m.ref_index[:1]]).K_S
+    # the reference poses too take the faces near the sensor as image planes (exact: a meshed wall beside the
+    # sensor converges slowly with the tank mesh), the others meshed
+    assert m.reference_images_m == IMAGE_FACES_WITHIN_M and again_meta(path)["reference_images_m"] == 0.08
+    first = m.nodes[m.ref_index[:1]]
+    faces = image_faces_near(SENSOR, TANK, first)[0]
+    user = PoseSweep(SENSOR, TANK, (), 1.0, tol=MAP_COUPLING_TOL, image_face=faces or None, **m.bem_options)
+    K_user = user.conductance(first).K_S
     np.testing.assert_allclose(m.K_ref[:1], K_user, rtol=1e-9, atol=1e-12 * np.abs(K_user).max())
-    K_default = PoseSweep(SENSOR, TANK, (), 1.0, **m.bem_options).conductance(m.nodes[m.ref_index[:1]]).K_S
+    K_default = PoseSweep(SENSOR, TANK, (), 1.0, image_face=faces or None, **m.bem_options).conductance(first).K_S
     np.testing.assert_allclose(m.K_ref[:1], K_default, rtol=2e-5, atol=0)
+    near_ref = [j for j in m.ref_index if image_faces_near(SENSOR, TANK, m.nodes[j:j + 1])[0]]
+    assert near_ref     # a reference pose near a wall, its near faces images
     near = [j for j, f in enumerate(image_faces_near(SENSOR, TANK, m.nodes)) if f]
     assert near      # the first round's poses spread to the walls
     last = m.nodes[near[-1]:near[-1] + 1]
@@ -324,7 +336,7 @@ def test_worker_processes_give_the_bem_of_one_process_with_the_reference_set_up_
     monkeypatch.setenv("ESENSE_CACHE_DIR", str(tmp_path))
     m, _ = built
     options = {"coarse": {**coarse_options(), "tol": MAP_COUPLING_TOL, "image_faces_within_m": IMAGE_FACES_WITHIN_M},
-               "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL}}
+               "ref": {**m.bem_options, "tol": MAP_COUPLING_TOL, "image_faces_within_m": m.reference_images_m}}
     pool = _BemPool(SENSOR, TANK, (), options, workers=2)
     try:
         assert pool._warming is not None

@@ -72,10 +72,11 @@ __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "cor
            "sensor_wall_gap_m", "image_faces_near", "build_tank_map", "load_tank_map", "MAP_FORMAT", "scene_record",
            "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 9"   # 9: the fixed objects' images (8: the edges' images a group of their own)
-#: an earlier format read as it is where nothing but the format changed: a map of format 8 without fixed objects
-#: (format 8 with objects: its interpolants fitted again from its nodes, which are kept)
-READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 8")
+MAP_FORMAT = "electrosense tank map 10"   # 10: the reference poses' near faces image planes (9: the fixed objects'
+#: images; 8: the edges' images a group of their own)
+#: earlier formats read as they are where nothing but the format changed: 9 (its reference every face meshed), 8
+#: without fixed objects (format 8 with objects: its interpolants fitted again from its nodes, which are kept)
+READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 9", "electrosense tank map 8")
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
@@ -438,6 +439,9 @@ class TankMap:
     K_ref: np.ndarray | None = None  # (F, n, n) the reference BEM there, 1 S/m
     focus_m: np.ndarray | None = None  # (k, 3) the points the BEM's one tank mesh was graded towards (maps before
     # the BEM's edge bound near the sensor); None: each pose on a tank mesh graded to it alone
+    reference_images_m: float | None = None  # the tank's flat faces within this distance (m) of the sensor were
+    # image planes at the reference poses (:func:`image_faces_near`): the BEM the map reproduces; None: every face
+    # meshed (maps before format 10)
 
     def __post_init__(self):
         n = self.K_free.shape[0]
@@ -698,7 +702,8 @@ class TankMap:
                 "z_m": (list(self.z_range_m) if self.band else float(self.z_m)), "wall_gap_m": self.wall_gap_m,
                 "warp_m": self.warp_m, "coarse_factor": self.coarse_factor,
                 "bem_options": {k: v for k, v in self.bem_options.items() if isinstance(v, (int, float, str))},
-                "code": self.code, "history": self.history, "sigma_S_per_m": self.sigma_S_per_m}
+                "code": self.code, "history": self.history, "sigma_S_per_m": self.sigma_S_per_m,
+                "reference_images_m": self.reference_images_m}
 
     def save(self, path) -> Path:
         """One ``.npz``: arrays, and the scene, sensor, options and code version as JSON (written atomically)."""
@@ -773,14 +778,14 @@ def load_tank_map(path) -> TankMap:
     z = meta["z_m"]
     fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref", "regressors_ref")
               if k in arrays}
-    if meta["format"] != MAP_FORMAT and objects:   # fitted without the objects' images: fitted again
+    if meta["format"] == "electrosense tank map 8" and objects:   # fitted without the objects' images: again
         fitted = None
     return TankMap(sensor, tank, tuple(z) if isinstance(z, list) else float(z), arrays["nodes"], arrays["K_nodes"],
                    arrays["K_free"], objects, meta.get("bem_options", {}), meta.get("code", ""),
                    float(meta.get("wall_gap_m", 0.005)), meta.get("history", []), meta.get("sigma_S_per_m"),
                    float(meta.get("warp_m", DEFAULT_WARP_M)),
                    fitted, float(meta.get("coarse_factor", 1.0)), arrays["ref_index"], arrays["K_ref"],
-                   arrays["focus_m"] if len(arrays["focus_m"]) else None)
+                   arrays["focus_m"] if len(arrays["focus_m"]) else None, meta.get("reference_images_m"))
 
 
 # ------------------------------------------------------------------ build
@@ -1097,7 +1102,11 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
     # the many poses on the BEM's default tank mesh (or the reference's, where that is the coarser)
     coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
-    fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL},
+    # both fidelities take the tank's flat faces near the sensor as image planes (exact; a meshed wall beside the
+    # sensor converges slowly with the tank mesh: see IMAGE_FACES_WITHIN_M)
+    images_m = None if tank is None else IMAGE_FACES_WITHIN_M
+    fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL, **({} if tank is None else
+                                                                {"image_faces_within_m": images_m})},
                   "coarse": {**options, "tol": MAP_COUPLING_TOL, "edge_length_m": coarse_edge_m,
                              **({} if tank is None else {"tank_grading": coarse_grading,
                                                          "tank_near_ratio": COARSE_TANK_NEAR_RATIO,
@@ -1189,7 +1198,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
 
     def current_map():
         return TankMap(sensor, tank, z_m, nodes, K_nodes, K_free, objects, options, code, wall_gap_m, history,
-                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, None)
+                       sigma_S_per_m, warp_m, None, coarse_factor, ref_index, K_ref, None, images_m)
 
     try:
         def affordable(fidelity: str) -> int:

@@ -233,8 +233,9 @@ def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
 
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    if m.focus_m is None:
-        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P)
+    if m.focus_m is None:   # the reference as the map's nodes: the near faces image planes (a map of format 10)
+        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P,
+                                      m.reference_images_m)
     else:
         K = PoseSweep(sensor, tank, objects, 1.0, focus_m=m.focus_m, tank_near_ratio=None,
                       **m.bem_options).conductance(m.frame.folded(P)).K_S
@@ -273,7 +274,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4, objects=()):
                                   ("bem_default_tank", DEFAULT_TANK_GRADING)):
                 K_tank[name] = each_on_its_own_tank_mesh(
                     PoseSweep(sensor, tank, objects, 1.0, **{**m.bem_options, "tank_grading": grading}),
-                    P[:n_sensor_check])
+                    P[:n_sensor_check], m.reference_images_m)
             out["bem_tank_grading"] = K_same[:n_sensor_check][:, r, e] / K_tank["bem_tank_grading"][:, r, e] - 1
             out["bem_default_tank"] = K_tank["bem_default_tank"][:, r, e] / K_same[:n_sensor_check][:, r, e] - 1
     return out
@@ -300,7 +301,13 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
 
         clear = sensor_wall_gap_m(sensor, tank, P, objects) >= 0.005 - 1e-9
         x, P, n = x[clear], P[clear], int(clear.sum())
-    K = PoseSweep(sensor, tank, objects, 1.0, focus_m=trajectory_focus_m(sensor, P), **m.bem_options).conductance(P).K_S
+    if m.reference_images_m is not None:   # the BEM as the map's nodes: near faces images, each pose on its own
+        from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
+
+        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P, m.reference_images_m)
+    else:
+        K = PoseSweep(sensor, tank, objects, 1.0, focus_m=trajectory_focus_m(sensor, P),
+                      **m.bem_options).conductance(P).K_S
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
     err_map = np.abs(m.conductance(P)[:, r, e] / K[:, r, e] - 1).max(axis=1)
@@ -489,10 +496,15 @@ def main(argv=None):
     print(f"BEM at {args.test_poses} random poses (tips 5 mm to 20 cm from a wall), on a tank mesh graded to them")
     P = test_poses(sensor, tank, z, rng, args.test_poses, band, objects=objects)
     errs = check_accuracy(m, sensor, tank, P, objects=objects)
-    err = errs["other"]
+    # the goal's BEM: each pose on its own tank mesh, the faces near it image planes (exact; a meshed wall beside
+    # the sensor is 0.03-0.04 % RMS off them near the walls at the reference's grading and at 0.6x of it), as the
+    # map's nodes; a map of format 9 and earlier reproduces the meshed walls, and is scored on one tank mesh
+    headline = "same" if m.reference_images_m is not None else "other"
+    err = errs[headline]
     err_est = m.estimated_error(P)
     rms = lambda x: float(np.sqrt(np.mean(np.square(x))))  # noqa: E731
     results["accuracy"] = {"rms": rms(err), "max": float(np.abs(err).max()), "estimated_rms": rms(err_est),
+                           "against": headline,
                            "poses": P.tolist(), "errors": err.tolist(),
                            **{f"{k}_rms": rms(v) for k, v in errs.items()},
                            **{f"{k}_max": float(np.abs(v).max()) for k, v in errs.items()}}
@@ -563,9 +575,15 @@ def main(argv=None):
     # ---------------------------------------------------------------- summary
     print("\nfigure                                                            measured   goal")
     b, a = results["build"], results["accuracy"]
-    _line("map vs BEM at fresh poses (one tank mesh for all), RMS", a["rms"], GOALS["rms"], "{:.3%}")
+    own = a.get("against") == "same"
+    _line("map vs BEM at fresh poses" + (" (each on its own tank mesh, near faces images), RMS" if own else
+                                         " (one tank mesh for all), RMS"), a["rms"], GOALS["rms"], "{:.3%}")
     _line("map vs BEM at fresh poses, max", a["max"], GOALS["max"], "{:.3%}")
-    if "same_rms" in a:
+    if own:
+        print(f"  against one tank mesh graded to all of them, every face meshed (a fresh BEM as a user runs it "
+              f"along a path): {a['other_rms']:.3%} RMS, {a['other_max']:.3%} max; the BEM itself between the two: "
+              f"{a['bem_tank_rms']:.3%} RMS, {a['bem_tank_max']:.3%} max")
+    elif "same_rms" in a:
         print(f"  against each pose on a tank mesh of its own, as the map's nodes (the interpolation alone): "
               f"{a['same_rms']:.3%} RMS, {a['same_max']:.3%} max; the BEM itself between the two: "
               f"{a['bem_tank_rms']:.3%} RMS, {a['bem_tank_max']:.3%} max")

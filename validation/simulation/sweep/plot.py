@@ -45,19 +45,19 @@ def tank_map_values(ds, quantity: str = "resistance", yaw_index: int = 0):
     m = as_map(ds)
     if not 0 <= yaw_index < m.sizes["yaw_rad"]:
         raise ValueError(f"yaw_index {yaw_index} is outside the grid's {m.sizes['yaw_rad']} headings")
+    if not np.asarray(m.computed.values).all():
+        raise ValueError("the sweep is not complete (some poses have no result yet): finish it before plotting")
     x, y = m.x_m.values, m.y_m.values
+    I = m.I_A.isel(yaw_rad=yaw_index).transpose("receiver", "y_m", "x_m").values
+    reached = np.isfinite(I).all(axis=0)
+    if not reached.any():
+        raise ValueError(f"the model reached no pose at heading {yaw_index}: nothing to plot")
     if quantity == "resistance":
         values = m.R_ohm.isel(yaw_rad=yaw_index).transpose("receiver", "y_m", "x_m").values
     else:
-        I = m.I_A.isel(yaw_rad=yaw_index).transpose("receiver", "y_m", "x_m").values
-        reached = np.isfinite(I).all(axis=0)
-        if not reached.any():
-            raise ValueError(f"the model reached no pose at heading {yaw_index}: nothing to plot")
         distance = np.where(reached, np.hypot(*np.meshgrid(x, y)), np.inf)
         i_mid, j_mid = np.unravel_index(np.argmin(distance), distance.shape)
         values = 100.0 * (I / I[:, i_mid:i_mid + 1, j_mid:j_mid + 1] - 1.0)
-    if not np.asarray(m.computed.values).all():
-        raise ValueError("the sweep is not complete (some poses have no result yet): finish it before plotting")
     return values, x, y, float(m.yaw_rad.values[yaw_index]), m.receiver.values
 
 
