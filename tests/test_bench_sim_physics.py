@@ -213,3 +213,33 @@ def test_the_bem_physics_tank_grading_reaches_the_bem_and_the_log_says_it():
     assert "tank mesh grading 0.15" in fine.describe()
     plain = VirtualBench(preset("angels-2"), Tank((1.0, 1.0, 1.0)), 0.0354, simulate=PoseDependentModel())
     assert "grading" not in plain.describe()
+
+
+def test_wall_images_give_each_pose_its_own_tank_mesh_with_exact_near_walls(tmp_path):
+    """``bench-sim --wall-images``: the BEM physics at each pose on its own tank mesh with the tank's flat faces
+    near the sensor as image planes (as a tank map's BEM poses), said in the log's source; a meshed wall beside
+    the sensor is what it replaces."""
+    from click.testing import CliRunner
+
+    from electrosense.bem import PoseSweep
+    from electrosense.bem.conductance import ConductanceMatrix
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.cli import main
+    from electrosense.validation.simulation.tank_map import IMAGE_FACES_WITHIN_M, each_on_its_own_tank_mesh
+
+    out = tmp_path / "wall.csv"
+    r = CliRunner().invoke(main, ["bench-sim", "-o", str(out), "--sensor", "angels-2", "--tank", "0.5,0.4,0.3",
+                                  "--path", "line:-0.1,0.16,0,0:0.1,0.16,0,0:2", "--wall-images", "--edge-length",
+                                  "0.02", "--tank-grading", "0.3", "--seed", "1"])
+    assert r.exit_code == 0, r.output
+    log = read_bench_log(out)
+    assert "each pose its own tank mesh, the flat faces within 0.08 m image planes" in log.meta["source"]
+    assert "sensor mesh edge 0.02 m" in log.meta["source"]
+    sweep = PoseSweep(preset("angels-2"), Tank((0.5, 0.4, 0.3)), (), 0.0354, edge_length_m=0.02, tank_grading=0.3)
+    K = each_on_its_own_tank_mesh(sweep, np.array([[-0.1, 0.16, 0, 0], [0.1, 0.16, 0, 0]]), IMAGE_FACES_WITHIN_M)
+    expected = ConductanceMatrix(K, 2, 0.0354).receiver_currents_A(1.0)
+    # the bench's noise on the currents (0.05 %) and the robot's 0.1 mm carried by the PSM's change
+    np.testing.assert_allclose(log.currents_A, expected, rtol=5e-3)
+    meshed = PoseSweep(preset("angels-2"), Tank((0.5, 0.4, 0.3)), (), 0.0354, edge_length_m=0.02,
+                       tank_grading=0.3).conductance(np.array([[-0.1, 0.16, 0, 0]])).K_S
+    assert not np.allclose(meshed, K[:1], rtol=1e-6)     # the physics is not the one-mesh default

@@ -139,7 +139,11 @@ class VirtualBench:
                 f"noise {self.noise.current_rel:g} relative on currents, {self.noise.position_m:g} m on positions; "
                 f"effects: {self.effects.describe()}"
                 + (f"; tank mesh grading {self.model_options['tank_grading']:g}"
-                   if "tank_grading" in self.model_options else ""))
+                   if "tank_grading" in self.model_options else "")
+                + (f"; each pose its own tank mesh, the flat faces within {self.model_options['image_faces_within_m']:g}"
+                   " m image planes" if "image_faces_within_m" in self.model_options else "")
+                + (f"; sensor mesh edge {self.model_options['edge_length_m']:g} m"
+                   if "edge_length_m" in self.model_options else ""))
 
     def _currents_A(self, nominal: np.ndarray, true: np.ndarray, tank, sigma_S_per_m: float, U: np.ndarray):
         """Receiver currents (P, n-1) at the true poses, in the true scene.
