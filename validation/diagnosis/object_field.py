@@ -51,7 +51,7 @@ def wall_reflections(tank, points_m: np.ndarray) -> list[tuple[np.ndarray, np.nd
 
     >>> from electrosense.meshes.cylinder_tank import CylinderTank
     >>> q, M = wall_reflections(CylinderTank(0.2, 0.3), np.array([[0.1, 0.1, 0.0]]))[1]
-    >>> q.round(4).tolist(), (M[0, 0] + 0.0).round(4).tolist()
+    >>> q.round(4).tolist(), (M[0, 0].round(4) + 0.0).tolist()
     ([[0.1828, 0.1828, 0.0]], [0.0, -1.0, 0.0])
     """
     p = np.asarray(points_m, float).reshape(-1, 3)
