@@ -547,21 +547,14 @@ def poses_reached(evaluator, sensor: SensorDescription, tank: Tank | None, objec
 
 def _surely_clear(sensor: SensorDescription, tank: Tank | None, objects: tuple, poses: np.ndarray,
                   n_axis: int = 17) -> np.ndarray:
-    """(P,) bool: poses whose sensor (a capsule about its core segment) is certainly inside the water and clear of
-    every object, from distances at ``n_axis`` points of the core: a distance is 1-Lipschitz along the segment, so
-    the true gap is at least the sampled one less half the samples' spacing."""
-    from electrosense.meshes.pose import sensor_to_tank
-    from electrosense.meshes.scene_mesh import distance_to_object_m
+    """(P,) bool: poses whose sensor is certainly inside the water and clear of every object: its gaps sampled
+    along its axis (:func:`~electrosense.validation.simulation.tank_map.boundary_gaps_m`) above half the samples'
+    spacing."""
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m
 
+    gaps = boundary_gaps_m(sensor, tank, poses, objects, n_axis)
     half = 0.5 * sensor.length_m - sensor.radius_m
-    axis = np.c_[np.linspace(-half, half, n_axis), np.zeros((n_axis, 2))]
-    pts = sensor_to_tank(axis, poses)                                          # (P, n_axis, 3)
-    gap = np.full(len(poses), np.inf)
-    if tank is not None:
-        gap = np.minimum(gap, tank.distance_to_boundary_m(pts).min(axis=(1, 2)))
-    for obj in objects:
-        gap = np.minimum(gap, distance_to_object_m(obj, pts).min(axis=1))
-    return gap - sensor.radius_m > half / (n_axis - 1) + 1e-6
+    return np.min(gaps, axis=1, initial=np.inf) > half / (n_axis - 1) + 1e-6
 
 
 @dataclass(frozen=True)

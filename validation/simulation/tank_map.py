@@ -137,14 +137,15 @@ def _axis_points(sensor, poses, n_axis: int = 9) -> np.ndarray:
     return sensor_to_tank(axis, np.asarray(poses, float).reshape(-1, 4))  # (P, n_axis, 3)
 
 
-def boundary_gaps_m(sensor, tank, poses: np.ndarray, objects=()) -> np.ndarray:
+def boundary_gaps_m(sensor, tank, poses: np.ndarray, objects=(), n_axis: int = 9) -> np.ndarray:
     """(P, B) the distance (m) from the sensor's surface (a cylinder of its radius with round ends) to each of the
-    tank's boundaries (its walls, floor and free surface, ordered as ``tank.distance_to_boundary_m``) and to each
-    of the fixed ``objects`` after them."""
+    tank's boundaries (its walls, floor and free surface, ordered as ``tank.distance_to_boundary_m``; none for
+    unbounded water) and to each of the fixed ``objects`` after them, sampled at ``n_axis`` points of its axis
+    (a distance is 1-Lipschitz along it: the true gap is at most half the samples' spacing below)."""
     from electrosense.meshes.scene_mesh import distance_to_object_m
 
-    pts = _axis_points(sensor, poses)
-    gaps = [tank.distance_to_boundary_m(pts).min(axis=1)]
+    pts = _axis_points(sensor, poses, n_axis)
+    gaps = [np.zeros((len(pts), 0)) if tank is None else tank.distance_to_boundary_m(pts).min(axis=1)]
     gaps += [distance_to_object_m(obj, pts).min(axis=1)[:, None] for obj in objects]
     return np.hstack(gaps) - sensor.radius_m
 
