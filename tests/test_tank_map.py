@@ -704,6 +704,25 @@ def test_sweep_with_the_map_and_map_info(built, tmp_path):
     bad.write_text("not a map")
     res = CliRunner().invoke(main, ["map", "info", str(bad)])
     assert res.exit_code != 0 and "not a tank map" in res.output and "Traceback" not in res.output
+    # a map cut short (a copy interrupted) and a map whose archive lies inside: refused naming the file, no
+    # internal error (a truncated map read as a BadZipFile, which the reader did not catch)
+    whole = path.read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(whole[: len(whole) // 2])
+    spoilt = tmp_path / "spoilt.npz"
+    spoilt.write_bytes(whole[:200] + bytes(64) + whole[264:])
+    for broken in (cut, spoilt):
+        for args in (["map", "info", str(broken)], ["localise", str(off), "--map", str(broken), "--noise", "0.0005",
+                                                     "-o", str(tmp_path / "loc")]):
+            res = CliRunner().invoke(main, args)
+            assert res.exit_code != 0 and "not a tank map" in res.output and broken.name in res.output, res.output
+            assert "internal error" not in res.output and "Traceback" not in res.output
+    # a log of one sample is tracked where the noise is given, and refused naming the remedy where it is not
+    res = CliRunner().invoke(main, ["localise", str(off), "--map", str(path), "-o", str(tmp_path / "loc")])
+    assert res.exit_code != 0 and "1 samples are too few (need >= 3" in res.output and "--noise" in res.output
+    res = CliRunner().invoke(main, ["localise", str(off), "--map", str(path), "--noise", "0.0005", "--no-object",
+                                    "-o", str(tmp_path / "loc")])
+    assert res.exit_code == 0 and "1 of 1 samples" in res.output, res.output
 
 
 def test_map_build_command_refuses_bad_input_in_one_line(tmp_path):

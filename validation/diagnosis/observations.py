@@ -77,6 +77,10 @@ class Observations:
     objects: tuple = ()
     source: str = ""
     sigma_logged_S_per_m: np.ndarray | None = None
+    #: the fewest samples the use needs (a diagnosis's held-out halves and BIC: 8; a track with the noise measured
+    #: on the log: 3, its second differences; with the noise given: 1), and what for, said where there are fewer
+    min_samples: int = 8
+    min_samples_for: str = "to diagnose"
 
     def __post_init__(self):
         self.poses = np.asarray(self.poses, dtype=float).reshape(-1, 4)
@@ -95,8 +99,9 @@ class Observations:
         for name in ("poses", "currents_A", "U_V", "t_s"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise DiagnosisInputError(f"{self.source or 'observations'}: {name} has non-finite values")
-        if P < 8:
-            raise DiagnosisInputError(f"{self.source or 'observations'}: {P} samples are too few to diagnose (need >= 8)")
+        if P < self.min_samples:
+            raise DiagnosisInputError(f"{self.source or 'observations'}: {P} samples are too few (need >= "
+                                      f"{self.min_samples} {self.min_samples_for})")
         if np.any(self.U_V == 0):
             raise DiagnosisInputError(f"{self.source or 'observations'}: U_V is zero on some rows")
 
@@ -145,8 +150,9 @@ def _one(log, pass_offset: int) -> dict:
     )
 
 
-def from_bench_logs(logs) -> Observations:
-    """Observations from one or more :class:`electrosense.validation.bench.log.BenchLog` of the same run set-up.
+def from_bench_logs(logs, min_samples: int = 8, min_samples_for: str = "to diagnose") -> Observations:
+    """Observations from one or more :class:`electrosense.validation.bench.log.BenchLog` of the same run set-up
+    (at least ``min_samples`` samples, ``min_samples_for`` what, :attr:`Observations.min_samples`).
 
     Each log's passes keep their own numbers (offset so that logs never share
     one); times of later logs are shifted to follow the earlier ones, so that a
@@ -194,4 +200,6 @@ def from_bench_logs(logs) -> Observations:
         source=", ".join(str(getattr(log, "path", "") or "") for log in logs),
         sigma_logged_S_per_m=sigma_logged,
         objects=objects[0],
+        min_samples=min_samples,
+        min_samples_for=min_samples_for,
     )

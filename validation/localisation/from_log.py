@@ -199,7 +199,12 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     currents = obs.currents_A / obs.U_V[:, None]
     measured = noise_rel is None
     if measured:
-        noise_rel = noise_level(np.log(np.abs(currents)), obs.pass_indices())
+        try:
+            noise_rel = noise_level(np.log(np.abs(currents)), obs.pass_indices())
+        except ValueError as exc:   # no pass of three samples: nothing to measure it on
+            lengths = ", ".join(str(len(i)) for i in obs.pass_indices())
+            raise ValueError(f"{obs.source or 'the log'}: {exc} (its passes have {lengths} samples); --noise "
+                             "gives it") from None
     say(f"{obs.n_poses} samples, {'measured' if measured else 'given'} noise {100 * noise_rel:.4f} %"
         + ("" if motion is None else f"; motion prior: acceleration {motion.acceleration_psd_m2_per_s3:g} m^2/s^3, "
                                      f"turn {motion.turn_psd_rad2_per_s3:g} rad^2/s^3"))
@@ -296,7 +301,8 @@ def localise_log(log_path, map_path, outdir, psm=None, figure: bool = True, moti
     from electrosense.validation.diagnosis.observations import from_bench_logs
     from electrosense.validation.simulation.tank_map import load_tank_map
 
-    obs = from_bench_logs([read_bench_log(log_path)])
+    obs = from_bench_logs([read_bench_log(log_path)], *((3, "to measure the noise on the log; --noise gives it")
+                                                        if noise_rel is None else (1, "")))
     tank_map = load_tank_map(map_path)
     res = localise_observations(obs, tank_map, psm, noise_rel, motion, progress, find_object=find_object,
                                 object_z_m=object_z_m, true_object_m=true_object_m)

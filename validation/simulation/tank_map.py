@@ -60,6 +60,7 @@ from __future__ import annotations
 import json
 import os
 import time
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -761,14 +762,16 @@ def load_tank_map(path) -> TankMap:
     from electrosense.meshes.sensor import SensorDescription
 
     path = Path(path)
+    if path.is_file() and not zipfile.is_zipfile(path):
+        raise ValueError(f"{path}: not a tank map (not an .npz archive, as `esense map build` writes)")
     try:
-        with np.load(path) as z:
+        with np.load(path, allow_pickle=False) as z:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "images", "ref_index",
                                         "K_ref", "focus_m")}
             arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in z.files})
-    except (OSError, KeyError, ValueError, EOFError) as exc:
-        raise ValueError(f"{path}: not a tank map ({exc})") from None
+    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:   # a truncated or foreign archive
+        raise ValueError(f"{path}: not a tank map ({type(exc).__name__}: {exc})") from None
     if meta.get("format") not in READABLE_FORMATS:
         raise ValueError(f"{path}: not a tank map of this version (format {meta.get('format')!r}, expected "
                          f"{MAP_FORMAT!r}); build it again")
