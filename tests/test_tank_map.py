@@ -723,6 +723,20 @@ def test_sweep_with_the_map_and_map_info(built, tmp_path):
     res = CliRunner().invoke(main, ["localise", str(off), "--map", str(path), "--noise", "0.0005", "--no-object",
                                     "-o", str(tmp_path / "loc")])
     assert res.exit_code == 0 and "1 of 1 samples" in res.output, res.output
+    # a zero reading and a logged pose beyond a wall are refused naming the sample, before any track or model
+    head, row = off.read_text().rstrip("\n").rsplit("\n", 1)
+    for change, index, value, words in (("zero", 6, "0", ("sample 0: receiver current 1", "is 0")),
+                                        ("beyond", 1, "-0.9", ("sample 0", "out of the water"))):
+        fields = row.split(",")
+        fields[index] = value
+        bad_log = tmp_path / f"{change}.csv"
+        bad_log.write_text(head + "\n" + ",".join(fields) + "\n")
+        for args in (["localise", str(bad_log), "--noise", "0.0005"], ["validate", str(bad_log), "--models", "map"]):
+            res = CliRunner().invoke(main, [*args, "--map", str(path), "-o", str(tmp_path / change)])
+            if change == "beyond" and args[0] == "validate":
+                words = ("pose 0", "beyond a wall")
+            assert res.exit_code != 0 and all(w in res.output for w in words), (args, res.output)
+            assert "Traceback" not in res.output and "internal error" not in res.output
 
 
 def test_map_build_command_refuses_bad_input_in_one_line(tmp_path):

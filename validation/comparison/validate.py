@@ -166,6 +166,11 @@ def validate_log(
     U = log.U_V
     bench = log.currents_A
     receivers = tuple(log.sensor.receivers)
+    zero = np.argwhere(bench == 0)
+    if len(zero):   # the comparison is relative to the bench: a zero reading has none; before any model runs
+        i, k = zero[0]
+        raise ValueError(f"{getattr(log, 'path', '') or 'the log'}: sample {i}: receiver current {k + 1} is 0 "
+                         f"({len(zero)} zero reading(s)): the comparison is relative to the bench's currents")
     objects = tuple(objects)
     regions = path_regions(poses, log.tank, objects, log.sensor, near_wall_m, near_object_m)
     currents, seconds, comparisons = {}, {}, {}

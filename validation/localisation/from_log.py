@@ -184,7 +184,7 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     from electrosense.psm.images import has_images as psm_has_images
     from electrosense.validation.comparison.metrics import noise_level
     from electrosense.validation.diagnosis.forward import effect_objects
-    from electrosense.validation.simulation.models import calibrated_psm
+    from electrosense.validation.simulation.models import calibrated_psm, poses_reached
     from electrosense.validation.simulation.tank_map import log_in_map_scene
 
     say = progress or (lambda s: None)
@@ -192,11 +192,22 @@ def localise_observations(obs, tank_map, psm=None, noise_rel: float | None = Non
     if obs.n_receivers < 3:
         raise ValueError(f"{obs.n_receivers} receiver current(s) per sample cannot fix (x, y, heading): localisation "
                          "needs a sensor with at least 3 receivers")
+    source = obs.source or "the log"
     z = np.unique(np.round(obs.poses[:, 2], 6))
     if len(z) > 1:
-        raise ValueError(f"the log's poses lie at {len(z)} depths; localisation is in the plane of one depth")
+        raise ValueError(f"{source}: its poses lie at {len(z)} depths; localisation is in the plane of one depth")
     z_m = float(obs.poses[0, 2])
+    # the logged poses score the track and place the bounds: each must put the sensor in the map's water
+    in_water, why = poses_reached(None, obs.sensor, obs.tank, tuple(obs.objects), obs.poses)
+    if not in_water.all():
+        raise ValueError(f"{source}: {np.count_nonzero(~in_water)} of {obs.n_poses} logged poses put the sensor "
+                         f"where the map's scene has no water ({why.replace('pose ', 'sample ', 1)})")
     currents = obs.currents_A / obs.U_V[:, None]
+    zero = np.argwhere(currents == 0)
+    if len(zero):   # the tracks fit log |I| (each current's relative noise)
+        i, k = zero[0]
+        raise ValueError(f"{source}: sample {i}: receiver current {k + 1} of the log is 0 ({len(zero)} zero "
+                         "reading(s)); a track fits the currents' logarithm: leave such samples out")
     measured = noise_rel is None
     if measured:
         try:
