@@ -53,6 +53,11 @@ class _Object:
             raise ValueError(f"object {self.name or type(self).__name__}: centre must be 3 finite numbers, got {self.centre_m}")
         object.__setattr__(self, "centre_m", c)
         object.__setattr__(self, "conductivity_S_per_m", parse_material(self.conductivity_S_per_m))
+        for key in ("radius_m", "height_m", "size_m"):   # the shape's lengths, of the subclass that has them
+            if hasattr(self, key):
+                value = np.atleast_1d(np.asarray(getattr(self, key), dtype=float))
+                if not (np.all(np.isfinite(value)) and np.all(value > 0)):
+                    raise ValueError(f"object {self.label}: {key} must be positive (m), got {getattr(self, key)}")
 
     @property
     def is_conducting(self) -> bool:

@@ -275,7 +275,10 @@ def _objects(path, data) -> list:
                 n = 3 if key == "size_m" else 1
                 value = _floats(path, f"{where} {key}", o[key], n)
                 kwargs[key] = value if n == 3 else value[0]
-            objects.append(cls(**kwargs))
+            try:
+                objects.append(cls(**kwargs))
+            except ValueError as exc:   # a length that is not positive
+                raise SceneFileError(f"{path}: {where}: {exc}") from None
     return objects
 
 
@@ -283,6 +286,13 @@ def load_scene_settings(path: str | Path) -> dict:
     """The non-geometry tables of a scene file (``{"water": {"sigma_S_per_m": 0.05}}``...)."""
     path = Path(path)
     data = _read_toml(path)
+    water = data.get("water", {})
+    if not isinstance(water, dict):
+        raise SceneFileError(f"{path}: [water] must be a table")
+    if "sigma_S_per_m" in water:   # read by every simulating command: checked once, here
+        sigma = water["sigma_S_per_m"]
+        if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not (math.isfinite(sigma) and sigma > 0):
+            raise SceneFileError(f"{path}: [water] sigma_S_per_m must be a positive conductivity (S/m), got {sigma!r}")
     return {k: v for k, v in data.items() if k in SETTINGS_TABLES}
 
 

@@ -55,6 +55,10 @@ def test_sensor_file_relative_to_the_scene_file(tmp_path):
         ('[tank]\nsize_m = [1, 1, 1]\nwater_depth_m = 2\n[sensor]\npreset = "angels-4"\n', "water depth"),
         ('[sensor\n', "not valid TOML"),
         ('[sensors]\npreset = "angels-4"\n', "unknown key.*sensors"),
+        ('[sensor]\npreset = "angels-4"\n[[objects]]\nshape = "sphere"\ncentre_m = [0, 0, 0]\nradius_m = -0.02\n',
+         r"number 1: object sphere: radius_m must be positive"),
+        ('[sensor]\npreset = "angels-4"\n[[objects]]\nshape = "box"\ncentre_m = [0, 0, 0]\nsize_m = [0.1, 0, 0.1]\n',
+         "size_m must be positive"),
     ],
 )
 def test_bad_scene_files_are_refused_naming_file_and_entry(tmp_path, text, message):
@@ -62,6 +66,17 @@ def test_bad_scene_files_are_refused_naming_file_and_entry(tmp_path, text, messa
     path.write_text(text)
     with pytest.raises(ValueError, match=message) as info:
         load_scene(path)
+    assert str(path) in str(info.value)
+
+
+@pytest.mark.parametrize("value", ['"salty"', "-0.05", "0", "nan", "true"])
+def test_a_water_conductivity_that_is_not_one_is_refused_naming_the_file(tmp_path, value):
+    from electrosense.meshes.scene_file import load_scene_settings
+
+    path = tmp_path / "water.toml"
+    path.write_text(f'[sensor]\npreset = "angels-4"\n[water]\nsigma_S_per_m = {value}\n')
+    with pytest.raises(ValueError, match=r"\[water\] sigma_S_per_m must be a positive conductivity") as info:
+        load_scene_settings(path)
     assert str(path) in str(info.value)
 
 

@@ -230,6 +230,12 @@ def test_skip_blocked_leaves_out_the_poses_the_model_does_not_reach_and_keeps_th
             "--quiet")
     refused = _run(*args, "-o", tmp_path / "all.nc")
     assert refused.exit_code != 0 and "--skip-blocked" in refused.output and "Traceback" not in refused.output
+    # a refusal the option does not mend (every pose refused: the PSM has no pole) does not name it
+    pole = tmp_path / "pole.toml"
+    pole.write_text(scene.read_text() + '[[objects]]\nshape = "cylinder"\ncentre_m = [-0.2, 0.1, -0.1]\n'
+                    'radius_m = 0.02\nheight_m = 0.2\n')
+    refused = _run(*args[:5], pole, *args[6:], "-o", tmp_path / "pole.nc")
+    assert refused.exit_code != 0 and "spheres only" in refused.output and "--skip-blocked" not in refused.output
     out, png = tmp_path / "skip.nc", tmp_path / "skip.png"
     r = _run(*args, "--skip-blocked", "--plot", png, "-o", out)
     assert r.exit_code == 0, r.output

@@ -66,6 +66,21 @@ def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: in
         return open_()
 
 
+def _skipping_helps(model, sensor, tank, sigma, objects, psm_file, poses, tank_map=None) -> bool:
+    """Whether ``--skip-blocked`` would run a sweep the model refused: it reaches some of ``poses`` and not all (a
+    scene or a model that refuses every pose, e.g. an object out of the water or the PSM with a pole, it does not
+    mend)."""
+    from electrosense.validation.simulation.models import pose_evaluator, poses_reached
+
+    try:
+        probe = None if model == "bem" else pose_evaluator(model, sensor, tank, sigma, objects, psm_file,
+                                                           **({"tank_map": tank_map} if model == "map" else {}))
+        reached, _ = poses_reached(probe, sensor, tank, objects, poses)
+    except ValueError:
+        return False
+    return bool(reached.any() and not reached.all())
+
+
 def _bench_log_frame(C, poses, index=None):
     """The bench-log table of a sweep: t_s (the pose's ``index`` in the sweep, default 0, 1, ...), pose, U_V = 1,
     I<k>_A, R<k>_ohm."""
@@ -244,7 +259,9 @@ def _sweep(o):
                                    poses=poses, skip_blocked=o.skip_blocked, **bem_options,
                                    **({"tank_map": tank_map} if model == "map" else {}))
     except ValueError as exc:   # a pose the model does not reach (ModelError, PlacementError, the scene's check)
-        hint = "" if o.skip_blocked else " (--skip-blocked leaves out the poses the model does not reach)"
+        helps = not o.skip_blocked and _skipping_helps(model, sensor, tank, sigma, objects, psm_file, poses,
+                                                       tank_map if model == "map" else None)
+        hint = " (--skip-blocked leaves out the poses the model does not reach)" if helps else ""
         raise click.ClickException(f"{exc}{hint}") from None
     n_blocked = getattr(evaluator, "n_blocked", 0)
     if n_blocked:
