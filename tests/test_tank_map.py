@@ -616,6 +616,12 @@ def test_the_studys_near_wall_check_draws_poses_at_its_gaps_and_compares_them_wi
     err = np.array(res["errors"])
     assert err.shape == (2, SENSOR.n_electrodes - 1) and np.isclose(res["rms"], np.sqrt(np.mean(err**2)))
     assert 0 < res["rms"] < 3 * res["estimated_rms"] + 1e-3   # another tank mesh adds ~5e-4 (the test above)
+    # the reference's own sensor-mesh error at the first two: the same BEM on a 0.7x finer sensor mesh, nonzero and
+    # of a sensor mesh's size; against itself (finer 1) exactly zero
+    sens = np.array(res["bem_sensor_errors"])
+    assert sens.shape == err.shape and np.isclose(res["bem_sensor_rms"], np.sqrt(np.mean(sens**2)))
+    assert 1e-6 < res["bem_sensor_rms"] < 5e-3, res["bem_sensor_rms"]
+    assert np.all(study.reference_sensor_mesh_error(m, SENSOR, TANK, np.array(res["poses"][:1]), finer=1.0) == 0)
 
 
 def test_the_studys_random_objects_stand_clear_and_its_near_object_poses_lie_at_their_gaps():

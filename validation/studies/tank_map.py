@@ -139,15 +139,36 @@ def test_poses(sensor, tank, z, rng, n, band=None, gap_m=(0.005, 0.2), objects=(
 NEAR_WALL_GAP_M = (0.005, 0.015)
 
 
-def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) -> dict:
+def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=(), n_sensor_check: int = 2) -> dict:
     """The map against the BEM at ``n`` random poses with gaps in :data:`NEAR_WALL_GAP_M` (from a wall or an
     object), each on a tank mesh graded to it alone (as the map's nodes: the interpolation's error,
-    :func:`errors_on_own_tank_meshes`), drawn from their own seed (the study's other draws unchanged by ``n``)."""
+    :func:`errors_on_own_tank_meshes`), drawn from their own seed (the study's other draws unchanged by ``n``);
+    and at the first ``n_sensor_check`` of them the reference's own sensor-mesh error (``bem_sensor``,
+    :func:`reference_sensor_mesh_error`): near a wall it can exceed the map's (seed 4: 0.06-0.09 % at 2 cm)."""
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M, objects)
-    return {**errors_at(m, sensor, tank, P, objects),
-            "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+    out = {**errors_at(m, sensor, tank, P, objects), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+    if n_sensor_check and m.focus_m is None:
+        err = reference_sensor_mesh_error(m, sensor, tank, P[:n_sensor_check], objects)
+        out.update(bem_sensor_rms=float(np.sqrt(np.mean(err**2))), bem_sensor_max=float(np.abs(err).max()),
+                   bem_sensor_errors=err.tolist())
+    return out
+
+
+def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0.7) -> np.ndarray:
+    """Relative error (P, m) of the receiver currents of a map's reference BEM (format 10: each pose on a tank mesh
+    of its own, the near faces image planes) against the same BEM on a sensor mesh ``finer`` x the reference's
+    edge: the reference's own discretisation, which the map carries."""
+    from electrosense.bem import PoseSweep
+    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
+
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    K = {f: each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **{
+        **m.bem_options, "edge_length_m": f * m.bem_options["edge_length_m"]}), P, m.reference_images_m)
+        for f in (1.0, finer)}
+    return K[1.0][:, r, e] / K[finer][:, r, e] - 1
 
 
 def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WALL_GAP_M) -> np.ndarray:
@@ -614,6 +635,10 @@ def main(argv=None):
         print(f"  near the walls{' or objects' if objects else ''} ({len(nw['poses'])} poses {1e3 * min(nw['gaps_m']):.1f}-{1e3 * max(nw['gaps_m']):.1f} mm "
               f"from one, each on its own tank mesh): {nw['rms']:.3%} RMS, {nw['max']:.3%} max; the map's own "
               f"estimate there {nw['estimated_rms']:.3%} RMS")
+        if "bem_sensor_rms" in nw:
+            print(f"  the reference BEM's own sensor-mesh error at {len(nw['bem_sensor_errors'])} of them (against a "
+                  f"0.7x finer sensor mesh): {nw['bem_sensor_rms']:.3%} RMS, {nw['bem_sensor_max']:.3%} max (the map "
+                  "carries it)")
     if "near_objects" in results:
         no = results["near_objects"]
         print(f"  near the fixed objects ({len(no['poses'])} poses {1e3 * min(no['gaps_m']):.1f}-"
