@@ -148,27 +148,30 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M, objects)
-    out = {**errors_at(m, sensor, tank, P, objects), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+    err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
+    out = {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
     if n_sensor_check and m.focus_m is None:
-        err = reference_sensor_mesh_error(m, sensor, tank, P[:n_sensor_check], objects)
+        err = reference_sensor_mesh_error(m, sensor, tank, P[:n_sensor_check], objects, K_reference=K[:n_sensor_check])
         out.update(bem_sensor_rms=float(np.sqrt(np.mean(err**2))), bem_sensor_max=float(np.abs(err).max()),
                    bem_sensor_errors=err.tolist())
     return out
 
 
-def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0.7) -> np.ndarray:
+def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0.7, K_reference=None) -> np.ndarray:
     """Relative error (P, m) of the receiver currents of a map's reference BEM (format 10: each pose on a tank mesh
-    of its own, the near faces image planes) against the same BEM on a sensor mesh ``finer`` x the reference's
-    edge: the reference's own discretisation, which the map carries."""
+    of its own, the near faces image planes; ``K_reference`` where already solved) against the same BEM on a
+    sensor mesh ``finer`` x the reference's edge: the reference's own discretisation, which the map carries."""
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
 
+    def reference(f):
+        options = {**m.bem_options, "edge_length_m": f * m.bem_options["edge_length_m"]}
+        return each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **options), P, m.reference_images_m)
+
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    K = {f: each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **{
-        **m.bem_options, "edge_length_m": f * m.bem_options["edge_length_m"]}), P, m.reference_images_m)
-        for f in (1.0, finer)}
-    return K[1.0][:, r, e] / K[finer][:, r, e] - 1
+    K = reference(1.0) if K_reference is None else K_reference
+    return K[:, r, e] / reference(finer)[:, r, e] - 1
 
 
 def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WALL_GAP_M) -> np.ndarray:
@@ -205,10 +208,12 @@ def check_near_objects(m, sensor, tank, z, seed: int, n: int, objects, band=None
             "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
 
 
-def errors_at(m, sensor, tank, P, objects=()) -> dict:
-    """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`): its RMS
-    and largest, the map's own estimate there (RMS), the poses and every receiver's error."""
-    err, _ = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
+def errors_at(m, sensor, tank, P, objects=(), err=None) -> dict:
+    """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`, unless
+    given as ``err``): its RMS and largest, the map's own estimate there (RMS), the poses and every receiver's
+    error."""
+    if err is None:
+        err, _ = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
             "errors": err.tolist()}
