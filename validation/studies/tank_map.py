@@ -161,17 +161,21 @@ def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0
     """Relative error (P, m) of the receiver currents of a map's reference BEM (format 10: each pose on a tank mesh
     of its own, the near faces image planes; ``K_reference`` where already solved) against the same BEM on a
     sensor mesh ``finer`` x the reference's edge: the reference's own discretisation, which the map carries."""
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    K = reference_bem(m, sensor, tank, P, objects) if K_reference is None else K_reference
+    K_fine = reference_bem(m, sensor, tank, P, objects, edge_length_m=finer * m.bem_options["edge_length_m"])
+    return K[:, r, e] / K_fine[:, r, e] - 1
+
+
+def reference_bem(m, sensor, tank, P, objects=(), **override) -> np.ndarray:
+    """K (P, n, n) at 1 S/m of the BEM a map of format 10 reproduces (its options, each pose on a tank mesh of its
+    own, the tank's flat faces within ``m.reference_images_m`` image planes), with ``override`` of its options."""
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
 
-    def reference(f):
-        options = {**m.bem_options, "edge_length_m": f * m.bem_options["edge_length_m"]}
-        return each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **options), P, m.reference_images_m)
-
-    e = sensor.emitter - 1
-    r = [k for k in range(sensor.n_electrodes) if k != e]
-    K = reference(1.0) if K_reference is None else K_reference
-    return K[:, r, e] / reference(finer)[:, r, e] - 1
+    sweep = PoseSweep(sensor, tank, objects, 1.0, **{**m.bem_options, **override})
+    return each_on_its_own_tank_mesh(sweep, P, m.reference_images_m)
 
 
 def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WALL_GAP_M) -> np.ndarray:
@@ -255,13 +259,11 @@ def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
     and that BEM's K (P, n, n): each pose on a tank mesh graded to it alone (a map of an earlier version, whose
     nodes share one tank mesh graded to the fundamental domain: on that mesh, at the folded poses)."""
     from electrosense.bem import PoseSweep
-    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
 
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    if m.focus_m is None:   # the reference as the map's nodes: the near faces image planes (a map of format 10)
-        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P,
-                                      m.reference_images_m)
+    if m.focus_m is None:   # the reference as the map's nodes (format 10: the near faces image planes)
+        K = reference_bem(m, sensor, tank, P, objects)
     else:
         K = PoseSweep(sensor, tank, objects, 1.0, focus_m=m.focus_m, tank_near_ratio=None,
                       **m.bem_options).conductance(m.frame.folded(P)).K_S
@@ -279,7 +281,6 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4, objects=()):
     mesh against the reference's (what a map on the default would be off by)."""
     from electrosense.bem import PoseSweep
     from electrosense.meshes.scene_mesh import trajectory_focus_m
-    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
 
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
@@ -298,9 +299,7 @@ def check_accuracy(m, sensor, tank, P, n_sensor_check: int = 4, objects=()):
             K_tank = {}
             for name, grading in (("bem_tank_grading", 0.6 * m.bem_options["tank_grading"]),
                                   ("bem_default_tank", DEFAULT_TANK_GRADING)):
-                K_tank[name] = each_on_its_own_tank_mesh(
-                    PoseSweep(sensor, tank, objects, 1.0, **{**m.bem_options, "tank_grading": grading}),
-                    P[:n_sensor_check], m.reference_images_m)
+                K_tank[name] = reference_bem(m, sensor, tank, P[:n_sensor_check], objects, tank_grading=grading)
             out["bem_tank_grading"] = K_same[:n_sensor_check][:, r, e] / K_tank["bem_tank_grading"][:, r, e] - 1
             out["bem_default_tank"] = K_tank["bem_default_tank"][:, r, e] / K_same[:n_sensor_check][:, r, e] - 1
     return out
@@ -328,9 +327,7 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
         clear = sensor_wall_gap_m(sensor, tank, P, objects) >= 0.005 - 1e-9
         x, P, n = x[clear], P[clear], int(clear.sum())
     if m.reference_images_m is not None:   # the BEM as the map's nodes: near faces images, each pose on its own
-        from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
-
-        K = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **m.bem_options), P, m.reference_images_m)
+        K = reference_bem(m, sensor, tank, P, objects)
     else:
         K = PoseSweep(sensor, tank, objects, 1.0, focus_m=trajectory_focus_m(sensor, P),
                       **m.bem_options).conductance(P).K_S
