@@ -11,12 +11,16 @@ same wherever the sensor is. The correction
 
 is the surface mesh's own error in unbounded water, measured against the
 ring-element BEM of :mod:`electrosense.bem.meridian` (converged to ~1e-4 in a second,
-since the meridian is one-dimensional and graded to 1e-7 m). Added to the
-surface BEM's matrix of any scene with that sensor and that mesh (in a tank,
-near a wall, with objects), it removes the edge error and leaves the error of
-the scene's own correction ``K_scene - K_unbounded`` (walls and objects),
-which is a few percent of K and converges fast: a defect correction, as in
-multi-fidelity schemes.
+since the meridian is one-dimensional and graded to 1e-7 m). Carried into any
+scene with that sensor and that mesh (in a tank, near a wall, with objects) by
+:func:`scaled_to_scene` (each pair's correction scaled by the scene's change of
+that pair's conductance: the charge the mesh misses at an edge follows the
+charge there), it removes the edge error and leaves the error of the scene's
+own correction ``K_scene - K_unbounded`` (walls and objects), which is a few
+percent of K and converges fast: a defect correction, as in multi-fidelity
+schemes. Added as a constant instead, it would leave about its own size times
+the scene's relative change of K (a tip 5 mm from a wall: 0.06 % of K, against
+0.015 % scaled, measured against the wall's exact image on ring elements).
 
 Sectors. A sensor whose electrodes are split into sectors
 (:mod:`electrosense.meshes.sensor`) has no axisymmetric solution, and the ring elements
@@ -61,7 +65,8 @@ from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.meridian import meridian_conductance, mesh_meridian
 from electrosense.bem.solution import solve
 
-__all__ = ["free_space_correction", "clear_cache", "MERIDIAN_GRADING", "sector_shares", "merged_mesh",
+__all__ = ["free_space_correction", "scene_correction", "scaled_to_scene",
+           "free_space_correction_with_K", "clear_cache", "MERIDIAN_GRADING", "sector_shares", "merged_mesh",
            "sector_edge_correction"]
 
 #: grading of the meridian used for the correction (angels-4: 970 elements, 1.2e-4 of converged, 0.3-0.6 s)
@@ -94,6 +99,58 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         Keep the correction on disk for later processes (the ``edge-corrections`` folder of the cache root,
         keyed by the inputs and the sources of :mod:`electrosense.bem` and :mod:`electrosense.meshes`).
     """
+    return free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
+                                  surface_K_S, mesh_options, disk_cache)[0]
+
+
+def scene_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2, sensor_mesh, scene_K_S,
+                     targets_per_class: int | None = None, surface_K_S=None, mesh_options: dict | None = None,
+                     disk_cache: bool = True) -> np.ndarray:
+    """The edge correction of a scene (tank, walls, objects) whose surface BEM gave ``scene_K_S`` with this
+    sensor mesh: :func:`free_space_correction` carried into the scene by :func:`scaled_to_scene`.
+
+    Parameters as :func:`free_space_correction`, and ``scene_K_S`` (n, n), the scene's K of the surface solution
+    (without correction). In unbounded water it returns :func:`free_space_correction` itself.
+    """
+    dK, free_K = free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh,
+                                        targets_per_class, surface_K_S, mesh_options, disk_cache)
+    return scaled_to_scene(dK, free_K, scene_K_S)
+
+
+def scaled_to_scene(dK_free_S, free_K_S, scene_K_S) -> np.ndarray:
+    """The free-space correction ``dK_free_S`` of a mesh whose free-space K is ``free_K_S``, carried into a scene
+    where the same mesh gives ``scene_K_S``: each mutual conductance's correction scaled by the scene's change of
+    it, the diagonal from zero row sums.
+
+    ``dK[i, j] = dK_free[i, j] * K_scene[i, j] / K_free[i, j]`` (i != j). The mesh's error is the singular charge
+    it misses at the electrode edges; the singularity's strength there is set by the field the scene drives
+    through that edge, so the missing charge follows the charge itself (first order in the mesh's error). A wall
+    or an object that changes the pair's conductance by 18 % changes its correction by as much, which a constant
+    correction misses: a sensor's tip 5 mm from a wall, square on (exact by ring elements and the wall's image,
+    :func:`electrosense.bem.meridian.layer_operators`), leaves the constant correction 0.06 % of max|K| from the
+    converged K, this one 0.015 %, no more than in free space (0.010 %; ``esense study edge_correction_wall``).
+    Pairs whose free-space conductance is below 1e-9 of the largest keep the constant correction.
+
+    Example
+    -------
+    >>> dK = np.array([[1.0, -1.0], [-1.0, 1.0]]) * 1e-5
+    >>> K = np.array([[1.0, -1.0], [-1.0, 1.0]]) * 1e-2
+    >>> scaled_to_scene(dK, K, 1.2 * K).round(8).tolist()      # the scene's K 20 % larger: so is the correction
+    [[1.2e-05, -1.2e-05], [-1.2e-05, 1.2e-05]]
+    """
+    dK, free_K, scene_K = (np.asarray(a, float) for a in (dK_free_S, free_K_S, scene_K_S))
+    tiny = np.abs(free_K) <= 1e-9 * np.abs(free_K).max()
+    ratio = np.where(tiny, 1.0, scene_K / np.where(tiny, 1.0, free_K))
+    scaled = dK * ratio
+    np.fill_diagonal(scaled, 0.0)
+    scaled = 0.5 * (scaled + scaled.T)
+    return scaled - np.diag(scaled.sum(axis=1))
+
+
+def free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
+                           surface_K_S, mesh_options, disk_cache) -> tuple[np.ndarray, np.ndarray]:
+    """``(dK, K_free)``: :func:`free_space_correction` and the mesh's own free-space K it was measured against
+    (copies; both kept in the same caches), which :func:`scaled_to_scene` needs to carry it into a scene."""
     if sensor.has_sectors:
         return _sector_correction(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
                                   surface_K_S, mesh_options or {})
@@ -113,21 +170,22 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
                   np.array([float(sigma_S_per_m), tpc]), np.asarray([] if z is None else z, float).ravel(),
                   np.frombuffer(repr(sensor).encode(), np.uint8), np.frombuffer(source_digest().encode(), np.uint8))
         _CACHE[key] = _stored(arrays, compute) if disk_cache else compute()
-    return _CACHE[key].copy()
+    return tuple(a.copy() for a in _CACHE[key])
 
 
-def _stored(arrays, compute) -> np.ndarray:
-    """The correction stored on disk under the hash of ``arrays`` (the ``edge-corrections`` folder of the
-    cache root), else ``compute()``, stored: a later process with the same sensor mesh, conductivity and
-    contact impedance reads it back instead of solving the refined meridian problem again (seconds)."""
+def _stored(arrays, compute) -> tuple[np.ndarray, np.ndarray]:
+    """The correction and the mesh's free-space K stored on disk under the hash of ``arrays`` (the
+    ``edge-corrections`` folder of the cache root), else ``compute()``, stored: a later process with the same
+    sensor mesh, conductivity and contact impedance reads them back instead of solving the refined meridian
+    problem again (seconds)."""
     cache = BlockCache(cache_root() / "edge-corrections")
     key = cache.key(*arrays)
-    found = cache.load(key, ("dK_S",))
+    found = cache.load(key, ("dK_S", "K_surface_S"))
     if found is not None:
-        return found[0]
-    dK = np.asarray(compute(), float)
-    cache.save(key, {"dK_S": dK})
-    return dK
+        return found[0], found[1]
+    dK, surface = (np.asarray(a, float) for a in compute())
+    cache.save(key, {"dK_S": dK, "K_surface_S": surface})
+    return dK, surface
 
 
 _CACHE: dict = {}
@@ -182,7 +240,7 @@ def _sector_correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface
                           + np.ascontiguousarray(sensor_mesh.electrode).tobytes()).hexdigest()
     key = ("sectors", sensor, float(sigma), z_key, digest, tuple(sorted(mesh_options.items())))
     if key in _CACHE:
-        return _CACHE[key].copy()
+        return tuple(a.copy() for a in _CACHE[key])
     whole = sensor.merged()
     z_whole = z
     if z is not None and np.ndim(z) > 0:   # one value per sector: the mean of each electrode's sectors
@@ -193,11 +251,24 @@ def _sector_correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface
     F = sector_shares(sensor)
     dK = F @ dK_whole @ F.T
     dK = dK - np.diag(dK.sum(axis=1))   # zero row sums (with gaps the shares add up to less than 1)
-    dK = dK + sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options, surface_K_S)
+    surface = (_symmetric_surface_K(sensor, sigma, z, sensor_mesh) if surface_K_S is None
+               else np.asarray(surface_K_S, float))
+    dK = dK + sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options, surface)
     if len(_CACHE) >= 32:
         _CACHE.pop(next(iter(_CACHE)))
-    _CACHE[key] = dK
-    return dK.copy()
+    _CACHE[key] = (dK, surface)
+    return dK.copy(), surface.copy()
+
+
+def _symmetric_surface_K(sensor, sigma, z, mesh) -> np.ndarray:
+    """A sector sensor's mesh alone in unbounded water: its K by :func:`electrosense.bem.symmetric.solve_symmetric`."""
+    from electrosense.bem.symmetric import solve_symmetric
+    from electrosense.meshes.sector_mesh import block_symmetry
+
+    order, mirror = block_symmetry(sensor)
+    wb = WaterBoundary.from_meshes(mesh, emitter=sensor.emitter, allow_touching=sensor.sectors_touch)
+    z_list = z if z is None or np.ndim(z) == 0 else list(z)
+    return solve_symmetric(wb, sigma, z_list, sensor.emitter, order=order, mirror=mirror).K_S
 
 
 #: observed order of the sector-edge error in the sector-edge spacing (``validation/studies/sector_sensor.py``)
@@ -219,8 +290,7 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     Both K are free-space surface solutions, by :func:`electrosense.bem.symmetric.solve_symmetric`.
     Returns zeros when ``sensor_mesh`` is not what ``mesh_options`` make (a mesh of the caller's own).
     """
-    from electrosense.bem.symmetric import solve_symmetric
-    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, DEFAULT_SECTOR_REFINEMENT, block_symmetry
+    from electrosense.meshes.sector_mesh import DEFAULT_SECTOR_GRADING, DEFAULT_SECTOR_REFINEMENT
     from electrosense.meshes.sensor_mesh import mesh_sensor
 
     options = dict(mesh_options)
@@ -230,15 +300,9 @@ def sector_edge_correction(sensor, sigma, z, sensor_mesh, mesh_options: dict, su
     grading = options.pop("sector_grading", DEFAULT_SECTOR_GRADING)
     companion = mesh_sensor(sensor, sector_refinement=max(1.0, refinement / 2), sector_grading=1 + 2 * (grading - 1),
                             **options)
-    z_list = z if z is None or np.ndim(z) == 0 else list(z)
-    order, mirror = block_symmetry(sensor)
-
-    def surface_K(mesh):
-        wb = WaterBoundary.from_meshes(mesh, emitter=sensor.emitter, allow_touching=sensor.sectors_touch)
-        return solve_symmetric(wb, sigma, z_list, sensor.emitter, order=order, mirror=mirror).K_S
-
-    K = surface_K(sensor_mesh) if surface_K_S is None else np.asarray(surface_K_S, float)
-    dK = (K - surface_K(companion)) / (2.0 ** SECTOR_EDGE_ORDER - 1.0)
+    K = (_symmetric_surface_K(sensor, sigma, z, sensor_mesh) if surface_K_S is None
+         else np.asarray(surface_K_S, float))
+    dK = (K - _symmetric_surface_K(sensor, sigma, z, companion)) / (2.0 ** SECTOR_EDGE_ORDER - 1.0)
     dK = 0.5 * (dK + dK.T)
     dK = dK - np.diag(dK.sum(axis=1))
     # an electrode with no sector edge to the insulator (whole, or split with no gap) has no such error: what
@@ -266,4 +330,4 @@ def _correction(sensor, sigma, z, sensor_mesh, targets_per_class, surface_K_S):
                                      mesh=mesh_meridian(sensor, grading=MERIDIAN_GRADING)).K_S
     dK = reference - surface
     dK = 0.5 * (dK + dK.T)
-    return dK - np.diag(dK.sum(axis=1))   # exact zero row sums (both are zero to rounding)
+    return dK - np.diag(dK.sum(axis=1)), surface   # exact zero row sums (both are zero to rounding)

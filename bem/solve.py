@@ -4,8 +4,9 @@
 sensor mesh), solves it by the axisymmetric reduction when the sensor is
 alone in unbounded water (:mod:`.axisymmetric`; a sensor with sectors by
 azimuthal modes, :mod:`.symmetric`), else by the full
-collocation (:func:`electrosense.bem.solution.solve`), and adds the free-space
-electrode-edge correction (:mod:`.edge_correction`) to K.
+collocation (:func:`electrosense.bem.solution.solve`), and corrects K for the
+electrode edges: the free-space correction (:mod:`.edge_correction`) carried
+into the scene (:func:`.edge_correction.scene_correction`).
 :func:`conductance_matrix` is its :class:`ConductanceMatrix`.
 
 Example
@@ -25,7 +26,7 @@ import numpy as np
 from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import ConductanceMatrix
-from electrosense.bem.edge_correction import free_space_correction
+from electrosense.bem.edge_correction import scene_correction
 from electrosense.bem.linear_solve import SingularSystemError, factorise, solve_refined
 from electrosense.bem.solution import BemSolution, solve
 from electrosense.bem.symmetric import solve_symmetric
@@ -49,8 +50,9 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
     ``axisymmetric``: use the axisymmetric reduction (:mod:`electrosense.bem.axisymmetric`);
     default: for a scene whose sensor is alone in unbounded water (meshed by
     ``mesh_sensor``), not for a user's mesh.
-    ``edge_correction``: add the sensor mesh's free-space electrode-edge error
-    to the conductance matrix (:mod:`electrosense.bem.edge_correction`; scenes only, not a
+    ``edge_correction``: correct the conductance matrix for the sensor mesh's
+    electrode-edge error, measured in free space and carried into the scene
+    (:func:`electrosense.bem.edge_correction.scene_correction`; scenes only, not a
     user's mesh). ``info["edge_correction_max_relative"]`` says how large it was.
     """
     from electrosense.meshes.labelled_mesh import LabelledMesh
@@ -105,8 +107,8 @@ def solve_scene(scene, sigma_S_per_m: float, contact_impedance_ohm_m2=None, edge
         free_K = solution.K_S if solved_axisymmetric and not scene.objects and scene.tank is None else None
         if sectors and not scene.objects and scene.tank is None:
             free_K = solution.K_S
-        dK = free_space_correction(scene.sensor, sigma_S_per_m, contact_impedance_ohm_m2, sm.sensor,
-                                   surface_K_S=free_K, mesh_options=_sensor_options(mesh_options, edge_length_m))
+        dK = scene_correction(scene.sensor, sigma_S_per_m, contact_impedance_ohm_m2, sm.sensor, solution.K_S,
+                              surface_K_S=free_K, mesh_options=_sensor_options(mesh_options, edge_length_m))
         solution.info["edge_correction_max_relative"] = float(np.max(np.abs(dK)) / np.max(np.abs(solution.K_S)))
         solution.K_correction_S = dK
         solution.info["edge_correction_s"] = time.perf_counter() - t1

@@ -73,7 +73,7 @@ import scipy.sparse as sp
 from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
-from electrosense.bem.edge_correction import free_space_correction
+from electrosense.bem.edge_correction import free_space_correction_with_K, scaled_to_scene
 from electrosense.bem.image_plane import split_image_faces
 from electrosense.bem.linear_solve import SingularSystemError, factorise, refine, solve_refined
 from electrosense.bem.low_rank import right_singular_vectors
@@ -177,9 +177,11 @@ class PoseSweep:
         when the sensor mesh has at least ``CACHE_MIN_TRIANGLES`` triangles
         (where factorising costs more than reading).
     edge_correction : bool
-        Add the sensor mesh's free-space electrode-edge error to every pose's
-        K (:mod:`electrosense.bem.edge_correction`; a few seconds, computed once per sensor mesh, conductivity
-        and contact impedance, and kept on disk beside the sensor blocks).
+        Correct every pose's K for the sensor mesh's electrode-edge error: the free-space correction
+        (:mod:`electrosense.bem.edge_correction`; a few seconds, computed once per sensor mesh, conductivity
+        and contact impedance, and kept on disk beside the sensor blocks) carried into the pose's scene by
+        :func:`~electrosense.bem.edge_correction.scaled_to_scene`. The wall derivatives (``wall_derivatives``)
+        are the surface solution's: the correction's own change with a wall is its size (0.5 %) times theirs.
     tank_mesh : LabelledMesh, optional
         The tank's mesh, made by the caller (e.g. a mesh of ``tank`` deformed
         smoothly, to difference K between shapes without remeshing); default:
@@ -254,14 +256,22 @@ class PoseSweep:
         self._prepare_edge_correction()
 
     def _prepare_edge_correction(self):
+        """The sensor mesh's free-space edge correction and its free-space K, which :func:`scaled_to_scene` carries
+        into every pose's scene."""
         self._K_correction = np.zeros((self.n, self.n))
+        self._K_free_surface = None
         if self._edge_correction:
             t0 = time.perf_counter()
-            self._K_correction = free_space_correction(self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2,
-                                                       self.sensor_mesh, surface_K_S=self._free_K,
-                                                       mesh_options=self._mesh_options,
-                                                       disk_cache=self.block_cache is not False)
+            self._K_correction, self._K_free_surface = free_space_correction_with_K(
+                self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.sensor_mesh, None, self._free_K,
+                self._mesh_options, self.block_cache is not False)
             self.timings["edge_correction_s"] = time.perf_counter() - t0
+
+    def _corrected(self, K_surface_S: np.ndarray) -> np.ndarray:
+        """A pose's K with the edge correction carried into its scene (:func:`scaled_to_scene`)."""
+        if self._K_free_surface is None:
+            return K_surface_S
+        return K_surface_S + scaled_to_scene(self._K_correction, self._K_free_surface, K_surface_S)
 
     def with_contact_impedance(self, contact_impedance_ohm_m2) -> "PoseSweep":
         """This sweep with another contact impedance on the electrodes (ohm m^2, one or one per electrode).
@@ -662,7 +672,7 @@ class PoseSweep:
                     dK_pose[p] = dK[regions.shape[0]:]
             C = np.zeros((self.n, self.n))
             np.add.at(C, self._electrode_of_row, self._electrode_weight[:, None] * y_s[self._electrode_rows])
-            K[p] = (isolate(C) if unbounded else C) + self._K_correction
+            K[p] = self._corrected(isolate(C) if unbounded else C)
         seconds = time.perf_counter() - t0
         info = {"model": "bem", "triangles": int(self.sensor_mesh.n_triangles + (0 if self.env_tris is None else len(self.env_tris))),
                 "sensor_triangles": int(self.sensor_mesh.n_triangles), "seconds": seconds,
