@@ -74,11 +74,12 @@ __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "cor
            "sensor_wall_gap_m", "image_faces_near", "build_tank_map", "load_tank_map", "MAP_FORMAT", "scene_record",
            "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 10"   # 10: the reference poses' near faces image planes (9: the fixed objects'
-#: images; 8: the edges' images a group of their own)
-#: earlier formats read as they are where nothing but the format changed: 9 (its reference every face meshed), 8
-#: without fixed objects (format 8 with objects: its interpolants fitted again from its nodes, which are kept)
-READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 9", "electrosense tank map 8")
+MAP_FORMAT = "electrosense tank map 11"   # 11: the BEM's edge correction scaled into each pose's scene (10: the
+#: reference poses' near faces image planes; 9: the fixed objects' images; 8: the edges' images a group of their own)
+#: earlier formats read as they are where nothing but the format changed: 10 (its BEM's edge correction a constant),
+#: 9 (its reference every face meshed), 8 without fixed objects (format 8 with objects: its interpolants fitted again
+#: from its nodes, which are kept)
+READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 10", "electrosense tank map 9", "electrosense tank map 8")
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)

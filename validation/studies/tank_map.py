@@ -158,7 +158,7 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()
 
 
 def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0.7, K_reference=None) -> np.ndarray:
-    """Relative error (P, m) of the receiver currents of a map's reference BEM (format 10: each pose on a tank mesh
+    """Relative error (P, m) of the receiver currents of a map's reference BEM (format 10 and later: each pose on a tank mesh
     of its own, the near faces image planes; ``K_reference`` where already solved) against the same BEM on a
     sensor mesh ``finer`` x the reference's edge: the reference's own discretisation, which the map carries."""
     e = sensor.emitter - 1
@@ -169,7 +169,7 @@ def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0
 
 
 def reference_bem(m, sensor, tank, P, objects=(), **override) -> np.ndarray:
-    """K (P, n, n) at 1 S/m of the BEM a map of format 10 reproduces (its options, each pose on a tank mesh of its
+    """K (P, n, n) at 1 S/m of the BEM a map of format 10 or later reproduces (its options, each pose on a tank mesh of its
     own, the tank's flat faces within ``m.reference_images_m`` image planes), with ``override`` of its options."""
     from electrosense.bem import PoseSweep
     from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
@@ -262,7 +262,7 @@ def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
 
     e = sensor.emitter - 1
     r = [k for k in range(sensor.n_electrodes) if k != e]
-    if m.focus_m is None:   # the reference as the map's nodes (format 10: the near faces image planes)
+    if m.focus_m is None:   # the reference as the map's nodes (format 10 and later: the near faces image planes)
         K = reference_bem(m, sensor, tank, P, objects)
     else:
         K = PoseSweep(sensor, tank, objects, 1.0, focus_m=m.focus_m, tank_near_ratio=None,
