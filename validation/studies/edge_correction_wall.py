@@ -27,6 +27,8 @@ import time
 
 import numpy as np
 
+from electrosense.validation.studies import positive_numbers
+
 DEFAULT_GAPS_M = (0.005, 0.01, 0.02, 0.05)
 DEFAULT_SCALES = (1.3, 1.0)
 
@@ -100,16 +102,6 @@ def print_rows(rows) -> None:
               f"{r['none'][1]:>12.4f} {r['constant'][1]:>8.4f} {r['scaled'][1]:>7.4f} | {r['cpu_s']:>5.0f}")
 
 
-def _numbers(parser, name: str, text: str) -> tuple:
-    try:
-        values = tuple(float(v) for v in text.split(","))
-    except ValueError:
-        parser.error(f"--{name}: expected positive numbers separated by commas, got {text!r}")
-    if not all(v > 0 for v in values):
-        parser.error(f"--{name}: every value must be positive, got {text!r}")
-    return values
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="edge_correction_wall", description=__doc__.splitlines()[0])
     parser.add_argument("--sensor", default="angels-4", help="a preset's name (default angels-4), or random")
@@ -121,7 +113,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     from electrosense.meshes import preset
 
-    scales, gaps = _numbers(parser, "scales", args.scales), _numbers(parser, "gaps", args.gaps)
+    scales, gaps = positive_numbers(parser, "--scales", args.scales), positive_numbers(parser, "--gaps", args.gaps)
     if args.sensor == "random":
         from electrosense.validation.diagnosis.unseen import random_sensor
 

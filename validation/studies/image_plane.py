@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from electrosense.validation.studies import positive_numbers
+
 DEFAULT_GAPS_M = (0.005, 0.01, 0.02, 0.04, 0.08)
 #: the edge bound of the finer meshed reference at the smallest gap
 FINE_NEAR_RATIO = 0.2
@@ -87,12 +89,7 @@ def main(argv=None):
     from electrosense.meshes import preset
     from electrosense.meshes.tank import Tank
 
-    try:
-        gaps = tuple(float(g) for g in args.gaps.split(","))
-    except ValueError:
-        parser.error(f"--gaps: expected numbers separated by commas, got {args.gaps!r}")
-    if not all(g > 0 for g in gaps):
-        parser.error(f"--gaps: every gap must be positive, got {args.gaps!r}")
+    gaps = positive_numbers(parser, "--gaps", args.gaps)
     if args.sensor == "random":
         from electrosense.validation.studies.tank_map import random_scene
 
