@@ -99,8 +99,8 @@ def free_space_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2
         Keep the correction on disk for later processes (the ``edge-corrections`` folder of the cache root,
         keyed by the inputs and the sources of :mod:`electrosense.bem` and :mod:`electrosense.meshes`).
     """
-    return free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
-                                  surface_K_S, mesh_options, disk_cache)[0]
+    return free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh,
+                                        targets_per_class, surface_K_S, mesh_options, disk_cache)[0]
 
 
 def scene_correction(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2, sensor_mesh, scene_K_S,
@@ -147,8 +147,10 @@ def scaled_to_scene(dK_free_S, free_K_S, scene_K_S) -> np.ndarray:
     return scaled - np.diag(scaled.sum(axis=1))
 
 
-def free_space_correction_with_K(sensor, sigma_S_per_m, contact_impedance_ohm_m2, sensor_mesh, targets_per_class,
-                           surface_K_S, mesh_options, disk_cache) -> tuple[np.ndarray, np.ndarray]:
+def free_space_correction_with_K(sensor, sigma_S_per_m: float, contact_impedance_ohm_m2, sensor_mesh,
+                                 targets_per_class: int | None = None, surface_K_S=None,
+                                 mesh_options: dict | None = None,
+                                 disk_cache: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """``(dK, K_free)``: :func:`free_space_correction` and the mesh's own free-space K it was measured against
     (copies; both kept in the same caches), which :func:`scaled_to_scene` needs to carry it into a scene."""
     if sensor.has_sectors:

@@ -263,8 +263,8 @@ class PoseSweep:
         if self._edge_correction:
             t0 = time.perf_counter()
             self._K_correction, self._K_free_surface = free_space_correction_with_K(
-                self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.sensor_mesh, None, self._free_K,
-                self._mesh_options, self.block_cache is not False)
+                self.sensor, self.sigma_S_per_m, self.contact_impedance_ohm_m2, self.sensor_mesh,
+                surface_K_S=self._free_K, mesh_options=self._mesh_options, disk_cache=self.block_cache is not False)
             self.timings["edge_correction_s"] = time.perf_counter() - t0
 
     def _corrected(self, K_surface_S: np.ndarray) -> np.ndarray:

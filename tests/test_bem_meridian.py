@@ -199,7 +199,7 @@ def test_the_edge_correction_scaled_into_a_scene_beats_a_constant_one():
     wall = 0.5 * sensor.length_m + 0.005
     reference = meridian_conductance(sensor, 1.0, wall_x_m=wall).K_S
     mesh = mesh_sensor(sensor, 2.0 * default_edge_length_m(sensor))
-    dK, free_K = free_space_correction_with_K(sensor, 1.0, None, mesh, None, None, None, False)
+    dK, free_K = free_space_correction_with_K(sensor, 1.0, None, mesh, disk_cache=False)
     K = surface_K_facing_wall(mesh, 1.0, wall)
     scaled = scaled_to_scene(dK, free_K, K)
     assert np.abs(scaled.sum(axis=1)).max() < 1e-12 * np.abs(K).max()

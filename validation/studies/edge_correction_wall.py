@@ -76,7 +76,7 @@ def compare(sensor, scales=DEFAULT_SCALES, gaps_m=DEFAULT_GAPS_M, sigma_S_per_m:
     rows = []
     for scale in scales:
         mesh = mesh_sensor(sensor, scale * default_edge_length_m(sensor))
-        dK, free_K = free_space_correction_with_K(sensor, sigma_S_per_m, None, mesh, None, None, None, False)
+        dK, free_K = free_space_correction_with_K(sensor, sigma_S_per_m, None, mesh, disk_cache=False)
         for gap, reference in references.items():
             c0 = time.process_time()
             K = free_K if gap is None else surface_K_facing_wall(mesh, sigma_S_per_m, tip_x_m + gap)
