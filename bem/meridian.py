@@ -1,4 +1,4 @@
-"""Ring boundary elements on the meridian of a sensor of revolution in unbounded water.
+"""Ring boundary elements on the meridian of a sensor of revolution in unbounded water (or facing a wall).
 
 A sensor of :mod:`electrosense.meshes.sensor` (cylinder, hemispherical ends, electrodes
 that are caps or rings) alone in unbounded water has an axisymmetric
@@ -278,7 +278,7 @@ def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contac
         :func:`layer_operators` of ``mesh``, assembled once for several solves.
     wall_x_m : float, optional
         An insulating plane wall across the axis at ``x = wall_x_m`` beyond the head tip (the sensor's frame),
-        by its image (:func:`layer_operators`); ignored where ``operators`` are given.
+        by its image (:func:`layer_operators`); not with ``operators`` (they hold a wall or none already).
 
     Returns
     -------
@@ -290,6 +290,9 @@ def meridian_conductance(sensor: SensorDescription, sigma_S_per_m: float, contac
     mesh = mesh_meridian(sensor) if mesh is None else mesh
     n = len(sensor.electrodes)
     z = contact_impedances(contact_impedance_ohm_m2, n)
+    if operators is not None and wall_x_m is not None:
+        raise ValueError("meridian_conductance: give wall_x_m to layer_operators, not beside operators "
+                         "assembled already (they hold a wall or none)")
     V, D = layer_operators(mesh, wall_x_m) if operators is None else operators
     on_electrode = mesh.electrode > 0
     zs = np.where(on_electrode, z[np.maximum(mesh.electrode, 1) - 1] * sigma_S_per_m, 0.0)
@@ -315,7 +318,8 @@ def converged_conductance(sensor: SensorDescription, sigma_S_per_m: float, conta
     The meridian family ``h_far / d``, ``h_edge = 1e-5 h_far / d``,
     ``grading = 1 + (grading - 1) / d`` for ``d`` in ``refinements`` refines every
     element by ``d``; the observed order ``p`` of every entry comes from the
-    three finest and the limit is ``K_d + (K_d - K_{d/2}) / (2^p - 1)``.
+    three finest and the limit is ``K_d + (K_d - K_{d/2}) / (2^p - 1)``. ``wall_x_m``: an insulating wall
+    across the axis beyond the head tip, as in :func:`meridian_conductance`.
 
     Returns
     -------

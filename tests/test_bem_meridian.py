@@ -209,3 +209,11 @@ def test_the_edge_correction_scaled_into_a_scene_beats_a_constant_one():
     assert none[0] > 1.0                                          # the coarse mesh: ~1.2 % low
     assert scaled_error[0] < 0.7 * constant[0] and scaled_error[1] < 0.4 * constant[1]
     assert scaled_error[0] < 0.07
+
+
+def test_a_wall_beside_operators_assembled_already_is_refused():
+    sensor = preset("angels-2")
+    mesh = mesh_meridian(sensor)
+    with pytest.raises(ValueError, match="wall_x_m"):
+        meridian_conductance(sensor, 1.0, mesh=mesh, operators=layer_operators(mesh),
+                             wall_x_m=0.5 * sensor.length_m + 0.01)
