@@ -622,6 +622,27 @@ def test_the_studys_near_wall_check_draws_poses_at_its_gaps_and_compares_them_wi
     assert sens.shape == err.shape and np.isclose(res["bem_sensor_rms"], np.sqrt(np.mean(sens**2)))
     assert 1e-6 < res["bem_sensor_rms"] < 5e-3, res["bem_sensor_rms"]
     assert np.all(study.reference_sensor_mesh_error(m, SENSOR, TANK, np.array(res["poses"][:1]), finer=1.0) == 0)
+    # the map's error split between its coarse interpolant and its correction (the test below)
+    assert {"interpolation_rms", "correction_rms"} <= set(res) and res["interpolation_rms"] > 0
+
+
+def test_the_study_splits_the_maps_error_into_its_coarse_interpolant_and_its_correction(built):
+    """The coarse interpolant alone (``correction=False``) is the coarse BEM at every node, and the whole map the
+    reference at its reference nodes: there the study's split (the map's coarse BEM solved again, with the
+    options the map names, :attr:`TankMap.fidelities`) finds both parts at the BEM's own truncation."""
+    import electrosense.validation.studies.tank_map as study
+
+    m, _ = built
+    e = SENSOR.emitter - 1
+    rec = [k for k in range(SENSOR.n_electrodes) if k != e]
+    np.testing.assert_allclose(m.conductance(m.nodes, correction=False)[:, rec, e], m.K_nodes[:, rec, e], rtol=1e-6)
+    assert not np.allclose(m.conductance(m.nodes)[:, rec, e], m.K_nodes[:, rec, e], rtol=1e-4)   # corrected
+    coarse = m.fidelities["coarse"]
+    assert coarse["edge_length_m"] == pytest.approx(coarse_options()["edge_length_m"])
+    assert coarse["tank_near_ratio"] == coarse_options()["tank_near_ratio"]
+    split = study.error_split(m, SENSOR, TANK, m.nodes[m.ref_index[:2]], m.K_ref[:2])
+    assert set(split) == {"interpolation_rms", "interpolation_max", "correction_rms", "correction_max"}
+    assert split["interpolation_max"] < 2e-5 and split["correction_max"] < 2e-5, split
 
 
 def test_the_studys_random_objects_stand_clear_and_its_near_object_poses_lie_at_their_gaps():

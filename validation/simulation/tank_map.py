@@ -579,8 +579,9 @@ class TankMap:
             return np.zeros((0, len(self._rec)))
         return np.abs(np.expm1(np.asarray(self.fitted["loo_ref"])[:, self._rec]))
 
-    def log_ratio(self, poses, jacobian: bool = False, chunk: int = 4096):
-        """log(K / K_free) of the upper triangle, (P, pairs); with ``jacobian`` also its d/d(x, y, yaw), (P, 3, pairs)."""
+    def log_ratio(self, poses, jacobian: bool = False, chunk: int = 4096, correction: bool = True):
+        """log(K / K_free) of the upper triangle, (P, pairs); with ``jacobian`` also its d/d(x, y, yaw), (P, 3, pairs);
+        without ``correction`` the coarse interpolant alone (the map's coarse BEM, :attr:`fidelities`)."""
         poses = np.asarray(poses, float).reshape(-1, 4)
         out, dout = [], []
         for s in range(0, len(poses), chunk):
@@ -592,7 +593,7 @@ class TankMap:
                 R, dR = image_powers(R, self._images, dR)
             coarse = self._parts[0]
             L, G = _value_and_pose_gradient(coarse, F, dF, R, dR) if jacobian else (coarse(F, R), None)
-            if len(self._parts) > 1:   # the reference correction, of the pose (and the coarse K's emitter pairs)
+            if correction and len(self._parts) > 1:   # the reference correction (of the pose and the coarse K)
                 reg = self._regressor_pairs
                 corr = self._parts[1]
                 if jacobian:
@@ -606,12 +607,13 @@ class TankMap:
         L = np.concatenate(out) if out else np.zeros((0, len(self._iu[0])))
         return (L, np.concatenate(dout)) if jacobian else L
 
-    def conductance(self, poses, sigma_S_per_m: float = 1.0, jacobian: bool = False):
+    def conductance(self, poses, sigma_S_per_m: float = 1.0, jacobian: bool = False, correction: bool = True):
         """K (P, n, n) at ``poses`` (P, 4), zero row sums, at ``sigma_S_per_m``; with ``jacobian`` also
-        dK / d(x, y, yaw), (P, 3, n, n): one vectorised call for any number of poses."""
+        dK / d(x, y, yaw), (P, 3, n, n): one vectorised call for any number of poses. Without ``correction``: the
+        coarse interpolant alone, which reproduces the map's coarse BEM (:attr:`fidelities`), not the reference."""
         n = self.K_free.shape[0]
         iu = self._iu
-        res = self.log_ratio(poses, jacobian)
+        res = self.log_ratio(poses, jacobian, correction=correction)
         L, dL = res if jacobian else (res, None)
         off = self._free_pairs * np.exp(L) * sigma_S_per_m
         K = self.mirrored(_assemble(off, n, iu), poses)
@@ -622,6 +624,15 @@ class TankMap:
     def jacobian(self, poses, sigma_S_per_m: float = 1.0) -> np.ndarray:
         """dK / d(x, y, yaw) (P, 3, n, n) (analytic: the interpolant's derivative through the map's coordinates)."""
         return self.conductance(poses, sigma_S_per_m, jacobian=True)[1]
+
+    @property
+    def fidelities(self) -> dict:
+        """The options of the map's two BEMs (:func:`bem_fidelities`; maps of format 10 and later): ``"ref"`` the
+        one it reproduces, ``"coarse"`` the one its many nodes were solved with."""
+        if self.focus_m is not None or (self.tank is not None and self.reference_images_m is None):
+            raise ValueError("a map before format 10 was built on one tank mesh or with its reference's faces meshed: "
+                             "its BEMs are not those of bem_fidelities")
+        return bem_fidelities(self.tank, dict(self.bem_options), self.coarse_factor * self.bem_options["edge_length_m"])
 
     def estimated_error(self, poses) -> np.ndarray:
         """(P, m) estimated relative error of the receiver currents at ``poses`` (zero at the nodes): the coarse
@@ -853,6 +864,31 @@ REFERENCE_TANK_GRADING = 0.15
 #: 0.087 -> 0.071 % max at its 20 test poses and 0.149 -> 0.119 % RMS, 0.40 -> 0.34 % max at its 8 near-wall ones;
 #: angels-4 in the 1 m tank at 80 fresh poses (20 within 15 mm of a wall) 0.049 -> 0.037 % RMS, 0.36 -> 0.26 % max.
 COARSE_TANK_NEAR_RATIO = 0.7
+
+
+def bem_fidelities(tank, options: dict, coarse_edge_m: float) -> dict:
+    """The options of a map's two BEMs, ``{"ref": ..., "coarse": ...}``, from the reference's ``options`` (its
+    ``edge_length_m`` and ``tank_grading`` set) and the coarse sensor mesh's edge ``coarse_edge_m``: the many
+    poses on the BEM's default tank mesh (or the reference's, where that is the coarser) with its edge near the
+    sensor at :data:`COARSE_TANK_NEAR_RATIO`; both with the sensor-tank coupling truncated at
+    :data:`MAP_COUPLING_TOL` and the tank's flat faces within :data:`IMAGE_FACES_WITHIN_M` of the sensor image
+    planes (``image_faces_within_m``; exact, where a meshed wall beside the sensor converges slowly).
+
+    >>> from electrosense.meshes import Tank
+    >>> f = bem_fidelities(Tank((1.0, 1.0, 1.0)), {"edge_length_m": 0.004, "tank_grading": 0.15}, 0.012)
+    >>> f["coarse"]["edge_length_m"], f["coarse"]["tank_grading"], f["ref"]["image_faces_within_m"]
+    (0.012, 0.25, 0.08)
+    """
+    from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING
+
+    tol = {"tol": MAP_COUPLING_TOL}
+    if tank is None:
+        return {"ref": {**options, **tol}, "coarse": {**options, **tol, "edge_length_m": coarse_edge_m}}
+    images = {"image_faces_within_m": IMAGE_FACES_WITHIN_M}
+    return {"ref": {**options, **tol, **images},
+            "coarse": {**options, **tol, **images, "edge_length_m": coarse_edge_m,
+                       "tank_grading": max(options["tank_grading"], DEFAULT_TANK_GRADING),
+                       "tank_near_ratio": COARSE_TANK_NEAR_RATIO}}
 
 
 def _worker_init(sensor, tank, objects, options, memory_share=1.0):
@@ -1109,17 +1145,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     corrected = coarse_factor > 1.0
     if options.get("tank_grading") is None and tank is not None:
         options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
-    # the many poses on the BEM's default tank mesh (or the reference's, where that is the coarser)
-    coarse_grading = None if tank is None else max(options["tank_grading"], DEFAULT_TANK_GRADING)
-    # both fidelities take the tank's flat faces near the sensor as image planes (exact; a meshed wall beside the
-    # sensor converges slowly with the tank mesh: see IMAGE_FACES_WITHIN_M)
     images_m = None if tank is None else IMAGE_FACES_WITHIN_M
-    fidelities = {"ref": {**options, "tol": MAP_COUPLING_TOL, **({} if tank is None else
-                                                                {"image_faces_within_m": images_m})},
-                  "coarse": {**options, "tol": MAP_COUPLING_TOL, "edge_length_m": coarse_edge_m,
-                             **({} if tank is None else {"tank_grading": coarse_grading,
-                                                         "tank_near_ratio": COARSE_TANK_NEAR_RATIO,
-                                                         "image_faces_within_m": IMAGE_FACES_WITHIN_M})}}
+    fidelities = bem_fidelities(tank, options, coarse_edge_m)
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:

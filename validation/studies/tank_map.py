@@ -149,12 +149,41 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M, objects)
     err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
-    out = {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+    out = {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist(),
+           **error_split(m, sensor, tank, P, K, objects)}
     if n_sensor_check and m.focus_m is None:
         err = reference_sensor_mesh_error(m, sensor, tank, P[:n_sensor_check], objects, K_reference=K[:n_sensor_check])
         out.update(bem_sensor_rms=float(np.sqrt(np.mean(err**2))), bem_sensor_max=float(np.abs(err).max()),
                    bem_sensor_errors=err.tolist())
     return out
+
+
+def error_split(m, sensor, tank, P, K_reference, objects=()) -> dict:
+    """The map's error at ``P`` split into its two parts, with the map's coarse BEM solved there
+    (:attr:`~electrosense.validation.simulation.tank_map.TankMap.fidelities`): ``interpolation``, the coarse
+    interpolant against the coarse BEM, and ``correction``, the interpolated correction to the reference against
+    the true one, log(K_ref / K_coarse) (relative errors of the receiver currents, RMS and largest; their sum is
+    the map's error to first order). Which of the two to spend poses on: more nodes, or more reference poses.
+    Empty for a map without a correction or of a format before 10."""
+    from electrosense.bem import PoseSweep
+    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh
+
+    if m.coarse_factor <= 1.0 or not len(m.ref_index):
+        return {}
+    try:
+        options = dict(m.fidelities["coarse"])
+    except ValueError:   # a map before format 10: its coarse BEM is not one the map can name
+        return {}
+    within_m = options.pop("image_faces_within_m", None)
+    K_coarse = each_on_its_own_tank_mesh(PoseSweep(sensor, tank, objects, 1.0, **options), P, within_m)
+    e = sensor.emitter - 1
+    r = [k for k in range(sensor.n_electrodes) if k != e]
+    K_map, K_map_coarse = m.conductance(P), m.conductance(P, correction=False)
+    interpolation = K_map_coarse[:, r, e] / K_coarse[:, r, e] - 1
+    correction = (K_map[:, r, e] / K_map_coarse[:, r, e]) / (K_reference[:, r, e] / K_coarse[:, r, e]) - 1
+    return {f"{name}_{stat}": float(f(err)) for name, err in (("interpolation", interpolation),
+                                                              ("correction", correction))
+            for stat, f in (("rms", lambda a: np.sqrt(np.mean(a**2))), ("max", lambda a: np.abs(a).max()))}
 
 
 def reference_sensor_mesh_error(m, sensor, tank, P, objects=(), finer: float = 0.7, K_reference=None) -> np.ndarray:
@@ -251,7 +280,8 @@ def check_corners(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) 
     """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
     a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
     P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, objects=objects)
-    return errors_at(m, sensor, tank, P, objects)
+    err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
+    return {**errors_at(m, sensor, tank, P, objects, err), **error_split(m, sensor, tank, P, K, objects)}
 
 
 def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
@@ -457,6 +487,14 @@ def motion_prior_table(log, m, noise_rel) -> list[dict]:
     return rows
 
 
+def _print_split(found: dict) -> None:
+    """The line of :func:`error_split`'s figures, where it has them."""
+    if "interpolation_rms" in found:
+        print(f"    of it the coarse interpolant against its own BEM there {found['interpolation_rms']:.3%} RMS, "
+              f"{found['interpolation_max']:.3%} max; the correction to the reference against the true one "
+              f"{found['correction_rms']:.3%} RMS, {found['correction_max']:.3%} max")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=1)
@@ -637,6 +675,7 @@ def main(argv=None):
         print(f"  near the walls{' or objects' if objects else ''} ({len(nw['poses'])} poses {1e3 * min(nw['gaps_m']):.1f}-{1e3 * max(nw['gaps_m']):.1f} mm "
               f"from one, each on its own tank mesh): {nw['rms']:.3%} RMS, {nw['max']:.3%} max; the map's own "
               f"estimate there {nw['estimated_rms']:.3%} RMS")
+        _print_split(nw)
         if "bem_sensor_rms" in nw:
             print(f"  the reference BEM's own sensor-mesh error at {len(nw['bem_sensor_errors'])} of them (against a "
                   f"0.7x finer sensor mesh): {nw['bem_sensor_rms']:.3%} RMS, {nw['bem_sensor_max']:.3%} max (the map "
@@ -651,6 +690,7 @@ def main(argv=None):
         print(f"  at the corners ({len(co['poses'])} poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
               f"two walls, each on its own tank mesh): {co['rms']:.3%} RMS, {co['max']:.3%} max; the map's own "
               f"estimate there {co['estimated_rms']:.3%} RMS")
+        _print_split(co)
     _line(f"build, wall s ({args.workers} workers, empty cache)", b["wall_s"], GOALS["build_s"], "{:.0f}")
     print(f"  build CPU s (all processes): {b['cpu_s']:.0f} (on {args.workers} free cores: about "
           f"{b['cpu_s'] / args.workers:.0f} s wall); loading the map: {b['load_ms']:.1f} ms")
