@@ -73,6 +73,12 @@ def test_noise_only_is_none_and_the_budget_is_reported(small):
     assert b["bem_poses"] >= 1 and set(b["baseline_by_place"]) <= {"mid_tank", *TANK_REGIONS}
 
 
+# 60 s on 2 cores (the fixture's BEM 30 s, two diagnoses 30 s): the default run must stay under 10 minutes with
+# its install (it ran 588 s on 2 cores); it keeps a conductivity named through the whole chain in
+# tests/test_diagnosis_select.py, a random sensor's anchored baseline in tests/test_diagnosis_anchored.py and
+# a second log served by the anchors' cache in test_a_second_log_with_position_noise_reuses_the_anchors there;
+# `pytest -m slow` runs this one
+@pytest.mark.slow
 def test_conductivity_is_named_and_the_second_log_reuses_the_bem(small):
     setup, poses, t, passes, I = small
     d = _diagnose(setup, poses, t, passes, I, 2, conductivity=-0.025)
