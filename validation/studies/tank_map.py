@@ -233,12 +233,13 @@ def near_object_poses(sensor, tank, z, rng, n, objects, band=None, gap_m=NEAR_WA
 
 def check_near_objects(m, sensor, tank, z, seed: int, n: int, objects, band=None) -> dict:
     """The map against the BEM at ``n`` random poses 5-15 mm from a fixed object (:func:`near_object_poses`), each
-    on a tank mesh graded to it alone, drawn from their own seed."""
+    on a tank mesh graded to it alone, drawn from their own seed, its error split as near a wall (:func:`error_split`)."""
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = near_object_poses(sensor, tank, z, np.random.default_rng([seed, 4]), n, objects, band)
-    return {**errors_at(m, sensor, tank, P, objects),
-            "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+    err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
+    return {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist(),
+            **error_split(m, sensor, tank, P, K, objects)}
 
 
 def errors_at(m, sensor, tank, P, objects=(), err=None) -> dict:
@@ -685,6 +686,7 @@ def main(argv=None):
         print(f"  near the fixed objects ({len(no['poses'])} poses {1e3 * min(no['gaps_m']):.1f}-"
               f"{1e3 * max(no['gaps_m']):.1f} mm from one, each on its own tank mesh): {no['rms']:.3%} RMS, "
               f"{no['max']:.3%} max; the map's own estimate there {no['estimated_rms']:.3%} RMS")
+        _print_split(no)
     if "corners" in results:
         co = results["corners"]
         print(f"  at the corners ({len(co['poses'])} poses {1e3 * CORNER_GAP_M[0]:g}-{1e3 * CORNER_GAP_M[1]:g} mm from "
