@@ -1145,8 +1145,8 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     corrected = coarse_factor > 1.0
     if options.get("tank_grading") is None and tank is not None:
         options["tank_grading"] = REFERENCE_TANK_GRADING if corrected else DEFAULT_TANK_GRADING
-    images_m = None if tank is None else IMAGE_FACES_WITHIN_M
     fidelities = bem_fidelities(tank, options, coarse_edge_m)
+    images_m = fidelities["ref"].get("image_faces_within_m")   # the reference's images, written with the map
     code = code_version()
     band = np.ndim(z_m) > 0
     if band:
