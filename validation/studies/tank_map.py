@@ -148,9 +148,8 @@ def check_near_wall(m, sensor, tank, z, seed: int, n: int, band=None, objects=()
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = test_poses(sensor, tank, z, np.random.default_rng([seed, 1]), n, band, NEAR_WALL_GAP_M, objects)
-    err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
-    out = {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist(),
-           **error_split(m, sensor, tank, P, K, objects)}
+    out, K = errors_at(m, sensor, tank, P, objects)
+    out["gaps_m"] = sensor_wall_gap_m(sensor, tank, P, objects).tolist()
     if n_sensor_check and m.focus_m is None:
         err = reference_sensor_mesh_error(m, sensor, tank, P[:n_sensor_check], objects, K_reference=K[:n_sensor_check])
         out.update(bem_sensor_rms=float(np.sqrt(np.mean(err**2))), bem_sensor_max=float(np.abs(err).max()),
@@ -237,20 +236,18 @@ def check_near_objects(m, sensor, tank, z, seed: int, n: int, objects, band=None
     from electrosense.validation.simulation.tank_map import sensor_wall_gap_m
 
     P = near_object_poses(sensor, tank, z, np.random.default_rng([seed, 4]), n, objects, band)
+    out, _ = errors_at(m, sensor, tank, P, objects)
+    return {**out, "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist()}
+
+
+def errors_at(m, sensor, tank, P, objects=()) -> tuple[dict, np.ndarray]:
+    """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`): its RMS
+    and largest, the map's own estimate there (RMS), the poses, every receiver's error and its split into the
+    coarse interpolant's and the correction's (:func:`error_split`); and that BEM's K (P, n, n)."""
     err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
-    return {**errors_at(m, sensor, tank, P, objects, err), "gaps_m": sensor_wall_gap_m(sensor, tank, P, objects).tolist(),
-            **error_split(m, sensor, tank, P, K, objects)}
-
-
-def errors_at(m, sensor, tank, P, objects=(), err=None) -> dict:
-    """The map's error against the reference BEM at the poses ``P`` (:func:`errors_on_own_tank_meshes`, unless
-    given as ``err``): its RMS and largest, the map's own estimate there (RMS), the poses and every receiver's
-    error."""
-    if err is None:
-        err, _ = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
     return {"rms": float(np.sqrt(np.mean(err**2))), "max": float(np.abs(err).max()),
             "estimated_rms": float(np.sqrt(np.mean(m.estimated_error(P) ** 2))), "poses": P.tolist(),
-            "errors": err.tolist()}
+            "errors": err.tolist(), **error_split(m, sensor, tank, P, K, objects)}, K
 
 
 #: the gaps (m) from each of two walls of the study's corner check
@@ -281,8 +278,7 @@ def check_corners(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) 
     """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
     a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
     P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, objects=objects)
-    err, K = errors_on_own_tank_meshes(m, sensor, tank, P, objects)
-    return {**errors_at(m, sensor, tank, P, objects, err), **error_split(m, sensor, tank, P, K, objects)}
+    return errors_at(m, sensor, tank, P, objects)[0]
 
 
 def errors_on_own_tank_meshes(m, sensor, tank, P, objects=()):
