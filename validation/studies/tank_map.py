@@ -364,6 +364,10 @@ def map_vs_psm_figure(m, sensor, tank, z, out: Path, n: int = 25, objects=()):
     psm = calibrated_psm(sensor)
     balls_only = all(isinstance(o, Sphere) for o in objects)   # the PSM's object term: a ball's dipole
     ok = psm_usable(psm, P, tank) & balls_only
+    if objects and balls_only:   # and its spheres clear of the balls: it refuses the other poses (left out)
+        from electrosense.psm.conductance import placement_fits
+
+        ok &= placement_fits(psm, P, tank, objects)
     err_psm = np.full(n, np.nan)
     if ok.any():
         Kp = pose_evaluator("psm", sensor, tank, 1.0, objects, psm_model=psm).conductance(P[ok]).K_S
