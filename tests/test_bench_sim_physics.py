@@ -243,3 +243,40 @@ def test_wall_images_give_each_pose_its_own_tank_mesh_with_exact_near_walls(tmp_
     meshed = PoseSweep(preset("angels-2"), Tank((0.5, 0.4, 0.3)), (), 0.0354, edge_length_m=0.02,
                        tank_grading=0.3).conductance(np.array([[-0.1, 0.16, 0, 0]])).K_S
     assert not np.allclose(meshed, K[:1], rtol=1e-6)     # the physics is not the one-mesh default
+
+
+def test_cli_log_names_a_users_sensor_file_inside_its_folder(tmp_path):
+    """A sensor file given by any path: the log names it relative to its own folder where it lies there, else a
+    copy beside the log (a path in a log never leads out of its folder); a copy that would overwrite another
+    sensor's file is refused before any work, and the file left as it was."""
+    import dataclasses
+
+    from electrosense.meshes.sensor import load_sensor, preset, save_sensor
+    from electrosense.psm import PolySphericalModel
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.cli import main
+
+    model_file = tmp_path / "m.psm.json"
+    PolySphericalModel.collinear([0.0071, 0.0071], [0.2]).save(model_file)
+    probe = dataclasses.replace(preset("angels-2"), name="my-probe")
+    (tmp_path / "sensors").mkdir()
+    save_sensor(probe, tmp_path / "sensors" / "probe.json")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+
+    def sim(out, sensor_file):
+        return CliRunner().invoke(main, ["bench-sim", "-o", str(out), "--sensor", str(sensor_file), "--model", "psm",
+                                         "--psm-model", str(model_file), "--path", "wall-to-wall:5"])
+
+    inside = sim(tmp_path / "in.csv", (tmp_path / "sensors" / "probe.json").resolve())
+    assert inside.exit_code == 0, inside.output
+    assert read_bench_log(tmp_path / "in.csv").meta["sensor"] == "sensors/probe.json"
+    outside = sim(elsewhere / "out.csv", tmp_path / "sensors" / "probe.json")
+    assert outside.exit_code == 0, outside.output
+    log = read_bench_log(elsewhere / "out.csv")
+    assert log.meta["sensor"] == "out.sensor.json" and log.sensor == probe
+    other = dataclasses.replace(probe, name="another")
+    save_sensor(other, elsewhere / "clash.sensor.json")
+    clash = sim(elsewhere / "clash.csv", tmp_path / "sensors" / "probe.json")
+    assert clash.exit_code == 1 and "describes another sensor" in clash.output and "computing" not in clash.output
+    assert load_sensor(elsewhere / "clash.sensor.json") == other and not (elsewhere / "clash.csv").exists()

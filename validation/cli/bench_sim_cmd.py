@@ -1,6 +1,8 @@
 """``esense bench-sim``: the virtual bench, on a pseudo-terminal, a socket, or straight into a file."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from electrosense.validation.cli._parsing import finite_float, parse_tank
@@ -140,6 +142,15 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         meta_text += f",depth={depth:g}"
     meta = parse_meta_option(meta_text)
     meta.update({"temperature_C": temperature, "voltage_V": voltage})
+    if output is not None:   # what the log will call the sensor (a file in its folder), checked before any work
+        from electrosense.validation.bench.log.writer import sensor_for_log
+
+        try:
+            if Path(output).exists() and not overwrite:
+                raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
+            meta["sensor"] = sensor_for_log(sens, output, sensor, overwrite, write=False)
+        except (FileExistsError, ValueError) as exc:
+            raise click.ClickException(str(exc)) from None
 
     say(f"bench-sim: computing {len(poses)} samples with the {model.upper()} ...")
     try:
@@ -159,6 +170,7 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         frame = pd.DataFrame(rows, columns=list(run.columns))
         meta["source"] = f"{bench.describe()}; path {path_spec} x {passes} pass(es) at {rate:g} Hz"
         try:
+            meta["sensor"] = sensor_for_log(sens, output, sensor, overwrite)
             write_bench_log(output, meta, frame, overwrite=overwrite)
         except (FileExistsError, ValueError) as exc:
             raise click.ClickException(str(exc)) from None

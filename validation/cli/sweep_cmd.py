@@ -27,16 +27,14 @@ _OUTPUT_SUFFIXES = (".csv", ".zarr", ".nc")
 PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a worker process takes ~2 s to start
 
 
-def _sensor_spec_for_log(sensor, out: Path) -> str:
-    """What the bench log's meta calls the sensor: a preset name, or a sensor file beside the log."""
-    from electrosense.meshes.sensor import PRESETS, preset, save_sensor
+def _log_sensor(sensor, out: Path, o, write: bool = True) -> str:
+    """The bench log's name for the sensor (:func:`~electrosense.validation.bench.log.writer.sensor_for_log`)."""
+    from electrosense.validation.bench.log.writer import sensor_for_log
 
-    if (sensor.name in PRESETS and preset(sensor.name).n_electrodes == sensor.n_electrodes
-            and preset(sensor.name).with_emitter(sensor.emitter) == sensor):
-        return sensor.name
-    side = out.with_name(out.stem + ".sensor.json")
-    save_sensor(sensor, side)
-    return side.name
+    try:
+        return sensor_for_log(sensor, out, getattr(o, "sensor_spec", None), o.overwrite, write)
+    except FileExistsError as exc:
+        raise click.ClickException(str(exc)) from None
 
 
 def _open_store(store_path: Path, poses, sensor, identity: dict, chunk_poses: int, attrs: dict, ours: bool,
@@ -218,6 +216,8 @@ def _sweep(o):
     store_path = out if final is None else out.with_name(out.name + ".partial.zarr")
     if final is not None and final.exists() and o.overwrite and store_path.exists():
         remove_store(store_path)  # --overwrite: the run starts over, not from an older partial run
+    if final is not None and final.suffix == ".csv":   # the sensor file the log will name, checked before any work
+        _log_sensor(sensor, final, o, write=False)
 
     bem_options = {} if edge_length_m is None else {"edge_length_m": edge_length_m}
     if o.tank_edge_length_m is not None:
@@ -295,7 +295,7 @@ def _sweep(o):
 
         source = f"esense sweep --model {model} ({dict(bem='BEM', psm='PSM', map='tank map of the BEM')[model]}; {code_version()})"
         meta = {
-            "sensor": _sensor_spec_for_log(sensor, out),
+            "sensor": _log_sensor(sensor, out, o),
             "emitter": sensor.emitter,
             **tank_meta(tank),
             "sigma_S_per_m": float(sigma),

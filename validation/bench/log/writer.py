@@ -334,6 +334,47 @@ def write_bench_log(path, meta: dict, data, overwrite: bool = False, comments: S
     return path
 
 
+def sensor_for_log(sensor, log_path, given: str | None = None, overwrite: bool = False, write: bool = True) -> str:
+    """What the meta of the bench log ``log_path`` calls ``sensor``: a preset name, the sensor file ``given``
+    where it lies in the log's folder or below it (as a relative path: a path in a log is data, never a way out
+    of its folder), or else a sensor file written beside the log, ``<stem>.sensor.json``.
+
+    An existing ``<stem>.sensor.json`` of another sensor is refused (``FileExistsError``) unless ``overwrite``;
+    ``write=False`` checks and names it without writing (before a long computation whose log will name it).
+
+    Example
+    -------
+    >>> from electrosense.meshes.sensor import preset
+    >>> sensor_for_log(preset("angels-4"), "run.csv")
+    'angels-4'
+    >>> sensor_for_log(preset("angels-4").with_emitter(1), "run.csv", write=False)
+    'run.sensor.json'
+    """
+    from electrosense.meshes.sensor import PRESETS, load_sensor, preset, save_sensor
+
+    log_path = Path(log_path)
+    if (sensor.name in PRESETS and preset(sensor.name).n_electrodes == sensor.n_electrodes
+            and preset(sensor.name).with_emitter(sensor.emitter) == sensor):
+        return sensor.name
+    folder = log_path.parent.resolve()
+    if given is not None and str(given) not in PRESETS and Path(given).is_file():
+        file = Path(given).resolve()
+        if file.is_relative_to(folder) and load_sensor(file) == sensor:
+            return file.relative_to(folder).as_posix()
+    side = log_path.with_name(log_path.stem + ".sensor.json")
+    if side.exists() and not overwrite:
+        try:
+            same = load_sensor(side) == sensor
+        except ValueError:
+            same = False
+        if not same:
+            raise FileExistsError(f"{side} exists and describes another sensor; the log {log_path.name} would name "
+                                  "it: move it, choose another output file, or pass overwrite")
+    if write:
+        save_sensor(sensor, side)
+    return side.name
+
+
 def bench_log_table(poses, U_V, currents_A, receivers, t_s=None, passes=None, temp_C=None) -> dict:
     """The columns of a bench log (format version 1) from arrays, in the spec's order.
 
