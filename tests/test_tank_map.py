@@ -706,6 +706,18 @@ def test_sweep_with_the_map_and_map_info(built, tmp_path):
     assert out.exists()
     res = CliRunner().invoke(main, ["map", "info", str(path)])
     assert res.exit_code == 0 and "BEM poses" in res.output, res.output
+    # the map's own scene said again (a user's scene file or sensor) is taken; another sensor or tank refused
+    from electrosense.meshes.sensor import save_sensor
+
+    m, _ = built
+    save_sensor(m.sensor, tmp_path / "its.json")
+    line = ["--model", "map", "--map", str(path), "--from", "-0.05,0", "--to", "0.05,0", "--steps", "3", "--quiet"]
+    res = CliRunner().invoke(main, ["sweep", "--sensor", str(tmp_path / "its.json"), *line, "-o", str(tmp_path / "a.zarr")])
+    assert res.exit_code == 0, res.output
+    for other, words in ((["--sensor", "angels-2"], "the sensor given is not the map's"),
+                         (["--tank", "2,2,2"], "the tank or the fixed objects given are not the map's")):
+        res = CliRunner().invoke(main, ["sweep", *other, *line, "-o", str(tmp_path / "b.zarr")])
+        assert res.exit_code == 2 and words in res.output and not (tmp_path / "b.zarr").exists(), res.output
     # poses off the map are refused before any worker starts: one line naming the first, nothing written
     off = tmp_path / "off.csv"
     res = CliRunner().invoke(main, ["sweep", "--model", "map", "--map", str(path), "--from", "-0.5,0", "--to",

@@ -146,11 +146,13 @@ def map_option(path, option: str = "--map"):
 
 
 def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unbounded=False, depth_m=None,
-                       pose_text=None, sigma=None, edge_length_m=None, default_tank=None, **_ignored):
+                       pose_text=None, sigma=None, edge_length_m=None, default_tank=None, default_sensor=None,
+                       **_ignored):
     """The one reader of the shared scene options: ``(Scene, sigma_S_per_m, scene-file settings)``.
 
     The scene file first, the options over it; errors name the option as the user typed it.
-    ``default_tank``: the tank when neither the options nor a scene give one and ``--unbounded`` is not set.
+    ``default_tank``: the tank when neither the options nor a scene give one and ``--unbounded`` is not set;
+    ``default_sensor``: the sensor when neither give one (else that is refused).
     """
     from dataclasses import replace
 
@@ -170,6 +172,8 @@ def scene_from_options(scene_file=None, sensor_spec=None, tank_text=None, unboun
         except (SceneFileError, ValueError) as exc:
             raise click.BadParameter(str(exc), param_hint="--scene") from None
     sensor = sensor_option(sensor_spec) if sensor_spec else None
+    if scene is None and sensor is None:
+        sensor = default_sensor
     if scene is None and sensor is None:
         raise click.UsageError("no sensor: give --sensor (a preset or a sensor file) or --scene")
     tank = parse_tank(tank_text) if tank_text else None

@@ -97,7 +97,8 @@ def _bench_log_frame(C, poses, index=None):
               help="bem: the boundary-element reference; psm: the poly-spherical model; map: a tank map "
                    "(`esense map build`, given with --map; its sensor, tank and depth are the scene).")
 @click.option("--map", "map_file", type=click.Path(exists=True, dir_okay=False),
-              help="Tank map file (with --model map).")
+              help="Tank map file (with --model map): its sensor, tank and objects; a --scene, --sensor or --tank "
+                   "given beside it must be the same (the scene's sensor height is then the default --z).")
 @click.option("--psm", "psm_file", type=click.Path(exists=True, dir_okay=False),
               help="PSM model file (from `esense calibrate`); default: calibrate on the sensor's free-space BEM (cached).")
 @scene_options(pose=False, tank_default="1,1,1")
@@ -164,6 +165,26 @@ def sweep(**options):
         raise click.ClickException(str(exc)) from None
 
 
+def _same_scene_as_map(o, tank_map):
+    """``(Scene, its [water] sigma or None)`` of the scene options given beside ``--map``, refused where the
+    sensor, the tank or the fixed objects differ from the map's (the map answers for its own scene only)."""
+    from electrosense.validation.simulation.tank_map import same_scene
+
+    scene, _, settings = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
+                                            default_tank=tank_map.tank, default_sensor=tank_map.sensor)
+    differs = []
+    if scene.sensor.to_dict() != tank_map.sensor.to_dict():
+        differs.append("the sensor given is not the map's")
+    if (o.scene_file or o.tank_text) and not same_scene(scene.tank, tuple(scene.objects), tank_map.tank,
+                                                         tank_map.objects):
+        differs.append("the tank or the fixed objects given are not the map's")
+    if differs:
+        raise click.BadParameter(f"{'; '.join(differs)} ({o.map_file}): a map answers for its own scene; leave "
+                                 "--scene/--sensor/--tank out to sweep the map's",
+                                 param_hint="--map")
+    return scene, settings.get("water", {}).get("sigma_S_per_m")
+
+
 def _sweep(o):
     from electrosense.meshes.tank import Tank
     from electrosense.validation.simulation.models import code_version, pose_evaluator
@@ -184,11 +205,14 @@ def _sweep(o):
         from electrosense.validation.cli._parsing import map_option
         from electrosense.validation.defaults import NOMINAL_SIGMA_S_PER_M
 
-        if o.sensor_spec or o.scene_file or o.tank_text:
-            raise click.BadParameter("with --model map the sensor and the tank are the map's", param_hint="--map")
         tank_map = map_option(o.map_file)
         sensor, tank, objects = tank_map.sensor, tank_map.tank, tank_map.objects
         sigma = o.sigma or tank_map.sigma_S_per_m or NOMINAL_SIGMA_S_PER_M
+        if o.sensor_spec or o.scene_file or o.tank_text:   # the map's scene, said again: checked, never mixed
+            given = _same_scene_as_map(o, tank_map)
+            sigma = o.sigma or given[1] or sigma
+            if o.z_m is None and o.scene_file:
+                o.z_m = given[0].pose.z_m
         o.z_m = tank_map.z_range_m[0] if o.z_m is None else o.z_m
     else:
         scene, sigma, _ = scene_from_options(**{k: getattr(o, k) for k in SCENE_OPTION_NAMES if hasattr(o, k)},
