@@ -96,3 +96,11 @@ def test_a_study_that_needs_an_extra_is_refused_before_any_work(tmp_path, monkey
         r = _run(*cmd)
         assert r.exit_code != 0 and "needs zarr: pip install 'electrosense[sweep]'" in r.output, r.output
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("z", ["nan", "0:inf", "-0.1:0.1:0.2", "0.1:-0.1"])
+def test_map_build_names_a_bad_height(tmp_path, z):
+    """A height that is no finite number, or a band upside down, is refused naming ``--z`` before any work."""
+    res = CliRunner().invoke(main, ["map", "build", "--sensor", "angels-4", "--tank", "0.6,0.5,0.4", "--z", z,
+                                    "-o", str(tmp_path / "m.npz")])
+    assert res.exit_code == 2 and "--z" in res.output and not list(tmp_path.iterdir()), res.output

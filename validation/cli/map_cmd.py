@@ -1,6 +1,8 @@
 """``esense map build`` / ``esense map info``: the BEM over every pose a robot can reach, as one file (a tank map)."""
 from __future__ import annotations
 
+import math
+
 import click
 
 from electrosense.validation.cli._parsing import finite_float, sensor_option
@@ -40,6 +42,8 @@ def parse_depths(text: str):
         z = [float(v) for v in text.split(":")]
     except ValueError:
         raise click.BadParameter(f"{text!r}: expected Z or Z0:Z1 (m)", param_hint="--z") from None
+    if not all(map(math.isfinite, z)):
+        raise click.BadParameter(f"{text!r}: a height must be a finite number (m)", param_hint="--z")
     if len(z) == 1:
         return z[0]
     if len(z) == 2 and z[0] < z[1]:
