@@ -22,6 +22,29 @@ def test_closed_form_leave_one_out_equals_refitting():
         assert loo[i] == pytest.approx(direct, rel=1e-6, abs=1e-9)
 
 
+def test_a_node_and_its_mirror_images_are_left_out_together():
+    """A tank map's node lends the interpolant its mirror image across a symmetry plane, with its value: left
+    out alone, the node was predicted from its own image, and the closed form said it was known. With ``groups``
+    the block form equals refitting without the node and its image, and is larger beside the plane."""
+    rng = np.random.default_rng(1)
+    X = rng.uniform(-1, 1, (30, 2))
+    X[:, 1] = np.abs(X[:, 1])                       # the fundamental domain y >= 0 of a function even in y
+    near = np.flatnonzero(X[:, 1] < 0.3)
+    XA = np.vstack([X, X[near] * [1.0, -1.0]])      # the images across y = 0
+    y = np.sin(2 * XA[:, :1]) * np.cos(XA[:, 1:])
+    groups = np.r_[np.arange(len(X)), near]
+    grouped = RBFInterpolant(XA, y, degree=2, groups=groups).leave_one_out
+    for i in range(len(X)):
+        keep = groups != i
+        rows = np.flatnonzero(~keep)                  # the node, and its image where it has one
+        direct = y[rows] - RBFInterpolant(XA[keep], y[keep], degree=2)(XA[rows])
+        np.testing.assert_allclose(grouped[rows], direct, rtol=1e-6, atol=1e-9)
+    alone = RBFInterpolant(XA, y, degree=2).leave_one_out
+    assert np.sqrt(np.mean(grouped[near] ** 2)) > 2 * np.sqrt(np.mean(alone[near] ** 2))
+    with pytest.raises(ValueError, match="one label per node"):
+        RBFInterpolant(XA, y, groups=groups[:-1])
+
+
 def test_regressors_enter_the_fit_the_leave_one_out_errors_and_the_gradient():
     """A field that is a cheaper model's values scaled, plus a smooth remainder: its leave-one-out errors in closed
     form are those of refitting, and its gradient carries the regressors' own."""

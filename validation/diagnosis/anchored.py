@@ -133,6 +133,12 @@ class RBFInterpolant:
     function of the coarse K, came 1.1-5x closer at left-out nodes than as a
     function of the pose alone (four maps, 12-60 reference poses).
 
+    ``groups`` (B,): rows that are one datum, left out together (a node and
+    its mirror images across a symmetry plane, which carry its value: left
+    in, they would predict the node from itself). A group's error is the
+    block form of Rippa's formula, e_G = ((M^-1)_GG)^-1 c_G, each row's
+    error that of its group left out.
+
     Example
     -------
     Nodes on a line, jittered by 0.1 mm across it: the trend is along the line only.
@@ -163,7 +169,7 @@ class RBFInterpolant:
     """
 
     def __init__(self, X: np.ndarray, y: np.ndarray, min_trend_spread_m: float | None = None, degree: int = 1,
-                 regressors: np.ndarray | None = None):
+                 regressors: np.ndarray | None = None, groups: np.ndarray | None = None):
         self.X = np.asarray(X, float)
         y = np.asarray(y, float)
         self.shape = y.shape[1:]
@@ -193,6 +199,14 @@ class RBFInterpolant:
         self.coef = Minv @ rhs
         diag = np.diag(Minv)[:B]
         loo = self.coef[:B] / np.where(np.abs(diag) > 0, diag, np.inf)[:, None]
+        if groups is not None:   # rows of one datum left out together: the block form of Rippa's formula
+            groups = np.asarray(groups)
+            if groups.shape != (B,):
+                raise ValueError(f"groups must give one label per node ({B}), got shape {groups.shape}")
+            labels, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+            for g in np.flatnonzero(counts > 1):
+                rows = np.flatnonzero(inverse == g)
+                loo[rows] = np.linalg.lstsq(Minv[np.ix_(rows, rows)], self.coef[rows], rcond=None)[0]
         self.leave_one_out = loo.reshape((B,) + self.shape)
 
     @classmethod

@@ -26,7 +26,8 @@ once per sensor, tank (box or cylinder, with its fixed objects) and depth:
    :class:`~electrosense.validation.diagnosis.anchored.RBFInterpolant`, and,
    where the leave-one-out errors favour them, the walls' mirror images of the
    electrodes and their powers as linear regressors: :meth:`TankMap._fit_coarse`), its
-   leave-one-out error at every node, and the error estimated anywhere from
+   leave-one-out error at every node (a node and its mirror images across the fold's faces left out together),
+   and the error estimated anywhere from
    the nearest nodes' (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`);
    the many poses are solved on a coarser sensor mesh, and the correction to
    the reference sensor mesh, known at fewer poses, is interpolated as a linear
@@ -474,7 +475,10 @@ class TankMap:
             # with the nodes' mirror images across the fold's faces (MapFrame.mirror_ghosts)
             Xg, src, odd = self.frame.mirror_ghosts(X, GHOST_REACH)
             L_coarse = np.log(pair_values(self._permuted(K_nodes, src, odd), self._pair_emitter) / self._free_pairs)
-            interp = self._fit_coarse(np.vstack([X, Xg]), L_coarse, np.vstack([self.nodes, self.nodes[src]]))
+            # a node and its images are one datum, left out together (RBFInterpolant's groups): left in, an
+            # image predicted its node from itself, and a node near a face of the fold seemed known
+            interp = self._fit_coarse(np.vstack([X, Xg]), L_coarse, np.vstack([self.nodes, self.nodes[src]]),
+                                      np.r_[np.arange(len(X)), src])
             self.fitted = {"X": np.vstack([X, Xg]), "coef": interp.coef, "loo": interp.leave_one_out,
                            "images": np.array(interp.n_regressors // max(self.frame.n_wall_images, 1))}
             if len(self.ref_index):
@@ -485,7 +489,7 @@ class TankMap:
                 d = np.log(pair_values(K_ref, self._pair_emitter) / pair_values(K_at, self._pair_emitter))
                 L_at = np.log(pair_values(K_at, self._pair_emitter) / self._free_pairs)
                 Xr = np.vstack([Xr, Xrg])
-                corr, pairs = self._fit_correction(Xr, d, L_at)
+                corr, pairs = self._fit_correction(Xr, d, L_at, np.r_[np.arange(len(self.ref_index)), src_r])
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
                                     "regressors_ref": pairs})
         self._images = int(self.fitted.get("images", 0))   # the powers of the images (0: none; True: 1)
@@ -508,39 +512,42 @@ class TankMap:
             ghosts[odd] = ghosts[odd][..., self._perm, :][..., :, self._perm]
         return np.concatenate([K, ghosts])
 
-    def _fit_coarse(self, X, L_coarse, poses):
+    def _fit_coarse(self, X, L_coarse, poses, groups=None):
         """log(K_coarse / K_free) (B, pairs) at ``poses`` (B, 4; a mirror image's at its node's, whose images in
         the walls are its own) interpolated over the features ``X``: radial basis functions with a
         quadratic trend (:data:`RBF_DEGREE`), with the walls' images as linear regressors
         (:meth:`MapFrame.wall_images`), their first :data:`IMAGE_POWERS` powers or the first alone, or without,
         whichever is closer at left-out nodes (RMS over the receivers). In boxes the images came 1.2-2x closer at
         left-out nodes and 1.2-1.5x at fresh poses (three maps of 324-612 poses); in a cylinder, whose folded map
-        has two coordinates, they did not."""
+        has two coordinates, they did not. ``groups``: the rows left out together (a node and its mirror
+        images)."""
         from electrosense.validation.diagnosis.anchored import RBFInterpolant, trend_terms
 
-        best = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE)
+        best = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE, groups=groups)
         R = self.frame.wall_images(poses)
         for powers in sorted({1, IMAGE_POWERS}):   # the first alone, then all
             if len(X) <= 2 * (trend_terms(X.shape[1], RBF_DEGREE) + powers * R.shape[1]):   # too few nodes
                 break
-            imaged = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE, regressors=image_powers(R, powers)[0])
+            imaged = RBFInterpolant(X, L_coarse, degree=RBF_DEGREE, regressors=image_powers(R, powers)[0],
+                                    groups=groups)
             if self._receiver_rms(imaged) < self._receiver_rms(best):
                 best = imaged
         return best
 
-    def _fit_correction(self, X_ref, d, L_coarse):
+    def _fit_correction(self, X_ref, d, L_coarse, groups=None):
         """The correction ``d`` = log(K_ref / K_coarse) (F, pairs) interpolated over the features ``X_ref``: as a
         function of the pose alone (quintic, :data:`RBF_DEGREE`), or as a linear function of the coarse log ratio
         of the emitter's pairs ``L_coarse`` (F, pairs) plus a cubic remainder (the regressors of
         :class:`RBFInterpolant`), whichever is closer at left-out reference poses (RMS over the receivers);
-        returns the interpolant and the pairs it regresses on (empty: the pose alone)."""
+        returns the interpolant and the pairs it regresses on (empty: the pose alone); ``groups`` as in
+        :meth:`_fit_coarse`."""
         from electrosense.validation.diagnosis.anchored import RBFInterpolant
 
-        plain = RBFInterpolant(X_ref, d, degree=RBF_DEGREE)
+        plain = RBFInterpolant(X_ref, d, degree=RBF_DEGREE, groups=groups)
         pairs = np.asarray(self._rec, int)
         if len(X_ref) <= X_ref.shape[1] + len(pairs) + 2:   # too few poses for the regression and a linear trend
             return plain, np.zeros(0, int)
-        linked = RBFInterpolant(X_ref, d, degree=1, regressors=L_coarse[:, pairs])
+        linked = RBFInterpolant(X_ref, d, degree=1, regressors=L_coarse[:, pairs], groups=groups)
         if self._receiver_rms(linked) < self._receiver_rms(plain):
             return linked, pairs
         return plain, np.zeros(0, int)
