@@ -165,6 +165,12 @@ def sweep(**options):
         raise click.ClickException(str(exc)) from None
 
 
+def _scene_given(o, tank_only: bool = False) -> bool:
+    """Whether the options say a scene (its tank, with ``tank_only``) beside the one a map carries."""
+    tank = bool(o.scene_file or o.tank_text or getattr(o, "unbounded", False) or getattr(o, "depth_m", None) is not None)
+    return tank or (not tank_only and bool(o.sensor_spec))
+
+
 def _same_scene_as_map(o, tank_map):
     """``(Scene, its [water] sigma or None)`` of the scene options given beside ``--map``, refused where the
     sensor, the tank or the fixed objects differ from the map's (the map answers for its own scene only)."""
@@ -175,12 +181,12 @@ def _same_scene_as_map(o, tank_map):
     differs = []
     if scene.sensor.to_dict() != tank_map.sensor.to_dict():
         differs.append("the sensor given is not the map's")
-    if (o.scene_file or o.tank_text) and not same_scene(scene.tank, tuple(scene.objects), tank_map.tank,
-                                                         tank_map.objects):
+    if _scene_given(o, tank_only=True) and not same_scene(scene.tank, tuple(scene.objects), tank_map.tank,
+                                                          tank_map.objects):
         differs.append("the tank or the fixed objects given are not the map's")
     if differs:
         raise click.BadParameter(f"{'; '.join(differs)} ({o.map_file}): a map answers for its own scene; leave "
-                                 "--scene/--sensor/--tank out to sweep the map's",
+                                 "--scene/--sensor/--tank/--depth out to sweep the map's",
                                  param_hint="--map")
     return scene, settings.get("water", {}).get("sigma_S_per_m")
 
@@ -208,7 +214,7 @@ def _sweep(o):
         tank_map = map_option(o.map_file)
         sensor, tank, objects = tank_map.sensor, tank_map.tank, tank_map.objects
         sigma = o.sigma or tank_map.sigma_S_per_m or NOMINAL_SIGMA_S_PER_M
-        if o.sensor_spec or o.scene_file or o.tank_text:   # the map's scene, said again: checked, never mixed
+        if _scene_given(o):   # the map's scene, said again: checked, never mixed
             given = _same_scene_as_map(o, tank_map)
             sigma = o.sigma or given[1] or sigma
             if o.z_m is None and o.scene_file:
