@@ -280,3 +280,5 @@ def test_cli_log_names_a_users_sensor_file_inside_its_folder(tmp_path):
     clash = sim(elsewhere / "clash.csv", tmp_path / "sensors" / "probe.json")
     assert clash.exit_code == 1 and "describes another sensor" in clash.output and "computing" not in clash.output
     assert load_sensor(elsewhere / "clash.sensor.json") == other and not (elsewhere / "clash.csv").exists()
+    nowhere = sim(tmp_path / "no such folder" / "run.csv", tmp_path / "sensors" / "probe.json")
+    assert nowhere.exit_code == 1 and "does not exist" in nowhere.output and "computing" not in nowhere.output

@@ -148,6 +148,8 @@ def bench_sim(use_pty, port, output, overwrite, link, sensor, emitter, model, ps
         try:
             if Path(output).exists() and not overwrite:
                 raise FileExistsError(f"{output} exists; pass --overwrite to replace it")
+            if not Path(output).parent.is_dir():
+                raise ValueError(f"{output}: its folder {Path(output).parent} does not exist")
             meta["sensor"] = sensor_for_log(sens, output, sensor, overwrite, write=False)
         except (FileExistsError, ValueError) as exc:
             raise click.ClickException(str(exc)) from None

@@ -128,6 +128,7 @@ def plot_tank_map(ds, png_path, quantity: str = "resistance", yaw_index: int = 0
     radius_m = float(cylinder["radius_m"]) if cylinder else None
     sections = object_sections(ds.attrs.get("objects"), extent, z)
     width_in = panel_px / DPI
+    # the panel at the tank's aspect, and 1.3 in for the colour bar, the panel's title and the figure's
     height_in = width_in * (extent[3] - extent[2]) / max(extent[1] - extent[0], 1e-12) + 1.3
     fig, axes = new_figure(1, len(receivers), (width_in, height_in))
     for k, receiver in enumerate(receivers):
