@@ -344,10 +344,11 @@ def sensor_for_log(sensor, log_path, given: str | None = None, overwrite: bool =
 
     Example
     -------
+    >>> import dataclasses
     >>> from electrosense.meshes.sensor import preset
-    >>> sensor_for_log(preset("angels-4"), "run.csv")
+    >>> sensor_for_log(preset("angels-4").with_emitter(1), "run.csv")      # a preset: the meta names the emitter
     'angels-4'
-    >>> sensor_for_log(preset("angels-4").with_emitter(1), "run.csv", write=False)
+    >>> sensor_for_log(dataclasses.replace(preset("angels-4"), name="my-probe"), "run.csv", write=False)
     'run.sensor.json'
     """
     from electrosense.meshes.sensor import PRESETS, load_sensor, preset, save_sensor
