@@ -203,7 +203,7 @@ class RBFInterpolant:
             groups = np.asarray(groups)
             if groups.shape != (B,):
                 raise ValueError(f"groups must give one label per node ({B}), got shape {groups.shape}")
-            labels, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
+            _, inverse, counts = np.unique(groups, return_inverse=True, return_counts=True)
             for g in np.flatnonzero(counts > 1):
                 rows = np.flatnonzero(inverse == g)
                 loo[rows] = np.linalg.lstsq(Minv[np.ix_(rows, rows)], self.coef[rows], rcond=None)[0]
