@@ -41,8 +41,8 @@ from numba import njit, prange
 from electrosense.bem.quadrature import DUNAVANT_5, rule_points
 from electrosense.bem.triangle_integrals import inverse_distance_integral, solid_angle
 
-__all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "mixed_system_reduced", "TriangleSet",
-           "NEAR", "MID", "FAR"]
+__all__ = ["single_layer", "double_layer", "layer_matrices", "mixed_system", "mixed_system_reduced", "mixed_entries",
+           "TriangleSet", "NEAR", "MID", "FAR"]
 
 #: distance (in triangle diameters) below which the single layer is integrated exactly
 NEAR = 2.0
@@ -201,3 +201,43 @@ def mixed_system_reduced(points_m, triangles, own, c_single, c_double, group, n_
                   np.ascontiguousarray(c_double, dtype=float), np.ascontiguousarray(group, dtype=np.int64),
                   np.ascontiguousarray(column_class, dtype=np.int64), A, B)
     return A, B[:, : int(n_groups)]
+
+
+@njit(cache=True)
+def _entries_kernel(points, rows, cols, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double,
+                    out):
+    n_cols = cols.shape[0]
+    for ab in range(rows.shape[0] * n_cols):     # serial: a row or a column is short, and a thread pool started
+        a, b = ab // n_cols, ab % n_cols
+        i, j = rows[a], cols[b]
+        sl, dl = _pair(points[i, 0], points[i, 1], points[i, 2], j, False, tri, cen, area, diam, nrm, qp, qw,
+                       near2, mid2, far2)
+        out[a, b] += c_single[j] * sl + c_double[j] * dl
+
+
+def mixed_entries(points_m, triangles, rows, cols, c_single, c_double, out=None, near=NEAR, mid=MID, far=FAR):
+    """The entries ``(rows, cols)`` of :func:`mixed_system`'s ``A`` for points off the triangles (no point is a
+    triangle's own centroid: an image, a point of another surface), ``c_single S + c_double D`` with the
+    coefficients of each column, added to ``out`` (len(rows), len(cols)) where given: a row or a column of a
+    block, without the block (:mod:`electrosense.bem.cross_approximation`).
+
+    >>> import trimesh
+    >>> s = trimesh.creation.icosphere(1)
+    >>> t = TriangleSet(s.vertices[s.faces])
+    >>> x = t.centroids + [3.0, 0.0, 0.0]
+    >>> ones, zeros = np.ones(len(t)), np.zeros(len(t))
+    >>> A, _ = mixed_system(x, t, None, ones, zeros, np.full(len(t), -1), 0)
+    >>> rows, cols = np.array([4, 1]), np.array([0, 7, 2])
+    >>> bool(np.allclose(mixed_entries(x, t, rows, cols, ones, zeros), A[np.ix_(rows, cols)]))
+    True
+    """
+    t = triangles if isinstance(triangles, TriangleSet) else TriangleSet(triangles)
+    pts = np.ascontiguousarray(points_m, dtype=float).reshape(-1, 3)
+    rows = np.ascontiguousarray(np.atleast_1d(rows), dtype=np.int64)
+    cols = np.ascontiguousarray(np.atleast_1d(cols), dtype=np.int64)
+    if out is None:
+        out = np.zeros((len(rows), len(cols)))
+    _entries_kernel(pts, rows, cols, t.triangles, t.centroids, t.areas, t.diameters, t.normals, t.rule_points,
+                    t.rule_weights, near * near, mid * mid, far * far, np.ascontiguousarray(c_single, dtype=float),
+                    np.ascontiguousarray(c_double, dtype=float), out)
+    return out

@@ -73,12 +73,13 @@ import scipy.sparse as sp
 from electrosense.bem.axisymmetric import AXISYMMETRIC_TARGETS_PER_CLASS, is_axisymmetric_sensor, solve_axisymmetric
 from electrosense.bem.boundary_conditions import WaterBoundary
 from electrosense.bem.conductance import ConductanceMatrix, check_conductivity, isolate
+from electrosense.bem.cross_approximation import cross_approximation, recompressed
 from electrosense.bem.edge_correction import free_space_correction_with_K, scaled_to_scene
 from electrosense.bem.image_plane import split_image_faces
 from electrosense.bem.linear_solve import SingularSystemError, factorise, refine, solve_refined
 from electrosense.bem.low_rank import right_singular_vectors
 from electrosense.bem.memory import check_bytes, check_memory
-from electrosense.bem.operators import TriangleSet, mixed_system
+from electrosense.bem.operators import TriangleSet, mixed_entries, mixed_system, mixed_system_reduced
 from electrosense.bem.shape_derivative import layer_part, shape_derivatives, surface_gradient_operator
 from electrosense.bem.solution import solve
 from electrosense.bem.solve import check_object_materials
@@ -96,6 +97,16 @@ WALL_SPLIT_RADIUS_FACTOR = 0.6
 #: itself it moved K by 1.8e-5 where the coupling's truncation moves it by 6e-6 (angels-4 parallel to the 1 m
 #: tank's wall 5 mm from it, ``tol = 1e-5``)
 IMAGE_TOL_FACTOR = 0.1
+
+#: the sensor's own image is cross-approximated (:meth:`PoseSweep._sensor_image_low_rank`) on a sensor mesh of
+#: at least this many triangles (on fewer its assembly costs less than the approximation), to this factor times
+#: its truncation in the Frobenius norm (the block's singular values fall slowly past the truncation: rank 52 at
+#: 1e-5 of the largest and 84 at 1e-5 of the Frobenius norm, 117 and 217 at 1e-6; a random 4-electrode sensor of
+#: 1 944 triangles at a corner of the tank), where that is at least ``IMAGE_CROSS_MIN_TOL``: the tank map's poses
+#: (``tol`` 1e-5, the Frobenius 1e-5: ranks 133-185 of 8 242 triangles 5-12 mm from a wall, K within 5e-6 of
+#: the assembled images' and a pose 1.8x faster), not the BEM's default (``tol`` 1e-6: past N / 4 terms at a
+#: corner with the floor 3 cm below, and the assembly pays)
+IMAGE_CROSS_MIN_TRIANGLES, IMAGE_CROSS_TOL_FACTOR, IMAGE_CROSS_MIN_TOL = 4000, 10.0, 1e-5
 
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
@@ -593,8 +604,8 @@ class PoseSweep:
         ``pose``. Without image planes the block is the pose's invariant ``A_ss`` (stored factors). With them it
         is ``A_ss + M``, ``M`` the sum of the sensor's own images (its collocation points reflected: smooth
         kernels at least twice the gap away), of low rank: ``M ~ P Q^T`` with ``Q^T`` its right singular vectors
-        to :data:`IMAGE_TOL_FACTOR` x ``tol``, solved by the Woodbury formula on the stored factors,
-        ``(A + P Q^T)^-1 = A^-1 - A^-1 P (I + Q^T A^-1 P)^-1 Q^T A^-1``."""
+        to :data:`IMAGE_TOL_FACTOR` x ``tol`` (:meth:`_sensor_image_low_rank`), solved by the Woodbury formula on
+        the stored factors, ``(A + P Q^T)^-1 = A^-1 - A^-1 P (I + Q^T A^-1 P)^-1 Q^T A^-1``."""
         def stored(r):
             return scipy.linalg.lu_solve((self._lu, self._piv), r.astype(self._lu.dtype), check_finite=False
                                          ).astype(float)
@@ -603,17 +614,8 @@ class PoseSweep:
             return self._y0, stored
         R, t = rotation_z(pose[3]), pose[:3]
         s = TriangleSet(self.sensor_tris.triangles @ R.T + t)
-        M = B_image = None
-        for points in self._images(s.centroids):
-            M_k, B_k = mixed_system(points, s, None, self._cs_s, self._cd_s, self._grp_s, self.n)
-            if M is None:
-                M, B_image = M_k, B_k
-            else:                  # in place: the block is the sensor's size (0.56 GB for 8 400 triangles)
-                M += M_k
-                B_image += B_k
-            del M_k
-        Qt, _ = right_singular_vectors(M, IMAGE_TOL_FACTOR * self.tol)
-        AinvP = stored(M @ Qt.T)
+        P, Qt, B_image = self._sensor_image_low_rank(s)
+        AinvP = stored(P)
         capacitance = scipy.linalg.lu_factor(np.eye(len(Qt)) + Qt @ AinvP, check_finite=False)
 
         def solve(r):
@@ -623,6 +625,50 @@ class PoseSweep:
         z = self._y0 - stored(B_image)          # A^-1 (r_s + r_image), r = -B
         y0 = z - AinvP @ scipy.linalg.lu_solve(capacitance, Qt @ z, check_finite=False)
         return y0, solve
+
+    #: the sensor's own image from its rows and columns (:mod:`~electrosense.bem.cross_approximation`) rather than
+    #: assembled whole (False: assembled, the reference the tests compare with)
+    image_by_cross_approximation = True
+
+    def _electrodes_double_layer_at(self, s, images) -> np.ndarray:
+        """Each electrode's double layer summed over the ``images`` of the sensor's collocation points (N, n):
+        :func:`~electrosense.bem.operators.mixed_system`'s ``B`` over the electrodes' triangles alone."""
+        on_e = np.flatnonzero((self._grp_s >= 0) & (self._grp_s < self.n))
+        electrodes = TriangleSet(s.triangles[on_e])
+        none = np.zeros(len(on_e))
+        return sum(mixed_system_reduced(points, electrodes, None, none, none, self._grp_s[on_e], self.n,
+                                        np.zeros(len(on_e), np.int64), 1)[1] for points in images)
+
+    def _sensor_image_low_rank(self, s):
+        """``(P, Qt, B)`` of the sensor's own images at its placed triangles ``s``: ``M ~ P Qt`` (``Qt``
+        orthonormal rows, to :data:`IMAGE_TOL_FACTOR` x ``tol`` of ``M``'s largest singular value) and ``B`` (N,
+        n), each electrode's double layer at the image points (the right-hand side's part).
+
+        ``M`` is of rank 36-56 at 1e-6 (a random 4-electrode sensor of 8 242 triangles 5-12 mm from a wall):
+        its cross approximation evaluates some hundred of its rows and columns where the assembly evaluates
+        all ``N^2`` entries of each image and its SVD costs a third as much again (a reference pose of the tank
+        map 1.8x faster, :data:`IMAGE_CROSS_MIN_TRIANGLES`); ``B`` is summed over the electrodes' triangles alone. A block
+        that does not converge in ``N / 16`` terms is assembled."""
+        images = self._images(s.centroids)
+        N, tol = len(s), IMAGE_TOL_FACTOR * self.tol
+        cross_tol = IMAGE_CROSS_TOL_FACTOR * tol
+        if self.image_by_cross_approximation and N >= IMAGE_CROSS_MIN_TRIANGLES and cross_tol >= IMAGE_CROSS_MIN_TOL:
+            first = int(np.argmin(np.min([np.linalg.norm(p - s.centroids, axis=1) for p in images], axis=0)))
+            M = _images_cross_approximation(images, s, np.arange(N), self._cs_s, self._cd_s, cross_tol, first)
+            if M is not None:
+                P, Qt, _ = recompressed(*M, tol)
+                return P, Qt, self._electrodes_double_layer_at(s, images)
+        M = B_image = None
+        for points in images:
+            M_k, B_k = mixed_system(points, s, None, self._cs_s, self._cd_s, self._grp_s, self.n)
+            if M is None:
+                M, B_image = M_k, B_k
+            else:                  # in place: the block is the sensor's size (0.56 GB for 8 400 triangles)
+                M += M_k
+                B_image += B_k
+            del M_k
+        Qt, _ = right_singular_vectors(M, tol)
+        return M @ Qt.T, Qt, B_image
 
     def conductance(self, poses, progress: bool = False, check: bool = True,
                     wall_derivatives: bool = False) -> ConductanceMatrix:
@@ -721,3 +767,24 @@ class PoseSweep:
                                     shape=(len(tm.region_names), len(region)))
             self._walls = (surface_gradient_operator(T), regions, cross / np.linalg.norm(cross, axis=1, keepdims=True))
         return self._walls
+
+
+def _images_cross_approximation(images, s, cols, c_single, c_double, tol: float, first_row: int):
+    """The cross approximation (:func:`~electrosense.bem.cross_approximation.cross_approximation`) of the sum
+    over ``images`` (each (N, 3), the rows' points) of :func:`~electrosense.bem.operators.mixed_entries` on the
+    triangles ``s``'s columns ``cols``: ``(U, V)`` or None."""
+    n_rows, every = len(images[0]), np.arange(len(images[0]))
+
+    def row(i):
+        out = np.zeros((1, len(cols)))
+        for points in images:
+            mixed_entries(points, s, [i], cols, c_single, c_double, out=out)
+        return out[0]
+
+    def column(j):
+        out = np.zeros((n_rows, 1))
+        for points in images:
+            mixed_entries(points, s, every, cols[j:j + 1], c_single, c_double, out=out)
+        return out[:, 0]
+
+    return cross_approximation(row, column, (n_rows, len(cols)), tol, max_rank=n_rows // 16, first_row=first_row)
