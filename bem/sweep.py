@@ -242,6 +242,9 @@ class PoseSweep:
         self.image_group = None
         self.focus_m = None if focus_m is None else np.asarray(focus_m, float).reshape(-1, 3)
         self.tol = float(tol)
+        # the sensor's own image's cross approximations that converged and that did not, shared with every
+        # with_focus copy (:meth:`_sensor_image_low_rank` stops trying on a sensor where they do not pay)
+        self._image_cross_tally = {"converged": 0, "not": 0}
         if not 0.0 < memory_share <= 1.0:
             raise ValueError(f"memory_share must be in (0, 1], got {memory_share}")
         self.memory_share = float(memory_share)
@@ -647,14 +650,17 @@ class PoseSweep:
         ``M`` is of rank 36-56 at 1e-6 (a random 4-electrode sensor of 8 242 triangles 5-12 mm from a wall):
         its cross approximation evaluates some hundred of its rows and columns where the assembly evaluates
         all ``N^2`` entries of each image and its SVD costs a third as much again (a reference pose of the tank
-        map 1.8x faster, :data:`IMAGE_CROSS_MIN_TRIANGLES`); ``B`` is summed over the electrodes' triangles alone. A block
-        that does not converge in ``N / 16`` terms is assembled."""
+        map 1.6-1.8x faster; :data:`IMAGE_CROSS_MIN_TRIANGLES`); ``B`` is summed over the electrodes' triangles
+        alone. A block that does not converge in ``N / 16`` terms is assembled, and once three more have not
+        converged than have on this sensor (its sweep and every :meth:`with_focus` copy), every block is."""
         images = self._images(s.centroids)
         N, tol = len(s), IMAGE_TOL_FACTOR * self.tol
-        cross_tol = IMAGE_CROSS_TOL_FACTOR * tol
-        if self.image_by_cross_approximation and N >= IMAGE_CROSS_MIN_TRIANGLES and cross_tol >= IMAGE_CROSS_MIN_TOL:
+        cross_tol, tally = IMAGE_CROSS_TOL_FACTOR * tol, self._image_cross_tally
+        if (self.image_by_cross_approximation and N >= IMAGE_CROSS_MIN_TRIANGLES and cross_tol >= IMAGE_CROSS_MIN_TOL
+                and tally["not"] <= tally["converged"] + 2):
             first = int(np.argmin(np.min([np.linalg.norm(p - s.centroids, axis=1) for p in images], axis=0)))
             M = _images_cross_approximation(images, s, np.arange(N), self._cs_s, self._cd_s, cross_tol, first)
+            tally["not" if M is None else "converged"] += 1
             if M is not None:
                 P, Qt, _ = recompressed(*M, tol)
                 return P, Qt, self._electrodes_double_layer_at(s, images)

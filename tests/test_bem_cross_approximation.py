@@ -78,3 +78,17 @@ def test_the_sensors_image_cross_approximated_gives_the_assembled_images_K(monke
     monkeypatch.setattr(PoseSweep, "image_by_cross_approximation", False)
     K_assembled = sweep.conductance(pose).K_S[0]
     assert np.abs(K_cross - K_assembled).max() < 1e-5 * np.abs(K_assembled).max()
+
+
+def test_a_sensor_whose_image_does_not_converge_is_assembled_after_three_tries(monkeypatch):
+    sensor = preset("angels-2")
+    tank = Tank((0.5, 0.35, 0.2))
+    sweep = PoseSweep(sensor, tank, sigma_S_per_m=1.0, edge_length_m=0.012, tol=1e-5, block_cache=False,
+                      edge_correction=False, image_face="wall_y+", tank_near_ratio=0.7)
+    monkeypatch.setattr(sweep_module, "IMAGE_CROSS_MIN_TRIANGLES", 0)
+    tries = []
+    monkeypatch.setattr(sweep_module, "cross_approximation", lambda *a, **k: tries.append(1))   # never converges
+    y = 0.175 - sensor.radius_m - np.linspace(0.006, 0.02, 4)
+    K = [sweep.with_focus(image_face="wall_y+").conductance([[0.0, yy, 0.0, 0.0]]).K_S[0] for yy in y]
+    assert len(tries) == 3
+    assert all(np.isfinite(k).all() for k in K)
