@@ -93,7 +93,8 @@ from electrosense.meshes.sensor import load_sensor
 from electrosense.meshes.surface_electrodes import BodyElectrode, DiscElectrode, PlateElectrode
 from electrosense.meshes.tank import Tank
 
-__all__ = ["load_scene", "load_scene_settings", "save_scene", "scene_to_toml", "apply_overrides", "SceneFileError"]
+__all__ = ["load_scene", "load_scene_settings", "scene_sensor_file", "save_scene", "scene_to_toml", "apply_overrides",
+           "SceneFileError"]
 
 #: tables that carry physics or run settings rather than geometry; passed through
 SETTINGS_TABLES = ("water", "bem", "psm", "contact", "protocol", "tolerance")
@@ -280,6 +281,24 @@ def _objects(path, data) -> list:
             except ValueError as exc:   # a length that is not positive
                 raise SceneFileError(f"{path}: {where}: {exc}") from None
     return objects
+
+
+def scene_sensor_file(path: str | Path) -> Path | None:
+    """The sensor file a scene file's ``[sensor]`` table names, resolved against the scene's folder (None where
+    it names a preset or no sensor): what a bench log made from the scene can name (read the scene with
+    :func:`load_scene`, which checks the entry, first).
+
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> _ = (folder / "bench.toml").write_text('[sensor]\\nfile = "probe.json"\\n')
+    >>> scene_sensor_file(folder / "bench.toml") == (folder / "probe.json").resolve()
+    True
+    """
+    path = Path(path)
+    entry = _read_toml(path).get("sensor", {})
+    if not isinstance(entry, dict) or "file" not in entry:
+        return None
+    return (path.parent / str(entry["file"])).resolve()
 
 
 def load_scene_settings(path: str | Path) -> dict:

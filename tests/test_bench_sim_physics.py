@@ -282,3 +282,32 @@ def test_cli_log_names_a_users_sensor_file_inside_its_folder(tmp_path):
     assert load_sensor(elsewhere / "clash.sensor.json") == other and not (elsewhere / "clash.csv").exists()
     nowhere = sim(tmp_path / "no such folder" / "run.csv", tmp_path / "sensors" / "probe.json")
     assert nowhere.exit_code == 1 and "does not exist" in nowhere.output and "computing" not in nowhere.output
+
+
+def test_a_sweep_of_a_scene_names_the_sensor_file_the_scene_names(tmp_path):
+    """`esense sweep --scene` with a sensor file: the log beside the scene names that file; a log in another
+    folder, or a scene that changes the file's emitter, a copy beside the log."""
+    import dataclasses
+
+    from electrosense.meshes.sensor import preset, save_sensor
+    from electrosense.validation.bench.log import read_bench_log
+    from electrosense.validation.cli import main
+
+    probe = dataclasses.replace(preset("angels-2"), name="my-probe")
+    (tmp_path / "sensors").mkdir()
+    save_sensor(probe, tmp_path / "sensors" / "probe.json")
+    (tmp_path / "elsewhere").mkdir()
+
+    def sweep(scene_text, out):
+        (tmp_path / "bench.toml").write_text('[tank]\nsize_m = [0.8, 0.6, 0.4]\n[sensor]\nfile = "sensors/probe.json"\n'
+                                             + scene_text)
+        run = CliRunner().invoke(main, ["sweep", "--model", "psm", "--scene", str(tmp_path / "bench.toml"), "--from",
+                                        "-0.1,0", "--to", "0.1,0", "--steps", "3", "--quiet", "-o", str(out)])
+        assert run.exit_code == 0, run.output
+        return read_bench_log(out)
+
+    assert sweep("", tmp_path / "run.csv").meta["sensor"] == "sensors/probe.json"
+    away = sweep("", tmp_path / "elsewhere" / "run.csv")
+    assert away.meta["sensor"] == "run.sensor.json" and away.sensor == probe
+    emitter_1 = sweep("emitter = 1\n", tmp_path / "e1.csv")
+    assert emitter_1.meta["sensor"] == "e1.sensor.json" and emitter_1.sensor == probe.with_emitter(1)

@@ -28,11 +28,16 @@ PSM_POSES_PER_EXTRA_WORKER = 200_000  # the PSM does ~10^4 poses/s per core; a w
 
 
 def _log_sensor(sensor, out: Path, o, write: bool = True) -> str:
-    """The bench log's name for the sensor (:func:`~electrosense.validation.bench.log.writer.sensor_for_log`)."""
+    """The bench log's name for the sensor (:func:`~electrosense.validation.bench.log.writer.sensor_for_log`):
+    the ``--sensor`` file, or the file the ``--scene`` names, where it lies in the log's folder."""
+    from electrosense.meshes.scene_file import scene_sensor_file
     from electrosense.validation.bench.log.writer import sensor_for_log
 
+    given = getattr(o, "sensor_spec", None)
+    if not given and getattr(o, "scene_file", None):
+        given = scene_sensor_file(o.scene_file)
     try:
-        return sensor_for_log(sensor, out, getattr(o, "sensor_spec", None), o.overwrite, write)
+        return sensor_for_log(sensor, out, given, o.overwrite, write)
     except FileExistsError as exc:
         raise click.ClickException(str(exc)) from None
 
