@@ -282,3 +282,32 @@ def test_an_autostart_device_marks_what_it_wrote_before_the_host_spoke_as_unhear
            if isinstance(m, DataRecord)}
     written = truth[truth.fate != "unsent"]
     assert got == set(zip(written.boot, written.seq))
+
+
+def test_acquire_names_a_sensor_file_given_by_its_absolute_path_as_the_log_can_read_it(tmp_path):
+    """`esense acquire --meta sensor=/abs/probe.json` (what `esense bench-sim --pty` prints for a sensor file):
+    the log names the file relative to its folder where it lies there, else a copy beside it."""
+    import dataclasses
+
+    from click.testing import CliRunner
+
+    from electrosense.meshes.sensor import preset, save_sensor
+    from electrosense.validation.cli import main
+
+    probe = dataclasses.replace(preset("angels-4"), name="my-probe")
+    save_sensor(probe, tmp_path / "probe.json")
+    (tmp_path / "elsewhere").mkdir()
+    for out, named in ((tmp_path / "run.csv", "probe.json"), (tmp_path / "elsewhere" / "run.csv", "run.sensor.json")):
+        transport = SocketTransport()
+        thread, stop_device = serve_in_thread(BenchDevice(simulated_run(n=40, rate=400.0), transport, rate_hz=400.0))
+        try:
+            run = CliRunner().invoke(main, ["acquire", "--port", transport.url, "-o", str(out), "--quiet", "--samples",
+                                            "10", "--meta", f"sensor={tmp_path / 'probe.json'},emitter=4,tank=1,1,1,"
+                                                            "sigma=0.0354"])
+        finally:
+            stop_device.set()
+            thread.join(5)
+            transport.close()
+        assert run.exit_code == 0, run.output
+        log = read_bench_log(out)
+        assert log.meta["sensor"] == named and log.sensor == probe and len(log) == 10

@@ -51,6 +51,11 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
             meta.update(parse_meta_option(text))
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--meta") from None
+    try:
+        if "sensor" in meta:
+            meta["sensor"] = _log_sensor_name(meta["sensor"], output)
+    except (FileExistsError, ValueError) as exc:
+        raise click.ClickException(str(exc)) from None
 
     try:
         logger = Logger(port, output, meta, baudrate=baud, samples=samples, seconds=seconds, append=append,
@@ -64,3 +69,20 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
     except (FileExistsError, ValueError, OSError) as exc:
         raise click.ClickException(str(exc)) from None
     click.echo(summary.text(), err=True)
+
+
+def _log_sensor_name(spec, output):
+    """What the log calls the ``--meta`` sensor: as given where the log can read it (a preset, a file in the
+    log's folder), and a sensor file given by a path from here that the log's folder does not hold by its name
+    (an absolute path, one from the working folder) as :func:`sensor_for_log` names it (relative to the log's
+    folder where it lies there, else a copy beside the log): a path in a log never leads out of its folder."""
+    from pathlib import Path
+
+    from electrosense.meshes.sensor import PRESETS, load_sensor
+    from electrosense.validation.bench.log.writer import sensor_for_log
+
+    if not isinstance(spec, str) or spec in PRESETS or not Path(spec).is_file():
+        return spec
+    if not Path(spec).is_absolute() and (Path(output).parent / spec).is_file():
+        return spec
+    return sensor_for_log(load_sensor(spec), output, spec)
