@@ -243,43 +243,41 @@ def _scene_electrodes(path, data, tank) -> list:
 
 
 def _sensor(path, s):
-    if True:
-        _unknown(path, "[sensor]", s, {"preset", "file", "pose", "emitter"})
-        if ("preset" in s) == ("file" in s):
-            raise SceneFileError(f"{path}: [sensor] needs exactly one of preset = \"...\" or file = \"...\"")
-        sensor = load_sensor(s["preset"]) if "preset" in s else load_sensor(s["file"], relative_to=path.parent)
-        if "emitter" in s:
-            sensor = sensor.with_emitter(int(s["emitter"]))
-        pose = Pose(*_floats(path, "[sensor] pose", s.get("pose", [0, 0, 0, 0]), 4))
+    _unknown(path, "[sensor]", s, {"preset", "file", "pose", "emitter"})
+    if ("preset" in s) == ("file" in s):
+        raise SceneFileError(f"{path}: [sensor] needs exactly one of preset = \"...\" or file = \"...\"")
+    sensor = load_sensor(s["preset"]) if "preset" in s else load_sensor(s["file"], relative_to=path.parent)
+    if "emitter" in s:
+        sensor = sensor.with_emitter(int(s["emitter"]))
+    pose = Pose(*_floats(path, "[sensor] pose", s.get("pose", [0, 0, 0, 0]), 4))
     return sensor, pose
 
 
 def _objects(path, data) -> list:
-    if True:
-        objects = []
-        entries = data.get("objects", [])
-        if not isinstance(entries, list):
-            raise SceneFileError(f"{path}: objects must be an array of tables ([[objects]])")
-        for i, o in enumerate(entries, start=1):
-            where = f"[[objects]] number {i}"
-            shape = str(o.get("shape", "")).lower()
-            if shape not in _SHAPES:
-                raise SceneFileError(f"{path}: {where} has shape {o.get('shape')!r}; expected sphere, box or cylinder")
-            cls, keys = _SHAPES[shape]
-            _unknown(path, where, o, {"shape", "centre_m", "material", "name"} | keys)
-            if "centre_m" not in o:
-                raise SceneFileError(f"{path}: {where} needs centre_m = [x, y, z] (m, tank frame)")
-            kwargs = {"centre_m": _floats(path, f"{where} centre_m", o["centre_m"], 3),
-                      "conductivity_S_per_m": parse_material(o.get("material", "insulating")),
-                      "name": str(o.get("name", ""))}
-            for key in keys & set(o):
-                n = 3 if key == "size_m" else 1
-                value = _floats(path, f"{where} {key}", o[key], n)
-                kwargs[key] = value if n == 3 else value[0]
-            try:
-                objects.append(cls(**kwargs))
-            except ValueError as exc:   # a length that is not positive
-                raise SceneFileError(f"{path}: {where}: {exc}") from None
+    objects = []
+    entries = data.get("objects", [])
+    if not isinstance(entries, list):
+        raise SceneFileError(f"{path}: objects must be an array of tables ([[objects]])")
+    for i, o in enumerate(entries, start=1):
+        where = f"[[objects]] number {i}"
+        shape = str(o.get("shape", "")).lower()
+        if shape not in _SHAPES:
+            raise SceneFileError(f"{path}: {where} has shape {o.get('shape')!r}; expected sphere, box or cylinder")
+        cls, keys = _SHAPES[shape]
+        _unknown(path, where, o, {"shape", "centre_m", "material", "name"} | keys)
+        if "centre_m" not in o:
+            raise SceneFileError(f"{path}: {where} needs centre_m = [x, y, z] (m, tank frame)")
+        kwargs = {"centre_m": _floats(path, f"{where} centre_m", o["centre_m"], 3),
+                  "conductivity_S_per_m": parse_material(o.get("material", "insulating")),
+                  "name": str(o.get("name", ""))}
+        for key in keys & set(o):
+            n = 3 if key == "size_m" else 1
+            value = _floats(path, f"{where} {key}", o[key], n)
+            kwargs[key] = value if n == 3 else value[0]
+        try:
+            objects.append(cls(**kwargs))
+        except ValueError as exc:   # a length that is not positive
+            raise SceneFileError(f"{path}: {where}: {exc}") from None
     return objects
 
 
