@@ -206,8 +206,10 @@ def mixed_system_reduced(points_m, triangles, own, c_single, c_double, group, n_
 @njit(cache=True)
 def _entries_kernel(points, rows, cols, tri, cen, area, diam, nrm, qp, qw, near2, mid2, far2, c_single, c_double,
                     out):
+    # serial: a row or a column is short, and numba's threads started for each one between BLAS calls (whose
+    # threads spin meanwhile) made the cross approximation 5-15x slower (measured)
     n_cols = cols.shape[0]
-    for ab in range(rows.shape[0] * n_cols):     # serial: a row or a column is short, and a thread pool started
+    for ab in range(rows.shape[0] * n_cols):
         a, b = ab // n_cols, ab % n_cols
         i, j = rows[a], cols[b]
         sl, dl = _pair(points[i, 0], points[i, 1], points[i, 2], j, False, tri, cen, area, diam, nrm, qp, qw,

@@ -104,7 +104,7 @@ IMAGE_TOL_FACTOR = 0.1
 #: 1e-5 of the largest and 84 at 1e-5 of the Frobenius norm, 117 and 217 at 1e-6; a random 4-electrode sensor of
 #: 1 944 triangles at a corner of the tank), where that is at least ``IMAGE_CROSS_MIN_TOL``: the tank map's poses
 #: (``tol`` 1e-5, the Frobenius 1e-5: ranks 133-185 of 8 242 triangles 5-12 mm from a wall, K within 5e-6 of
-#: the assembled images' and a pose 1.8x faster), not the BEM's default (``tol`` 1e-6: past N / 4 terms at a
+#: the assembled images' and a pose 1.6-1.8x faster), not the BEM's default (``tol`` 1e-6: past N / 4 terms at a
 #: corner with the floor 3 cm below, and the assembly pays)
 IMAGE_CROSS_MIN_TRIANGLES, IMAGE_CROSS_TOL_FACTOR, IMAGE_CROSS_MIN_TOL = 4000, 10.0, 1e-5
 
