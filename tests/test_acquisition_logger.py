@@ -311,3 +311,9 @@ def test_acquire_names_a_sensor_file_given_by_its_absolute_path_as_the_log_can_r
         assert run.exit_code == 0, run.output
         log = read_bench_log(out)
         assert log.meta["sensor"] == named and log.sensor == probe and len(log) == 10
+    taken = tmp_path / "elsewhere" / "taken.csv"
+    taken.write_text("a user's file\n")
+    run = CliRunner().invoke(main, ["acquire", "--port", "loop://", "-o", str(taken), "--quiet", "--meta",
+                                    f"sensor={tmp_path / 'probe.json'},emitter=4,tank=1,1,1,sigma=0.0354"])
+    assert run.exit_code == 1 and "refusing to overwrite" in run.output
+    assert taken.read_text() == "a user's file\n" and not (tmp_path / "elsewhere" / "taken.sensor.json").exists()

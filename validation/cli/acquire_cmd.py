@@ -42,6 +42,7 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
     --meta sensor=angels-4,emitter=4,tank=1,1,1,sigma=0.0354 --seconds 60
     """
     import signal
+    from pathlib import Path
 
     from electrosense.validation.bench.logger import Logger, parse_meta_option
 
@@ -51,8 +52,8 @@ def acquire(port, baud, output, meta_texts, samples, seconds, append, quiet, fie
             meta.update(parse_meta_option(text))
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--meta") from None
-    try:
-        if "sensor" in meta:
+    try:   # (a log that exists without --append is the logger's to refuse: no copy of a sensor beside it)
+        if "sensor" in meta and (append or not Path(output).exists()):
             meta["sensor"] = _log_sensor_name(meta["sensor"], output)
     except (FileExistsError, ValueError) as exc:
         raise click.ClickException(str(exc)) from None

@@ -185,9 +185,9 @@ class Logger:
         self.log_path = Path(log_path)
         self.rejected_path = rejected_path(self.log_path)
         self.meta = dict(meta)
-        self.header = interpret_meta(self.meta, self.log_path, folder=self.log_path.parent)
-        if self.log_path.exists() and not append:
+        if self.log_path.exists() and not append:     # the user's file first: nothing else matters then
             raise FileExistsError(f"{self.log_path} exists; refusing to overwrite a bench log (use append)")
+        self.header = interpret_meta(self.meta, self.log_path, folder=self.log_path.parent)
         self.baudrate = int(baudrate)
         self.samples, self.seconds = samples, seconds
         self.append, self.quiet = append, quiet
