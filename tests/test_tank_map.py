@@ -410,6 +410,41 @@ def test_a_correction_linear_in_the_coarse_K_is_found_from_few_reference_poses()
     assert np.abs(m.leave_one_out_ref).max() < 1e-3 * np.abs(plain.leave_one_out[:, emitter_pairs]).max()
 
 
+def test_the_correction_takes_the_warp_its_left_out_poses_favour_and_keeps_it_in_the_file(tmp_path, monkeypatch):
+    """A correction that changes over centimetres at the walls: fitted at each warp of the ladder, the one kept
+    is at least as close at left-out reference poses as the map's own warp, its map reproduces the reference at
+    every reference node and comes back from its file with it; a map fitted before the ladder (no stored warp,
+    format 11) reads its correction at the map's warp."""
+    from electrosense.validation.simulation import tank_map as tm
+    from electrosense.validation.simulation.tank_map import _assemble, sensor_wall_gap_m
+
+    rng, P, frame, iu, K_free = _synthetic_nodes(5, 90, 0.02, 8)
+    n = SENSOR.n_electrodes
+    gap = sensor_wall_gap_m(SENSOR, TANK, P)
+    L = 0.2 * np.exp(-gap / 0.01)[:, None] * rng.uniform(0.5, 1.5, len(iu[0]))        # K's change at a wall
+    d = 2e-3 * np.exp(-gap / 0.03)[:, None] * rng.uniform(0.5, 1.5, len(iu[0]))       # its mesh error's, smoother
+    ref = np.arange(40)
+    K_nodes = _assemble(K_free[iu] * np.exp(L), n, iu)
+    K_ref = _assemble(K_free[iu] * np.exp(L + d)[ref], n, iu)
+
+    def fitted_map(**kw):
+        return TankMap(SENSOR, TANK, 0.0, P, K_nodes, K_free, ref_index=ref, K_ref=K_ref, coarse_factor=3.0, **kw)
+
+    m = fitted_map()
+    monkeypatch.setattr(tm, "CORRECTION_WARP_FACTORS", (1.0,))
+    at_map_warp = fitted_map()
+    assert at_map_warp.warp_ref_m == at_map_warp.warp_m and at_map_warp.frame_ref is at_map_warp.frame
+    assert m.warp_ref_m in [m.warp_m * f for f in (1.0, 3.0, 10.0)]
+    rms = [float(np.sqrt(np.mean(x.leave_one_out_ref ** 2))) for x in (m, at_map_warp)]
+    assert rms[0] <= rms[1]
+    assert np.allclose(m.conductance(P[ref]), K_ref, rtol=1e-8, atol=0)
+    back = load_tank_map(m.save(tmp_path / "m.npz"))
+    assert back.warp_ref_m == m.warp_ref_m and np.allclose(back.conductance(P), m.conductance(P), rtol=1e-12)
+    earlier = {k: v for k, v in at_map_warp.fitted.items() if k != "warp_ref"}
+    old = fitted_map(fitted=earlier)
+    assert old.warp_ref_m == old.warp_m and np.allclose(old.conductance(P), at_map_warp.conductance(P), rtol=1e-12)
+
+
 def test_a_round_of_reference_poses_goes_where_the_correction_errs_and_a_share_across_the_tank():
     """The correction's estimated error is largest near the walls (where its reference poses cost most); a round
     puts half of its poses there and spreads the other half over the tank, farthest from the reference poses it

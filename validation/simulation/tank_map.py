@@ -75,12 +75,14 @@ __all__ = ["TankMap", "MapEvaluator", "reachable_poses", "tips_at_the_gap", "cor
            "sensor_wall_gap_m", "image_faces_near", "build_tank_map", "load_tank_map", "MAP_FORMAT", "scene_record",
            "scene_from_record", "same_scene"]
 
-MAP_FORMAT = "electrosense tank map 11"   # 11: the BEM's edge correction scaled into each pose's scene (10: the
-#: reference poses' near faces image planes; 9: the fixed objects' images; 8: the edges' images a group of their own)
-#: earlier formats read as they are where nothing but the format changed: 10 (its BEM's edge correction a constant),
-#: 9 (its reference every face meshed), 8 without fixed objects (format 8 with objects: its interpolants fitted again
-#: from its nodes, which are kept)
-READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 10", "electrosense tank map 9", "electrosense tank map 8")
+MAP_FORMAT = "electrosense tank map 12"   # 12: the correction's own warp (11: the BEM's edge correction scaled
+#: into each pose's scene; 10: the reference poses' near faces image planes; 9: the fixed objects' images; 8: the
+#: edges' images a group of their own); earlier formats read as they are where nothing but the format changed: 11
+#: (its correction at the map's warp), 10 (its BEM's edge correction a constant), 9 (its reference every face
+#: meshed), 8 without fixed objects (format 8 with objects: its interpolants fitted again from its nodes, which
+#: are kept)
+READABLE_FORMATS = (MAP_FORMAT, "electrosense tank map 11", "electrosense tank map 10", "electrosense tank map 9",
+                    "electrosense tank map 8")
 
 #: the interpolant's trend degree: 2, a quintic kernel r^5 with a quadratic trend (1: r^3, linear), which on 400 BEM
 #: poses of a random 5-electrode sensor came 1.4x closer to the BEM at fresh poses (:class:`RBFInterpolant`)
@@ -125,6 +127,15 @@ REFERENCE_SPREAD_SHARE = 0.5
 #: at most, 36 square-on tips 0.111 / 0.066 / 0.060 / 0.073 %, 8 near-wall poses 0.085 / 0.128 / 0.106 / 0.114 %;
 #: seed 2's corner pose 0.107 / 0.127 / 0.147 / 0.167 % (its 19 others 0.025 % -> 0.011 % at most in the study)
 GHOST_REACH = 3.0
+
+#: the warps (times the map's ``warp_m``) the reference correction is fitted at, the one closest at left-out
+#: reference poses kept (:meth:`TankMap._fit_correction_warped`): the correction log(K_ref / K_coarse) changes
+#: less sharply at a wall than K itself, and the map's 1 mm warp stretched its nodes' few near-wall poses apart.
+#: Refitted on four built maps (seeds 21 and 4; 54-100 reference poses), 10 mm was closest at left-out reference
+#: poses on all four (0.0240-0.0353 % against 0.0276-0.0370 % at 1 mm) and the maps' error at their studies' 8
+#: poses 5-15 mm from a wall fell to 0.0236 / 0.0271 / 0.0358 / 0.0579 % from 0.0293 / 0.0350 / 0.0366 / 0.0594 %,
+#: the fresh poses' and the corners' within 0.001 %; at 30 mm the left-out error and the fresh poses were worse
+CORRECTION_WARP_FACTORS = (1.0, 3.0, 10.0)
 
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
@@ -482,16 +493,12 @@ class TankMap:
             self.fitted = {"X": np.vstack([X, Xg]), "coef": interp.coef, "loo": interp.leave_one_out,
                            "images": np.array(interp.n_regressors // max(self.frame.n_wall_images, 1))}
             if len(self.ref_index):
-                Xr = X[self.ref_index]
-                Xrg, src_r, odd_r = self.frame.mirror_ghosts(Xr, GHOST_REACH)
-                K_ref = self._permuted(self.mirrored(self.K_ref, self.nodes[self.ref_index]), src_r, odd_r)
-                K_at = self._permuted(K_nodes[self.ref_index], src_r, odd_r)
-                d = np.log(pair_values(K_ref, self._pair_emitter) / pair_values(K_at, self._pair_emitter))
-                L_at = np.log(pair_values(K_at, self._pair_emitter) / self._free_pairs)
-                Xr = np.vstack([Xr, Xrg])
-                corr, pairs = self._fit_correction(Xr, d, L_at, np.r_[np.arange(len(self.ref_index)), src_r])
+                Xr, corr, pairs, warp = self._fit_correction_warped(K_nodes[self.ref_index])
                 self.fitted.update({"X_ref": Xr, "coef_ref": corr.coef, "loo_ref": corr.leave_one_out,
-                                    "regressors_ref": pairs})
+                                    "regressors_ref": pairs, "warp_ref": np.array(warp)})
+        self.warp_ref_m = float(self.fitted.get("warp_ref", self.warp_m))   # the correction's (format 11: the map's)
+        self.frame_ref = (self.frame if self.warp_ref_m == self.warp_m
+                          else MapFrame(self.sensor, self.tank, self.objects, self.band, self.warp_ref_m))
         self._images = int(self.fitted.get("images", 0))   # the powers of the images (0: none; True: 1)
         self._parts = [RBFInterpolant.from_coefficients(self.fitted["X"], self.fitted["coef"],
                                                         self.frame.n_wall_images * self._images)]
@@ -532,6 +539,29 @@ class TankMap:
                                     groups=groups)
             if self._receiver_rms(imaged) < self._receiver_rms(best):
                 best = imaged
+        return best
+
+    def _fit_correction_warped(self, K_at_ref):
+        """The reference correction fitted at each warp of :data:`CORRECTION_WARP_FACTORS` (its features, with
+        the reference nodes' mirror images, in a :class:`MapFrame` of that warp) and the one closest at left-out
+        reference poses: ``(X_ref, interpolant, pairs, warp_m)``; ``K_at_ref`` the coarse K at the reference
+        nodes in their folded poses' frames."""
+        poses = self.nodes[self.ref_index]
+        K_ref_folded = self.mirrored(self.K_ref, poses)
+        best = None
+        for factor in CORRECTION_WARP_FACTORS:
+            warp = self.warp_m * factor
+            frame = self.frame if factor == 1.0 else MapFrame(self.sensor, self.tank, self.objects, self.band, warp)
+            Xr = frame.features(poses)
+            Xrg, src_r, odd_r = frame.mirror_ghosts(Xr, GHOST_REACH)
+            K_ref = self._permuted(K_ref_folded, src_r, odd_r)
+            K_at = self._permuted(K_at_ref, src_r, odd_r)
+            d = np.log(pair_values(K_ref, self._pair_emitter) / pair_values(K_at, self._pair_emitter))
+            L_at = np.log(pair_values(K_at, self._pair_emitter) / self._free_pairs)
+            Xr = np.vstack([Xr, Xrg])
+            corr, pairs = self._fit_correction(Xr, d, L_at, np.r_[np.arange(len(self.ref_index)), src_r])
+            if best is None or self._receiver_rms(corr) < self._receiver_rms(best[1]):
+                best = (Xr, corr, pairs, warp)
         return best
 
     def _fit_correction(self, X_ref, d, L_coarse, groups=None):
@@ -603,11 +633,13 @@ class TankMap:
             if correction and len(self._parts) > 1:   # the reference correction (of the pose and the coarse K)
                 reg = self._regressor_pairs
                 corr = self._parts[1]
+                Fr, dFr = ((F, dF) if self.frame_ref is self.frame else
+                           self.frame_ref.features(Q, jacobian=True) if jacobian else (self.frame_ref.features(Q), None))
                 if jacobian:
-                    v, g = _value_and_pose_gradient(corr, F, dF, L[:, reg], G[:, :, reg])
+                    v, g = _value_and_pose_gradient(corr, Fr, dFr, L[:, reg], G[:, :, reg])
                     L, G = L + v, G + g
                 else:
-                    L = L + corr(F, L[:, reg])
+                    L = L + corr(Fr, L[:, reg])
             out.append(L)
             if jacobian:
                 dout.append(G)
@@ -652,8 +684,17 @@ class TankMap:
 
         err = estimated_error(self._parts[0].X, self.leave_one_out, F)
         if len(self._parts) > 1:
-            err = np.hypot(err, estimated_error(self._parts[1].X, self.leave_one_out_ref, F))
+            err = np.hypot(err, self.correction_error_at(poses, F))
         return np.take_along_axis(err, self._folded_receivers(poses), axis=1)
+
+    def correction_error_at(self, poses, F=None) -> np.ndarray:
+        """(P, receivers) the reference correction's estimated error at ``poses`` (``F`` their coarse map coordinates,
+        taken where the correction shares them), from its left-out errors in its own coordinates."""
+        from electrosense.validation.diagnosis.anchored import estimated_error
+
+        poses = np.asarray(poses, float).reshape(-1, 4)
+        Fr = F if F is not None and self.frame_ref is self.frame else self.frame_ref.features(poses)
+        return estimated_error(self._parts[1].X, self.leave_one_out_ref, Fr)
 
     def _folded_receivers(self, poses) -> np.ndarray:
         """(P, m) each pose's receivers as columns of its folded pose's (a reflected pose's are permuted)."""
@@ -731,7 +772,8 @@ class TankMap:
         """One ``.npz``: arrays, and the scene, sensor, options and code version as JSON (written atomically)."""
         path = Path(path)
         partial = path.with_name(f"{path.name}.{os.getpid()}.writing.npz")
-        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in self.fitted}
+        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref", "warp_ref")
+               if k in self.fitted}
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, X=self.fitted["X"],
                  coef=self.fitted["coef"], loo=self.fitted["loo"], images=self.fitted.get("images", False),
                  ref_index=self.ref_index, K_ref=self.K_ref,
@@ -788,7 +830,8 @@ def load_tank_map(path) -> TankMap:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "images", "ref_index",
                                         "K_ref", "focus_m")}
-            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref") if k in z.files})
+            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref", "warp_ref")
+                           if k in z.files})
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:   # a truncated or foreign archive
         raise ValueError(f"{path}: not a tank map ({type(exc).__name__}: {exc})") from None
     if meta.get("format") not in READABLE_FORMATS:
@@ -800,8 +843,8 @@ def load_tank_map(path) -> TankMap:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: the map's scene cannot be read ({exc})") from None
     z = meta["z_m"]
-    fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref", "regressors_ref")
-              if k in arrays}
+    fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref", "regressors_ref",
+                                     "warp_ref") if k in arrays}
     if meta["format"] == "electrosense tank map 8" and objects:   # fitted without the objects' images: again
         fitted = None
     return TankMap(sensor, tank, tuple(z) if isinstance(z, list) else float(z), arrays["nodes"], arrays["K_nodes"],
@@ -1297,8 +1340,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
         while True:
             m = current_map()
             err_c = estimated_error(m._parts[0].X, m.leave_one_out, F).max(axis=1)
-            err_r = (estimated_error(m._parts[1].X, m.leave_one_out_ref, F).max(axis=1) if corrected
-                     else np.zeros(len(C)))
+            err_r = m.correction_error_at(C, F).max(axis=1) if corrected else np.zeros(len(C))
             err = np.hypot(err_c, err_r)
             rms = float(np.sqrt(np.mean(err**2)))
             rms_c, rms_r = float(np.sqrt(np.mean(err_c**2))), float(np.sqrt(np.mean(err_r**2)))
@@ -1330,7 +1372,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 break
             if refine:
                 X = frame.features(nodes)
-                e_nodes = estimated_error(m._parts[1].X, m.leave_one_out_ref, X).max(axis=1)
+                e_nodes = m.correction_error_at(nodes, X).max(axis=1)
                 solve_ref(reference_round(X, pose_features(sensor, nodes), e_nodes, ref_index, k))
             else:   # most where the estimated error is largest, a share spread over the tank (module doc)
                 solve(np.unique(spread_round(F, T, err_c, m._parts[0].X, pose_features(sensor, nodes), k,
