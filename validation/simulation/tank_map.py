@@ -137,6 +137,10 @@ GHOST_REACH = 3.0
 #: the fresh poses' and the corners' within 0.001 %; at 30 mm the left-out error and the fresh poses were worse
 CORRECTION_WARP_FACTORS = (1.0, 3.0, 10.0)
 
+#: the arrays of a map's reference correction, in its ``fitted`` dict and its file (a map without a correction
+#: has none; ``warp_ref`` from format 12)
+REFERENCE_KEYS = ("X_ref", "coef_ref", "loo_ref", "regressors_ref", "warp_ref")
+
 #: relative error targets of the receiver currents: a third of the bench noise (RMS) and 0.05 % at most
 TARGET_RMS = 1.7e-4
 TARGET_MAX = 5e-4
@@ -772,8 +776,7 @@ class TankMap:
         """One ``.npz``: arrays, and the scene, sensor, options and code version as JSON (written atomically)."""
         path = Path(path)
         partial = path.with_name(f"{path.name}.{os.getpid()}.writing.npz")
-        ref = {k: self.fitted[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref", "warp_ref")
-               if k in self.fitted}
+        ref = {k: self.fitted[k] for k in REFERENCE_KEYS if k in self.fitted}
         np.savez(partial, nodes=self.nodes, K_nodes=self.K_nodes, K_free=self.K_free, X=self.fitted["X"],
                  coef=self.fitted["coef"], loo=self.fitted["loo"], images=self.fitted.get("images", False),
                  ref_index=self.ref_index, K_ref=self.K_ref,
@@ -830,8 +833,7 @@ def load_tank_map(path) -> TankMap:
             meta = json.loads(str(z["meta"]))
             arrays = {k: z[k] for k in ("nodes", "K_nodes", "K_free", "X", "coef", "loo", "images", "ref_index",
                                         "K_ref", "focus_m")}
-            arrays.update({k: z[k] for k in ("X_ref", "coef_ref", "loo_ref", "regressors_ref", "warp_ref")
-                           if k in z.files})
+            arrays.update({k: z[k] for k in REFERENCE_KEYS if k in z.files})
     except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as exc:   # a truncated or foreign archive
         raise ValueError(f"{path}: not a tank map ({type(exc).__name__}: {exc})") from None
     if meta.get("format") not in READABLE_FORMATS:
@@ -843,8 +845,7 @@ def load_tank_map(path) -> TankMap:
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: the map's scene cannot be read ({exc})") from None
     z = meta["z_m"]
-    fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", "X_ref", "coef_ref", "loo_ref", "regressors_ref",
-                                     "warp_ref") if k in arrays}
+    fitted = {k: arrays[k] for k in ("X", "coef", "loo", "images", *REFERENCE_KEYS) if k in arrays}
     if meta["format"] == "electrosense tank map 8" and objects:   # fitted without the objects' images: again
         fitted = None
     return TankMap(sensor, tank, tuple(z) if isinstance(z, list) else float(z), arrays["nodes"], arrays["K_nodes"],
