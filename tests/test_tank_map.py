@@ -247,6 +247,31 @@ def test_the_candidates_put_the_sensor_at_the_gap_from_two_walls_at_every_corner
     assert not corners_at_the_gap(sensor, tank, far, gap, spacing, objects).size
 
 
+def test_the_corner_band_draws_poses_between_the_gaps_from_two_walls_at_every_corner():
+    """A random sensor in a box with a ball: the band's poses lie between its two gaps from two walls that meet
+    (every corner drawn), nearer nothing than the first gap, at headings all round, and the same from the same
+    seed (a build resumes on them); where a ball fills every corner the draw ends short instead of hanging."""
+    from electrosense.validation.diagnosis.unseen import random_sensor
+    from electrosense.validation.simulation.tank_map import boundary_gaps_m, corner_poses
+
+    sensor = random_sensor(np.random.default_rng(11), 5)
+    tank, ball = Tank((0.62, 0.47, 0.3)), (Sphere((0.05, 0.02, 0.0), radius_m=0.03),)
+    P = corner_poses(sensor, tank, 0.01, np.random.default_rng(2), 60, None, (0.005, 0.012), ball)
+    assert P.shape == (60, 4) and np.allclose(P[:, 2], 0.01)
+    G = boundary_gaps_m(sensor, tank, P, ball)
+    assert G.min() >= 0.005 - 1e-9
+    walls = G[:, :4]                                         # x-, x+, y-, y+
+    near = walls <= 0.012 + 1e-9
+    assert (near[:, :2].sum(axis=1) == 1).all() and (near[:, 2:].sum(axis=1) == 1).all()   # one of x, one of y
+    for a, b in ((0, 2), (0, 3), (1, 2), (1, 3)):
+        assert (near[:, a] & near[:, b]).any()
+    assert np.ptp(np.mod(P[:, 3], 2 * np.pi)) > 5.0
+    assert np.array_equal(P, corner_poses(sensor, tank, 0.01, np.random.default_rng(2), 60, None, (0.005, 0.012),
+                                          ball))
+    filled = tuple(Sphere((sx * 0.26, sy * 0.19, 0.01), radius_m=0.07) for sx in (-1, 1) for sy in (-1, 1))
+    assert len(corner_poses(sensor, tank, 0.01, np.random.default_rng(2), 5, None, (0.005, 0.012), filled)) == 0
+
+
 @pytest.mark.parametrize("tank", [TANK, Tank((0.4, 0.4, 0.2)), CylinderTank(0.25, 0.2)],
                          ids=["box", "square", "cylinder"])
 def test_the_bem_poses_lie_in_the_fundamental_domain(tank):

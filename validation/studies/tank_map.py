@@ -254,30 +254,14 @@ def errors_at(m, sensor, tank, P, objects=()) -> tuple[dict, np.ndarray]:
 CORNER_GAP_M = (0.005, 0.012)
 
 
-def corner_poses(sensor, tank, z, rng, n, band=None, gap_m=CORNER_GAP_M, objects=()) -> np.ndarray:
-    """``n`` random poses of a box's tank with the sensor ``gap_m`` from two walls that meet at a corner (each gap
-    drawn alone; a random heading and corner), none nearer anything (an object too) than the first gap."""
-    from electrosense.validation.simulation.tank_map import boundary_gaps_m
-
-    column = {name: k for k, name in enumerate(tank.region_names)}
-    out = []
-    while len(out) < n:
-        zz = z if band is None else rng.uniform(*band)
-        p = np.array([0.0, 0.0, zz, rng.uniform(-np.pi, np.pi)])
-        g = boundary_gaps_m(sensor, tank, p[None])[0]
-        sx, sy = rng.choice([-1.0, 1.0], 2)
-        ix, iy = column["wall_x+" if sx > 0 else "wall_x-"], column["wall_y+" if sy > 0 else "wall_y-"]
-        gx, gy = rng.uniform(*gap_m, 2)
-        p[0], p[1] = sx * (g[ix] - gx), sy * (g[iy] - gy)     # a flat wall's gap is linear in x or y
-        if boundary_gaps_m(sensor, tank, p[None], objects)[0].min() >= gap_m[0] - 1e-9:
-            out.append(p)
-    return np.array(out)
-
-
 def check_corners(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) -> dict:
-    """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once (:func:`corner_poses`), each on
+    """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once
+    (:func:`~electrosense.validation.simulation.tank_map.corner_poses`, drawn as the map's own band of corner
+    poses is, from another seed), each on
     a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
-    P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, objects=objects)
+    from electrosense.validation.simulation.tank_map import corner_poses
+
+    P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, CORNER_GAP_M, objects, 10**9)
     return errors_at(m, sensor, tank, P, objects)[0]
 
 
