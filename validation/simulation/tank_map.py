@@ -1285,6 +1285,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     say(f"{len(C)} candidate poses (grid {spacing_m} m, {n_headings} headings, {len(depths)} depth(s), "
         f"{wall_gap_m * 1e3:g} mm from the walls, {int(np.sum(kind == 1))} of them a tip at that gap, "
         f"{int(np.sum(kind == 2))} at that gap from two walls"
+        f"{f', {int(np.sum(kind == 3))} at random gaps from two walls up to {CORNER_BAND[1]:g}x it' if np.any(kind == 3) else ''}"
         f"{', folded by the tank symmetry' if frame.symmetric else ''})")
     K_free = free_space_bem(sensor, options["edge_length_m"]).K_S
     n = K_free.shape[0]
