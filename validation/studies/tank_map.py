@@ -255,10 +255,10 @@ CORNER_GAP_M = (0.005, 0.012)
 
 
 def check_corners(m, sensor, tank, z, seed: int, n: int, band=None, objects=()) -> dict:
-    """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once
-    (:func:`~electrosense.validation.simulation.tank_map.corner_poses`, drawn as the map's own band of corner
-    poses is, from another seed), each on
-    a tank mesh graded to it alone (:func:`errors_on_own_tank_meshes`), drawn from their own seed."""
+    """The map against the BEM at ``n`` random poses 5-12 mm from two walls at once, drawn from their own seed as
+    the map's band of corner poses is from its own
+    (:func:`~electrosense.validation.simulation.tank_map.corner_poses`), each on a tank mesh graded to it alone
+    (:func:`errors_on_own_tank_meshes`)."""
     from electrosense.validation.simulation.tank_map import corner_poses
 
     P = corner_poses(sensor, tank, z, np.random.default_rng([seed, 2]), n, band, CORNER_GAP_M, objects, 10**9)
