@@ -661,6 +661,9 @@ def test_the_estimated_error_is_the_size_of_the_true_one(built):
     assert np.sqrt(np.mean(true**2)) < 3 * np.sqrt(np.mean(est**2)) + 1e-3   # another tank mesh adds ~5e-4
 
 
+# 16 s on 2 cores (three BEMs a pose): in the slow run, so that the default one keeps a margin under 10 minutes
+# (543 s measured with it); every `esense study tank_map` runs this check, and the test below its error split
+@pytest.mark.slow
 def test_the_studys_near_wall_check_draws_poses_at_its_gaps_and_compares_them_with_the_bem(built, monkeypatch):
     """The tank-map study's near-wall check (its gaps widened to this map's 2 cm wall gap): the poses lie at
     those gaps, from a seed of their own, and its errors are the map's against the BEM at the size
