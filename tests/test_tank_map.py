@@ -758,6 +758,43 @@ def test_the_map_refuses_what_it_does_not_cover(built):
         pose_evaluator("map", preset("angels-2"), TANK, 0.05, tank_map=m)
 
 
+def test_a_rounds_poses_check_the_estimate_before_they_join_the_map(built, tmp_path):
+    """Each round's poses, solved anyway, are held-out data for the map that chose them: the check gives the RMS
+    relative error of the coarse interpolant there against the coarse BEM and of its estimate, zero at the map's
+    own nodes; the pooled ratio per fidelity is what ``esense map info`` prints."""
+    from electrosense.bem import PoseSweep
+    from electrosense.validation.cli import main
+    from electrosense.validation.simulation.tank_map import (each_on_its_own_tank_mesh, estimate_checked,
+                                                              estimate_ratios)
+
+    m, path = built
+    at_nodes = estimate_checked(m, m.nodes[:3], m.K_nodes[:3], "coarse")
+    assert at_nodes["poses"] == 3 and at_nodes["rms_error"] < 1e-9 and at_nodes["estimated_rms_error"] < 1e-8
+    rng = np.random.default_rng(7)
+    fresh = reachable_poses(SENSOR, TANK, 0.0, 0.02, 0.04, 8)
+    fresh = m.frame.folded(fresh[rng.choice(len(fresh), 3, replace=False)] + [0.011, -0.007, 0.0, 0.13])
+    options = dict(m.fidelities["coarse"])
+    within = options.pop("image_faces_within_m", None)
+    K = each_on_its_own_tank_mesh(PoseSweep(SENSOR, TANK, (), 1.0, **options), fresh, within)
+    got = estimate_checked(m, fresh, K, "coarse")
+    e = SENSOR.emitter - 1     # the receivers' currents: the emitter's column
+    by_hand = m.conductance(fresh, correction=False)[:, :e, e] / K[:, :e, e] - 1.0
+    assert got["rms_error"] == pytest.approx(float(np.sqrt(np.mean(by_hand**2))), rel=1e-9)
+    assert 1e-5 < got["rms_error"] < 0.05 and got["estimated_rms_error"] > 0.0
+    history = [{"next_round": got}, {"next_round": {**got, "fidelity": "ref", "rms_error": 0.0}}, {}]
+    ratios = estimate_ratios(history)
+    assert ratios["coarse"] == (1, pytest.approx(got["rms_error"] / got["estimated_rms_error"]))
+    assert ratios["ref"] == (1, 0.0)
+    # written with the map's history and printed by `esense map info`
+    shown = TankMap(m.sensor, m.tank, m.z_m, m.nodes, m.K_nodes, m.K_free, m.objects, m.bem_options, m.code,
+                    m.wall_gap_m, [*m.history[:-1], {**m.history[-1], **history[0]}], m.sigma_S_per_m, m.warp_m,
+                    None, m.coarse_factor, m.ref_index, m.K_ref, m.focus_m, m.reference_images_m)
+    shown.save(tmp_path / "checked.npz")
+    res = CliRunner().invoke(main, ["map", "info", str(tmp_path / "checked.npz")])
+    assert res.exit_code == 0 and "actual / estimated RMS" in res.output, res.output
+    assert f"coarse interpolant {ratios['coarse'][1]:.2f} (1 round)" in res.output, res.output
+
+
 def test_sweep_with_the_map_and_map_info(built, tmp_path):
     from electrosense.meshes.sensor import save_sensor
     from electrosense.validation.cli import main

@@ -147,6 +147,7 @@ def build(scene_file, sensor_spec, tank_text, depth_m, z_text, sigma, wall_gap_m
 def info(map_file):
     """What a map holds: scene, sensor, depth, BEM poses, estimated error, code version."""
     from electrosense.validation.cli._parsing import map_option
+    from electrosense.validation.simulation.tank_map import estimate_ratios
 
     m = map_option(map_file, "MAP_FILE")
     meta = m.meta()
@@ -166,4 +167,10 @@ def info(map_file):
     if last:
         click.echo(f"estimated error RMS {100 * last['rms_error']:.4f} %, max {100 * last['max_error']:.4f} %; built in "
                    f"{last['seconds']:.0f} s wall, {last.get('cpu_seconds', float('nan')):.0f} s CPU")
+    ratios = estimate_ratios(m.history)
+    if ratios:
+        names = {"coarse": "coarse interpolant", "ref": "correction"}
+        click.echo("its estimate checked at each round's poses before they were solved, actual / estimated RMS "
+                   "(the rounds go where the estimate is largest): "
+                   + ", ".join(f"{names.get(f, f)} {r:.2f} ({n} round{'s' * (n != 1)})" for f, (n, r) in ratios.items()))
     click.echo(f"BEM options {meta['bem_options']}; {m.code}")

@@ -964,6 +964,53 @@ REFERENCE_TANK_GRADING = 0.15
 COARSE_TANK_NEAR_RATIO = 0.7
 
 
+def estimate_checked(tank_map, poses: np.ndarray, K_bem: np.ndarray, fidelity: str) -> dict:
+    """A map's estimated error checked at the poses of its next round, before they join it: the RMS over those
+    poses and the emitter's receivers (:func:`~electrosense.bem.conductance.pair_values`, as the map keeps them)
+    of the relative error of its ``fidelity``'s part ("coarse": the coarse
+    interpolant against the coarse BEM ``K_bem`` (P, n, n); "ref": the corrected map at coarse nodes against the
+    reference BEM there, the correction's error alone, since the coarse interpolant is exact at its nodes) and
+    of that part's estimate (:meth:`TankMap.estimated_error`'s coarse term, or :meth:`TankMap.correction_error_at`).
+
+    Held-out data the build gets for free: each round's poses are solved anyway. They are not a random sample: a
+    round goes mostly where the estimate is largest (:func:`spread_round`), so a ratio below 1 there says the
+    estimate's maxima are high, not that it is high everywhere (the study's random poses near the walls are the
+    unbiased check). ``{"fidelity", "poses", "rms_error", "estimated_rms_error"}``.
+    """
+    from electrosense.validation.diagnosis.anchored import estimated_error
+
+    if fidelity == "coarse":
+        K_map = tank_map.conductance(poses, correction=False)
+        est = estimated_error(tank_map._parts[0].X, tank_map.leave_one_out, tank_map.frame.features(poses))
+    else:
+        K_map = tank_map.conductance(poses)
+        est = tank_map.correction_error_at(poses)
+    # the map's own values: a pair with the emitter from its column (pair_values), the emitter's receivers
+    pairs = lambda K: pair_values(np.asarray(K, float), tank_map._pair_emitter)[:, tank_map._rec]   # noqa: E731
+    actual = pairs(K_map) / pairs(K_bem) - 1.0
+    return {"fidelity": fidelity, "poses": int(len(poses)), "rms_error": float(np.sqrt(np.mean(actual**2))),
+            "estimated_rms_error": float(np.sqrt(np.mean(np.asarray(est) ** 2)))}
+
+
+def estimate_ratios(history: list) -> dict:
+    """``{fidelity: (rounds, ratio)}``: over a build's rounds (:func:`estimate_checked` in their ``next_round``),
+    the RMS of the actual errors at each round's poses over the RMS of their estimates, pooled by fidelity (empty
+    for a map built before the check).
+
+    >>> estimate_ratios([{"next_round": {"fidelity": "coarse", "poses": 4, "rms_error": 0.001,
+    ...                                  "estimated_rms_error": 0.002}}, {}])
+    {'coarse': (1, 0.5)}
+    """
+    pooled = {}
+    for h in history:
+        r = h.get("next_round")
+        if r:
+            n, a, b = pooled.get(r["fidelity"], (0, 0.0, 0.0))
+            pooled[r["fidelity"]] = (n + 1, a + r["poses"] * r["rms_error"] ** 2,
+                                     b + r["poses"] * r["estimated_rms_error"] ** 2)
+    return {f: (n, float(np.sqrt(a / b)) if b > 0 else float("inf")) for f, (n, a, b) in pooled.items()}
+
+
 def bem_fidelities(tank, options: dict, coarse_edge_m: float) -> dict:
     """The options of a map's two BEMs, ``{"ref": ..., "coarse": ...}``, from the reference's ``options`` (its
     ``edge_length_m`` and ``tank_grading`` set) and the coarse sensor mesh's edge ``coarse_edge_m``: the many
@@ -1434,10 +1481,14 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
             if refine:
                 X = frame.features(nodes)
                 e_nodes = m.correction_error_at(nodes, X).max(axis=1)
-                solve_ref(reference_round(X, pose_features(sensor, nodes), e_nodes, ref_index, k))
+                picked = reference_round(X, pose_features(sensor, nodes), e_nodes, ref_index, k)
+                solve_ref(picked)
+                history[-1]["next_round"] = estimate_checked(m, nodes[picked], K_ref[-len(picked):], "ref")
             else:   # most where the estimated error is largest, a share spread over the tank (module doc)
-                solve(np.unique(spread_round(F, T, err_c, m._parts[0].X, pose_features(sensor, nodes), k,
-                                             EXPLORE_SHARE)))
+                picked = np.unique(spread_round(F, T, err_c, m._parts[0].X, pose_features(sensor, nodes), k,
+                                                EXPLORE_SHARE))
+                solve(picked)
+                history[-1]["next_round"] = estimate_checked(m, C[picked], K_nodes[-len(picked):], "coarse")
     finally:
         pool.close()
     return m
