@@ -764,8 +764,7 @@ def test_a_rounds_poses_check_the_estimate_before_they_join_the_map(built, tmp_p
     own nodes; the pooled ratio per fidelity is what ``esense map info`` prints."""
     from electrosense.bem import PoseSweep
     from electrosense.validation.cli import main
-    from electrosense.validation.simulation.tank_map import (each_on_its_own_tank_mesh, estimate_checked,
-                                                              estimate_ratios)
+    from electrosense.validation.simulation.tank_map import each_on_its_own_tank_mesh, estimate_checked, estimate_ratios
 
     m, path = built
     at_nodes = estimate_checked(m, m.nodes[:3], m.K_nodes[:3], "coarse")
