@@ -108,6 +108,19 @@ IMAGE_TOL_FACTOR = 0.1
 #: corner with the floor 3 cm below, and the assembly pays)
 IMAGE_CROSS_MIN_TRIANGLES, IMAGE_CROSS_TOL_FACTOR, IMAGE_CROSS_MIN_TOL = 4000, 10.0, 1e-5
 
+#: the sensor-tank coupling (:meth:`PoseSweep._coupling_low_rank`) is cross-approximated on a sensor mesh of at
+#: least this many triangles where ``tol`` is at least ``IMAGE_CROSS_MIN_TOL`` and the scene has no object (a tank
+#: map's poses, whose meshed faces are at least ``image_faces_within_m`` from the sensor: smooth kernels), the
+#: sensor's rows to this factor times ``tol`` in the Frobenius norm, the tank's rows (its block and right-hand
+#: side) to the second factor times it. The sensor's rows carry a flat tail of singular values (the quadrature
+#: switching its rule between a graded tank's triangles): ranks 53-55 at ``tol`` of the largest, 337 to ``tol`` of
+#: the Frobenius norm, 77-133 to 3x it, 53 to 10x it (a random 5-electrode sensor's coarse mesh, 2 548 triangles,
+#: in its map's poses); at 3x the receiver currents moved by 4e-6 RMS, 1e-5 at most over 12 poses, and a pose
+#: cost 18 % less CPU (10x: 28 % less, 3e-5 at most); a random 4-electrode sensor's coarse mesh of 1 944
+#: triangles, 11 % less, 4e-6 RMS, 9e-6 at most. On the first's 10 916-triangle reference mesh the sensor's rows
+#: needed rank 578 at 3x: not worth it (the tally below gives up)
+COUPLING_CROSS_MIN_TRIANGLES, COUPLING_CROSS_TOL_FACTOR, COUPLING_RHS_CROSS_TOL_FACTOR = 1000, 3.0, 1.0
+
 #: smallest reciprocal condition number of the regularised environment block ``A'`` for which poses are solved by
 #: the Woodbury formula (below it, the Schur complement is factorised at each pose)
 WOODBURY_MIN_RCOND = 1e-8
@@ -245,6 +258,7 @@ class PoseSweep:
         # the sensor's own image's cross approximations that converged and that did not, shared with every
         # with_focus copy (:meth:`_sensor_image_low_rank` stops trying on a sensor where they do not pay)
         self._image_cross_tally = {"converged": 0, "not": 0}
+        self._coupling_cross_tally = {"converged": 0, "not": 0}   # the same for the coupling
         if not 0.0 < memory_share <= 1.0:
             raise ValueError(f"memory_share must be in (0, 1], got {memory_share}")
         self.memory_share = float(memory_share)
@@ -551,6 +565,61 @@ class PoseSweep:
             B_es = np.vstack([B_es, np.zeros((nc, B_es.shape[1]))])
         return A_se, A_es, -B_es
 
+    #: the sensor-tank coupling from its rows and columns where it pays (:data:`COUPLING_CROSS_MIN_TRIANGLES`;
+    #: False: assembled, the reference the tests compare with)
+    coupling_by_cross_approximation = True
+
+    def _coupling_low_rank(self, pose):
+        """``(P_se, Vt, (U_es, V_es), r_e)`` at one pose, or None (assemble :meth:`_coupling` instead): ``A_se ~
+        P_se Vt`` (``Vt`` orthonormal rows, truncated at ``tol`` of its largest singular value, as the assembled
+        block's are by :func:`~electrosense.bem.low_rank.right_singular_vectors`), ``A_es ~ U_es V_es`` and the
+        tank's right-hand side ``r_e`` (Ne, n) from the electrodes' double layer, ``~ U V G`` with ``G`` summing
+        each electrode's columns: each block from some of its rows and columns
+        (:func:`~electrosense.bem.cross_approximation.cross_approximation`, to ``tol`` in the Frobenius norm),
+        images included. Only without objects, on a sensor mesh of :data:`COUPLING_CROSS_MIN_TRIANGLES` or more at
+        a ``tol`` of ``IMAGE_CROSS_MIN_TOL`` or more; None where a block does not converge in a quarter of its
+        smaller side, and once more have not converged than have on this sensor (its sweep and every
+        :meth:`with_focus` copy), every pose is assembled: a failure costs several assemblies."""
+        tally = self._coupling_cross_tally
+        if (not self.coupling_by_cross_approximation or self.objects or self.n_conductors
+                or len(self.sensor_tris) < COUPLING_CROSS_MIN_TRIANGLES or self.tol < IMAGE_CROSS_MIN_TOL
+                or tally["not"] > tally["converged"]):
+            return None
+        from scipy.spatial import cKDTree
+
+        R, t = rotation_z(pose[3]), pose[:3]
+        s = TriangleSet(self.sensor_tris.triangles @ R.T + t)
+        e = self.env_tris
+        rows_s = [s.centroids, *self._images(s.centroids)]
+        rows_e = [e.centroids, *self._images(e.centroids)]
+        # the first pivots where the blocks are largest: the sensor's and the tank's points nearest each other
+        d_s, nearest_e = cKDTree(e.centroids).query(s.centroids)
+        first_s = int(np.argmin(d_s))
+        first_e = int(nearest_e[first_s])
+        Ns, Ne = len(s), len(e)
+        every_s, every_e = np.arange(Ns), np.arange(Ne)
+        on_e = np.flatnonzero((self._grp_s >= 0) & (self._grp_s < self.n))
+        blocks = (
+            (rows_s, e, every_e, self._cs_e, self._cd_e, first_s),                        # A_se
+            (rows_e, s, every_s, self._cs_s, self._cd_s, first_e),                        # A_es
+            (rows_e, s, on_e, np.zeros(Ns), np.ones(Ns), first_e),                        # D over the electrodes
+        )
+        low = []
+        for i, (points, tris, cols, c_single, c_double, first) in enumerate(blocks):
+            factor = COUPLING_CROSS_TOL_FACTOR if i == 0 else COUPLING_RHS_CROSS_TOL_FACTOR
+            M = _images_cross_approximation(points, tris, cols, c_single, c_double, factor * self.tol, first,
+                                            max_rank=min(len(points[0]), len(cols)) // 4)
+            if M is None:
+                tally["not"] += 1
+                return None
+            low.append(M)
+        tally["converged"] += 1
+        P_se, Vt, _ = recompressed(*low[0], self.tol)
+        G = np.zeros((len(on_e), self.n))
+        G[np.arange(len(on_e)), self._grp_s[on_e]] = 1.0
+        U_d, V_d = low[2]
+        return P_se, Vt, low[1], -(U_d @ (V_d @ G))
+
     def _check_pose(self, pose):
         from electrosense.meshes.scene import Scene
         from electrosense.meshes.scene_mesh import check_scene
@@ -560,19 +629,30 @@ class PoseSweep:
     def _solve_pose(self, pose):
         """The sensor's unknowns (Ns, n) at one pose, the rank kept of the coupling, and the environment's
         unknowns (Ne + nc, n: the potential on the tank's faces, then the objects')."""
-        A_se, A_es, r_e = self._coupling(pose)
-        # dominant right singular vectors by blocked randomised range finding (bem.low_rank: a few products with
-        # about rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3); it depends on
-        # A_se alone, so a pose's K does not depend on which worker computed it or after which pose;
-        # A_se V_k = U_k s_k, so W V_k^T = A_ss^-1 A_se V_k V_k^T
-        Vt, _ = right_singular_vectors(A_se, self.tol)
+        low = self._coupling_low_rank(pose)
+        if low is not None:   # A_se ~ P_se Vt, A_es ~ U_es V_es from their rows and columns
+            P_se, Vt, (U_es, V_es), r_e = low
+
+            def A_es_times(X):
+                return U_es @ (V_es @ X)
+        else:
+            A_se, A_es, r_e = self._coupling(pose)
+            # dominant right singular vectors by blocked randomised range finding (bem.low_rank: a few products
+            # with about rank vectors, where the Gram matrix and its eigendecomposition cost Ns Ne^2 + Ne^3); it
+            # depends on A_se alone, so a pose's K does not depend on which worker computed it or after which pose;
+            # A_se V_k = U_k s_k, so W V_k^T = A_ss^-1 A_se V_k V_k^T
+            Vt, _ = right_singular_vectors(A_se, self.tol)
+            P_se = A_se @ Vt.T
+
+            def A_es_times(X):
+                return A_es @ X
         k = len(Vt)
         y0, sensor_solve = self._sensor_block_at(pose)
-        W = sensor_solve(A_se @ Vt.T)
-        f = r_e - A_es @ y0
+        W = sensor_solve(P_se)
+        f = r_e - A_es_times(y0)
         if self._woodbury is not None:
             a, b = self._rank_one
-            AW = A_es @ W
+            AW = A_es_times(W)
             U = np.hstack([a, AW])
             C = np.vstack([b.T, Vt])
             low = self._woodbury[0].dtype
@@ -593,7 +673,7 @@ class PoseSweep:
                 y_e, _ = refine(lambda y: self._A_e @ y - AW @ (Vt @ y), f, y_e, woodbury,
                                 f"system at pose {pose.tolist()}", REFINEMENT_TOL, MAX_REFINEMENTS)
         else:
-            schur = self._A_e - (A_es @ W) @ Vt
+            schur = self._A_e - A_es_times(W) @ Vt
             lu, piv, _ = factorise(schur, f"system at pose {pose.tolist()}")
             y_e = scipy.linalg.lu_solve((lu, piv), f, check_finite=False)
         return y0 - W @ (Vt @ y_e), k, y_e
@@ -775,10 +855,11 @@ class PoseSweep:
         return self._walls
 
 
-def _images_cross_approximation(images, s, cols, c_single, c_double, tol: float, first_row: int):
+def _images_cross_approximation(images, s, cols, c_single, c_double, tol: float, first_row: int,
+                                max_rank: int | None = None):
     """The cross approximation (:func:`~electrosense.bem.cross_approximation.cross_approximation`) of the sum
     over ``images`` (each (N, 3), the rows' points) of :func:`~electrosense.bem.operators.mixed_entries` on the
-    triangles ``s``'s columns ``cols``: ``(U, V)`` or None."""
+    triangles ``s``'s columns ``cols``: ``(U, V)`` or None past ``max_rank`` terms (default N / 16)."""
     n_rows, every = len(images[0]), np.arange(len(images[0]))
 
     def row(i):
@@ -793,4 +874,5 @@ def _images_cross_approximation(images, s, cols, c_single, c_double, tol: float,
             mixed_entries(points, s, every, cols[j:j + 1], c_single, c_double, out=out)
         return out[:, 0]
 
-    return cross_approximation(row, column, (n_rows, len(cols)), tol, max_rank=n_rows // 16, first_row=first_row)
+    return cross_approximation(row, column, (n_rows, len(cols)), tol,
+                               max_rank=n_rows // 16 if max_rank is None else max_rank, first_row=first_row)

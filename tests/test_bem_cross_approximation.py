@@ -66,7 +66,8 @@ def test_the_sensors_image_cross_approximated_gives_the_assembled_images_K(monke
     sweep = PoseSweep(sensor, tank, sigma_S_per_m=1.0, edge_length_m=0.012, tol=1e-5, block_cache=False,
                       edge_correction=False, image_face=("wall_x+", "wall_y-"), tank_near_ratio=0.7)
     monkeypatch.setattr(sweep_module, "IMAGE_CROSS_MIN_TRIANGLES", 0)      # and no cap on its rank: its accuracy
-    calls = []                                                              # is checked here, not its cost
+    monkeypatch.setattr(sweep_module, "COUPLING_CROSS_MIN_TRIANGLES", 10**9)   # is checked here, not its cost;
+    calls = []                                                              # the coupling's is the next test's
 
     def uncapped(row, column, shape, tol, max_rank=None, first_row=0):
         calls.append(1)
@@ -80,12 +81,56 @@ def test_the_sensors_image_cross_approximated_gives_the_assembled_images_K(monke
     assert np.abs(K_cross - K_assembled).max() < 1e-5 * np.abs(K_assembled).max()
 
 
+def test_the_coupling_cross_approximated_gives_the_assembled_couplings_K(monkeypatch):
+    """A random sensor pose 5-15 mm from a wall of a random box at the tank map's ``tol``, the wall an image plane
+    and the other faces meshed (a map's pose): its K with the sensor-tank coupling from rows and columns
+    (:meth:`PoseSweep._coupling_low_rank`, forced on a small mesh) against the coupling assembled. Its receiver
+    currents move by a few 1e-6 on the coarse meshes of two random sensors (the module's constants): bounded
+    here at 3e-5 of the largest."""
+    from electrosense.validation.diagnosis.unseen import random_sensor
+
+    rng = np.random.default_rng(11)
+    for _ in range(2):
+        sensor = random_sensor(rng)
+        tank = Tank(tuple(rng.uniform([0.5, 0.35, 0.2], [0.8, 0.5, 0.3])))
+        lo, hi = tank.water_bounds_m
+        gap = rng.uniform(0.005, 0.015)
+        pose = np.array([[rng.uniform(-0.05, 0.05), hi[1] - sensor.radius_m - gap, 0.0, rng.uniform(-0.2, 0.2)]])
+        sweep = PoseSweep(sensor, tank, sigma_S_per_m=1.0, edge_length_m=1.8 * sensor.radius_m, tol=1e-5,
+                          block_cache=False, image_face="wall_y+", tank_near_ratio=0.7)
+        monkeypatch.setattr(sweep_module, "COUPLING_CROSS_MIN_TRIANGLES", 0)
+        K_cross = sweep.conductance(pose).K_S[0]
+        assert sweep._coupling_cross_tally["converged"] == 1, sweep._coupling_cross_tally
+        monkeypatch.setattr(PoseSweep, "coupling_by_cross_approximation", False)
+        K_assembled = sweep.conductance(pose).K_S[0]
+        monkeypatch.undo()
+        e = sensor.emitter - 1
+        I_cross, I = np.delete(K_cross[:, e], e), np.delete(K_assembled[:, e], e)
+        assert np.abs(I_cross - I).max() < 3e-5 * np.abs(I).max()
+        assert np.abs(I_cross - I).max() > 0.0    # it was taken
+
+
+def test_a_coupling_that_does_not_converge_is_assembled_after_one_try(monkeypatch):
+    sensor = preset("angels-2")
+    tank = Tank((0.5, 0.35, 0.2))
+    sweep = PoseSweep(sensor, tank, sigma_S_per_m=1.0, edge_length_m=0.012, tol=1e-5, block_cache=False,
+                      edge_correction=False, tank_near_ratio=0.7)
+    monkeypatch.setattr(sweep_module, "COUPLING_CROSS_MIN_TRIANGLES", 0)
+    tries = []
+    monkeypatch.setattr(sweep_module, "cross_approximation", lambda *a, **k: tries.append(1))   # never converges
+    K = [sweep.with_focus().conductance([[x, 0.0, 0.0, 0.0]]).K_S[0] for x in (0.0, 0.02, 0.04)]
+    assert len(tries) == 1
+    monkeypatch.setattr(PoseSweep, "coupling_by_cross_approximation", False)
+    assert np.allclose(K[0], sweep.with_focus().conductance([[0.0, 0.0, 0.0, 0.0]]).K_S[0], rtol=0, atol=0)
+
+
 def test_a_sensor_whose_image_does_not_converge_is_assembled_after_three_tries(monkeypatch):
     sensor = preset("angels-2")
     tank = Tank((0.5, 0.35, 0.2))
     sweep = PoseSweep(sensor, tank, sigma_S_per_m=1.0, edge_length_m=0.012, tol=1e-5, block_cache=False,
                       edge_correction=False, image_face="wall_y+", tank_near_ratio=0.7)
     monkeypatch.setattr(sweep_module, "IMAGE_CROSS_MIN_TRIANGLES", 0)
+    monkeypatch.setattr(sweep_module, "COUPLING_CROSS_MIN_TRIANGLES", 10**9)
     tries = []
     monkeypatch.setattr(sweep_module, "cross_approximation", lambda *a, **k: tries.append(1))   # never converges
     y = 0.175 - sensor.radius_m - np.linspace(0.006, 0.02, 4)
