@@ -575,7 +575,8 @@ class PoseSweep:
         block's are by :func:`~electrosense.bem.low_rank.right_singular_vectors`), ``A_es ~ U_es V_es`` and the
         tank's right-hand side ``r_e`` (Ne, n) from the electrodes' double layer, ``~ U V G`` with ``G`` summing
         each electrode's columns: each block from some of its rows and columns
-        (:func:`~electrosense.bem.cross_approximation.cross_approximation`, to ``tol`` in the Frobenius norm),
+        (:func:`~electrosense.bem.cross_approximation.cross_approximation`, to :data:`COUPLING_CROSS_TOL_FACTOR`
+        x ``tol`` in the Frobenius norm, the tank's rows to :data:`COUPLING_RHS_CROSS_TOL_FACTOR` x ``tol``),
         images included. Only without objects, on a sensor mesh of :data:`COUPLING_CROSS_MIN_TRIANGLES` or more at
         a ``tol`` of ``IMAGE_CROSS_MIN_TOL`` or more; None where a block does not converge in a quarter of its
         smaller side, and once more have not converged than have on this sensor (its sweep and every
@@ -607,7 +608,7 @@ class PoseSweep:
         low = []
         for i, (points, tris, cols, c_single, c_double, first) in enumerate(blocks):
             factor = COUPLING_CROSS_TOL_FACTOR if i == 0 else COUPLING_RHS_CROSS_TOL_FACTOR
-            M = _images_cross_approximation(points, tris, cols, c_single, c_double, factor * self.tol, first,
+            M = _cross_approximated_block(points, tris, cols, c_single, c_double, factor * self.tol, first,
                                             max_rank=min(len(points[0]), len(cols)) // 4)
             if M is None:
                 tally["not"] += 1
@@ -739,7 +740,7 @@ class PoseSweep:
         if (self.image_by_cross_approximation and N >= IMAGE_CROSS_MIN_TRIANGLES and cross_tol >= IMAGE_CROSS_MIN_TOL
                 and tally["not"] <= tally["converged"] + 2):
             first = int(np.argmin(np.min([np.linalg.norm(p - s.centroids, axis=1) for p in images], axis=0)))
-            M = _images_cross_approximation(images, s, np.arange(N), self._cs_s, self._cd_s, cross_tol, first)
+            M = _cross_approximated_block(images, s, np.arange(N), self._cs_s, self._cd_s, cross_tol, first)
             tally["not" if M is None else "converged"] += 1
             if M is not None:
                 P, Qt, _ = recompressed(*M, tol)
@@ -855,22 +856,23 @@ class PoseSweep:
         return self._walls
 
 
-def _images_cross_approximation(images, s, cols, c_single, c_double, tol: float, first_row: int,
-                                max_rank: int | None = None):
+def _cross_approximated_block(point_sets, s, cols, c_single, c_double, tol: float, first_row: int,
+                              max_rank: int | None = None):
     """The cross approximation (:func:`~electrosense.bem.cross_approximation.cross_approximation`) of the sum
-    over ``images`` (each (N, 3), the rows' points) of :func:`~electrosense.bem.operators.mixed_entries` on the
-    triangles ``s``'s columns ``cols``: ``(U, V)`` or None past ``max_rank`` terms (default N / 16)."""
-    n_rows, every = len(images[0]), np.arange(len(images[0]))
+    over ``point_sets`` (each (N, 3): the rows' points, or their images) of
+    :func:`~electrosense.bem.operators.mixed_entries` on the triangles ``s``'s columns ``cols``: ``(U, V)`` or
+    None past ``max_rank`` terms (default N / 16)."""
+    n_rows, every = len(point_sets[0]), np.arange(len(point_sets[0]))
 
     def row(i):
         out = np.zeros((1, len(cols)))
-        for points in images:
+        for points in point_sets:
             mixed_entries(points, s, [i], cols, c_single, c_double, out=out)
         return out[0]
 
     def column(j):
         out = np.zeros((n_rows, 1))
-        for points in images:
+        for points in point_sets:
             mixed_entries(points, s, every, cols[j:j + 1], c_single, c_double, out=out)
         return out[:, 0]
 

@@ -731,12 +731,17 @@ class TankMap:
 
     def _error_at(self, poses, F) -> np.ndarray:
         """:meth:`estimated_error` at ``poses`` whose map coordinates are ``F``."""
-        from electrosense.validation.diagnosis.anchored import estimated_error
-
-        err = estimated_error(self._parts[0].X, self.leave_one_out, F)
+        err = self.coarse_error_at(F)
         if len(self._parts) > 1:
             err = np.hypot(err, self.correction_error_at(poses, F))
         return np.take_along_axis(err, self._folded_receivers(poses), axis=1)
+
+    def coarse_error_at(self, F) -> np.ndarray:
+        """(P, receivers) the coarse interpolant's estimated error at map coordinates ``F`` (folded poses' receivers),
+        from its nodes' left-out errors (:func:`~electrosense.validation.diagnosis.anchored.estimated_error`)."""
+        from electrosense.validation.diagnosis.anchored import estimated_error
+
+        return estimated_error(self._parts[0].X, self.leave_one_out, F)
 
     def correction_error_at(self, poses, F=None) -> np.ndarray:
         """(P, receivers) the reference correction's estimated error at ``poses`` (``F`` their coarse map coordinates,
@@ -977,17 +982,15 @@ def estimate_checked(tank_map, poses: np.ndarray, K_bem: np.ndarray, fidelity: s
     estimate's maxima are high, not that it is high everywhere (the study's random poses near the walls are the
     unbiased check). ``{"fidelity", "poses", "rms_error", "estimated_rms_error"}``.
     """
-    from electrosense.validation.diagnosis.anchored import estimated_error
-
     if fidelity == "coarse":
         K_map = tank_map.conductance(poses, correction=False)
-        est = estimated_error(tank_map._parts[0].X, tank_map.leave_one_out, tank_map.frame.features(poses))
+        est = tank_map.coarse_error_at(tank_map.frame.features(poses))
     else:
         K_map = tank_map.conductance(poses)
         est = tank_map.correction_error_at(poses)
     # the map's own values: a pair with the emitter from its column (pair_values), the emitter's receivers
-    pairs = lambda K: pair_values(np.asarray(K, float), tank_map._pair_emitter)[:, tank_map._rec]   # noqa: E731
-    actual = pairs(K_map) / pairs(K_bem) - 1.0
+    rec, emitter = tank_map._rec, tank_map._pair_emitter
+    actual = pair_values(K_map, emitter)[:, rec] / pair_values(np.asarray(K_bem, float), emitter)[:, rec] - 1.0
     return {"fidelity": fidelity, "poses": int(len(poses)), "rms_error": float(np.sqrt(np.mean(actual**2))),
             "estimated_rms_error": float(np.sqrt(np.mean(np.asarray(est) ** 2)))}
 
@@ -1266,7 +1269,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
     from electrosense.bem.solve import check_object_materials
     from electrosense.meshes.scene_mesh import DEFAULT_TANK_GRADING, SceneError, object_problems
     from electrosense.meshes.sensor_mesh import coarsest_edge_length_m, default_edge_length_m
-    from electrosense.validation.diagnosis.anchored import estimated_error, pose_features
+    from electrosense.validation.diagnosis.anchored import pose_features
     from electrosense.validation.simulation.models import code_version, free_space_bem
 
     say = progress or (lambda s: None)
@@ -1447,7 +1450,7 @@ def build_tank_map(sensor, tank, z_m, path=None, objects=(), target: float = TAR
                 solve_ref(chunk)
         while True:
             m = current_map()
-            err_c = estimated_error(m._parts[0].X, m.leave_one_out, F).max(axis=1)
+            err_c = m.coarse_error_at(F).max(axis=1)
             err_r = m.correction_error_at(C, F).max(axis=1) if corrected else np.zeros(len(C))
             err = np.hypot(err_c, err_r)
             rms = float(np.sqrt(np.mean(err**2)))
